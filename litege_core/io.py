@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import (
+    FaceIndexError,
     LiteGEError,
     ShapeFileError,
     ShapeTooLargeError,
@@ -144,7 +145,7 @@ def _read_with_trimesh(data: bytes, file_format: str) -> tuple[NDArray, NDArray 
     except LiteGEError:
         raise
     except Exception as exc:  # trimesh raises ValueError, IndexError, KeyError, struct.error...
-        raise ShapeFileError(f"cannot parse {file_format.upper()} file: {exc}") from exc
+        raise _translate_parse_error(exc, file_format) from exc
     if isinstance(loaded, trimesh.Scene):
         geometries = list(loaded.dump()) if loaded.geometry else []
         if not geometries:
@@ -162,6 +163,17 @@ def _read_with_trimesh(data: bytes, file_format: str) -> tuple[NDArray, NDArray 
     if file_format == "stl":
         vertices, faces = _merge_exact_duplicates(vertices, faces)
     return vertices, faces
+
+
+def _translate_parse_error(exc: Exception, file_format: str) -> LiteGEError:
+    """Map a trimesh parsing exception onto the most precise LiteGE error."""
+    message = str(exc)
+    # OBJ faces beyond the vertex list surface as numpy IndexError, OFF as a ValueError.
+    if isinstance(exc, IndexError) or "face index" in message.lower():
+        return FaceIndexError(
+            f"{file_format.upper()} file has a face index out of range: {message}"
+        )
+    return ShapeFileError(f"cannot parse {file_format.upper()} file: {message}")
 
 
 def _merge_exact_duplicates(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:

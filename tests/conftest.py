@@ -1,0 +1,24 @@
+"""Shared fixtures: small deterministic shapes, and the optional real evaluation data."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+EVAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "eval-data"
+
+
+@pytest.fixture(scope="session")
+def sphere_mesh() -> tuple[np.ndarray, np.ndarray]:
+    """A 642-vertex unit icosphere ``(vertices, faces)``."""
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+@pytest.fixture(scope="session")
+def eval_data() -> Path:
+    """Path of ../shared/eval-data; tests using it skip when it is absent."""
+    if not EVAL_DATA.is_dir():
+        pytest.skip("../shared/eval-data not available")
+    return EVAL_DATA

@@ -1,0 +1,30 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from litege_core.cli import main
+from litege_core.io import save_shape
+from litege_core.shape import Shape
+
+
+def test_info_prints_summary(tmp_path, sphere_mesh, capsys):
+    shape = Shape.from_arrays(*sphere_mesh)
+    save_shape(shape, tmp_path / "s.obj")
+    assert main(["info", str(tmp_path / "s.obj")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["content_hash"] == shape.content_hash
+    assert report["n_points"] == shape.n_points and report["kind"] == "mesh"
+
+
+def test_info_reports_errors_with_code(tmp_path, capsys):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
+    assert main(["info", str(bad)]) == 2
+    assert "[non-finite-coordinates]" in capsys.readouterr().err
+
+
+def test_console_script_is_installed():
+    script = Path(sys.executable).with_name("litege")
+    result = subprocess.run([str(script), "--version"], capture_output=True, text=True, check=True)
+    assert result.stdout.startswith("litege ")
