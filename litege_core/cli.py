@@ -2,6 +2,8 @@
 
 Sub-commands:
     litege info FILE          load and validate a shape; print kind, counts, area, content hash
+    litege data build ...     build (or resume) a ground-truth geodesic dataset
+    litege data verify DIR    check a dataset's shard hashes and arrays
     litege serve [...]        start the HTTP service (needs the ``service`` extra)
 """
 
@@ -9,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 
@@ -34,6 +37,33 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_data_build(args: argparse.Namespace) -> int:
+    from litege_core.datasets import build_dataset, preset
+    from litege_core.datasets.factories import factory_for
+
+    spec = preset(args.preset, args.category)
+    directory = args.out or f"data/{spec.name}"
+    manifest = build_dataset(spec, directory, factory_for(args.category), workers=args.workers)
+    print(
+        json.dumps(
+            {
+                "directory": str(directory),
+                "counts": manifest["counts"],
+                "compute_seconds": round(manifest["compute_seconds"], 1),
+            },
+            indent=2,
+        )
+    )
+    return 0
+
+
+def _cmd_data_verify(args: argparse.Namespace) -> int:
+    from litege_core.datasets import verify_dataset
+
+    print(json.dumps(verify_dataset(args.directory), indent=2))
+    return 0
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     try:
         # The CLI is the one place that reaches from the core into the service package, and
@@ -56,6 +86,18 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("file")
     info.add_argument("--kind", choices=["mesh", "point_cloud"], default=None)
     info.set_defaults(handler=_cmd_info)
+
+    data = commands.add_parser("data", help="ground-truth geodesic datasets")
+    data_commands = data.add_subparsers(dest="data_command", required=True)
+    build = data_commands.add_parser("build", help="build or resume a dataset")
+    build.add_argument("--category", choices=["quadruped", "biped"], default="quadruped")
+    build.add_argument("--preset", choices=["small", "full"], default="small")
+    build.add_argument("--out", default=None, help="directory (default data/CATEGORY-PRESET)")
+    build.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    build.set_defaults(handler=_cmd_data_build)
+    verify = data_commands.add_parser("verify", help="verify a dataset directory")
+    verify.add_argument("directory")
+    verify.set_defaults(handler=_cmd_data_verify)
 
     serve = commands.add_parser("serve", help="start the HTTP service")
     serve.add_argument("--host", default="127.0.0.1")

@@ -1,0 +1,164 @@
+import json
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+from scipy.sparse.csgraph import dijkstra
+
+from litege_core.datasets import DatasetSpec, GeodesicDataset, build_dataset, preset, verify_dataset
+from litege_core.datasets.build import extra_sources
+from litege_core.datasets.storage import MANIFEST
+from litege_core.errors import ArtifactError, InputError
+
+SPHERE = trimesh.creation.icosphere(subdivisions=2)
+
+
+class EllipsoidFactory:
+    """Toy family: the icosphere scaled anisotropically by a seeded factor per family."""
+
+    category = "toy"
+    version = "toy-1"
+
+    def template(self):
+        return np.asarray(SPHERE.vertices), np.asarray(SPHERE.faces)
+
+    def generate(self, family, seed):
+        rng = np.random.default_rng(seed)
+        base = {"round": 1.0, "long": 2.0}[family]
+        return np.asarray(SPHERE.vertices) * [base * rng.uniform(0.9, 1.1), 1.0, 0.8]
+
+
+def edge_dijkstra(vertices, faces, sources):
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    weights = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    graph = sp.coo_array((weights, (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2)
+    return dijkstra(graph.tocsr(), directed=False, indices=sources)
+
+
+def toy_spec(**overrides):
+    options = dict(
+        name="toy",
+        category="toy",
+        families=("round", "long"),
+        n_shapes={"train": 5, "val": 2, "test": 3},
+        n_shared_sources=6,
+        n_extra_sources=3,
+        shard_size=2,
+    )
+    options.update(overrides)
+    return DatasetSpec(**options)
+
+
+def test_build_layout_contents_and_determinism(tmp_path):
+    spec = toy_spec()
+    manifest = build_dataset(
+        spec, tmp_path / "a", EllipsoidFactory(), distance_fn=edge_dijkstra, progress=False
+    )
+    assert manifest["counts"] == {"train": 5, "val": 2, "test": 3}
+    assert len(manifest["shards"]) == 3 + 1 + 2
+    assert manifest["distance_dtype"] == {"train": "float16", "val": "float32", "test": "float32"}
+    dataset = GeodesicDataset(tmp_path / "a")
+    train = dataset.load_split("train")
+    assert train["vertices"].shape == (5, 162, 3) and train["vertices"].dtype == np.float32
+    assert train["distances"].shape == (5, 9, 162) and train["distances"].dtype == np.float16
+    assert dataset.load_split("test")["distances"].dtype == np.float32
+    np.testing.assert_array_equal(train["seed"], np.arange(5))
+    np.testing.assert_array_equal(train["family"], [0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(dataset.load_split("val")["seed"], [1_000_000, 1_000_001])
+    # Shared sources come first on every shape; rows are correct distances.
+    assert (train["sources"][:, :6] == dataset.shared_sources).all()
+    factory = EllipsoidFactory()
+    expected = edge_dijkstra(factory.generate("long", 1), dataset.faces, train["sources"][1])
+    np.testing.assert_allclose(train["distances"][1], expected, rtol=1e-3)
+    assert all(e["max_relative_storage_error"] <= 2**-11 for e in manifest["shards"].values())
+    # A second build with the same spec gives byte-identical shards.
+    build_dataset(spec, tmp_path / "b", factory, distance_fn=edge_dijkstra, progress=False)
+    second = json.loads((tmp_path / "b" / MANIFEST).read_text())
+    assert {k: v["sha256"] for k, v in second["shards"].items()} == {
+        k: v["sha256"] for k, v in manifest["shards"].items()
+    }
+
+
+def test_parallel_build_equals_serial(tmp_path):
+    spec = toy_spec(n_shapes={"train": 4, "val": 0, "test": 0})
+    serial = build_dataset(
+        spec, tmp_path / "s", EllipsoidFactory(), distance_fn=edge_dijkstra, progress=False
+    )
+    parallel = build_dataset(
+        spec,
+        tmp_path / "p",
+        EllipsoidFactory(),
+        workers=2,
+        distance_fn=edge_dijkstra,
+        progress=False,
+    )
+    assert [e["sha256"] for e in serial["shards"].values()] == [
+        e["sha256"] for e in parallel["shards"].values()
+    ]
+
+
+def test_resume_recomputes_only_missing_or_damaged_shards(tmp_path):
+    spec = toy_spec()
+    calls = []
+
+    def counting(vertices, faces, sources):
+        calls.append(1)
+        return edge_dijkstra(vertices, faces, sources)
+
+    build_dataset(spec, tmp_path, EllipsoidFactory(), distance_fn=counting, progress=False)
+    assert len(calls) == 10
+    (tmp_path / "train-00001.safetensors").unlink()
+    damaged = tmp_path / "test-00000.safetensors"
+    damaged.write_bytes(damaged.read_bytes()[:-10] + b"0123456789")
+    with pytest.raises(ArtifactError):
+        verify_dataset(tmp_path)
+    calls.clear()
+    build_dataset(spec, tmp_path, EllipsoidFactory(), distance_fn=counting, progress=False)
+    assert len(calls) == 4  # two shards of two shapes each
+    assert verify_dataset(tmp_path)["counts"] == {"train": 5, "val": 2, "test": 3}
+
+
+def test_refuses_to_mix_specs(tmp_path):
+    build_dataset(
+        toy_spec(), tmp_path, EllipsoidFactory(), distance_fn=edge_dijkstra, progress=False
+    )
+    with pytest.raises(ArtifactError):
+        build_dataset(
+            toy_spec(n_extra_sources=4),
+            tmp_path,
+            EllipsoidFactory(),
+            distance_fn=edge_dijkstra,
+            progress=False,
+        )
+
+
+def test_exact_engine_rows(tmp_path):
+    pytest.importorskip("litege_core.geodesics")
+    spec = toy_spec(n_shapes={"train": 0, "val": 0, "test": 1})
+    build_dataset(spec, tmp_path, EllipsoidFactory(), progress=False)
+    test = GeodesicDataset(tmp_path).load_split("test")
+    rows, vertices = test["distances"][0], test["vertices"][0].astype(np.float64)
+    euclid = np.linalg.norm(vertices[test["sources"][0]][:, None] - vertices[None], axis=2)
+    upper = edge_dijkstra(vertices, GeodesicDataset(tmp_path).faces, test["sources"][0])
+    assert (rows >= euclid - 1e-5).all() and (rows <= upper + 1e-5).all()
+
+
+def test_extra_sources_are_seeded_and_disjoint():
+    shared = np.arange(10)
+    first = extra_sources(100, shared, 5, seed=3)
+    np.testing.assert_array_equal(first, extra_sources(100, shared, 5, seed=3))
+    assert not np.intersect1d(first, shared).size
+
+
+def test_spec_validation_and_presets():
+    with pytest.raises(InputError):
+        toy_spec(families=())
+    with pytest.raises(InputError):
+        toy_spec(n_shapes={"holdout": 3})
+    with pytest.raises(InputError):
+        preset("huge", "quadruped")
+    small = preset("small", "quadruped")
+    assert sum(small.n_shapes.values()) >= 500 and len(small.families) == 5
+    assert sum(preset("full", "quadruped").n_shapes.values()) >= 10_000
+    assert DatasetSpec.from_dict(json.loads(small.to_json())) == small
