@@ -1,13 +1,30 @@
-"""Point sampling: area-weighted surface samples (more samplers are added below)."""
+"""Point sampling: area-weighted surface samples, farthest-point and Poisson-disk subsets.
+
+* :func:`sample_surface`: i.i.d. area-weighted points on a triangle mesh.
+* :func:`farthest_point_sampling`: greedy max-min subset of a point set (exact, O(N·n)).
+* :func:`poisson_disk_subsample`: blue-noise subset of a point set with about ``n_target``
+  points (random-order dart throwing over the candidates, radius found by a bracketed search).
+* :func:`mean_nearest_neighbour_distance`: the scale statistic of reference-spec §1.4.
+
+All functions are deterministic for a given seed.
+"""
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
-from litege_core.errors import ArrayShapeError, DegenerateShapeError
+from litege_core.errors import (
+    ArrayShapeError,
+    DegenerateShapeError,
+    EmptyShapeError,
+    IndexOutOfRangeError,
+    NonFiniteError,
+)
 from litege_core.validate import triangle_areas
 
 
@@ -50,3 +67,258 @@ def sample_surface(
     corners = vertices[faces[face_index]]
     points = np.einsum("nk,nkd->nd", barycentric, corners)
     return SurfaceSamples(points, face_index, barycentric)
+
+
+def as_points(points: ArrayLike, *, min_points: int = 1, what: str = "points") -> NDArray:
+    """Return ``points`` as a C-contiguous float64 ``(N, 3)`` array or raise.
+
+    Raises:
+        ArrayShapeError: not numeric or not of shape ``(N, 3)``.
+        EmptyShapeError: ``N == 0``.
+        NonFiniteError: NaN or infinite coordinates.
+        DegenerateShapeError: fewer than ``min_points`` points.
+    """
+    try:
+        array = np.asarray(points, dtype=np.float64)
+    except (ValueError, TypeError) as exc:
+        raise ArrayShapeError(f"{what} must be a numeric (N, 3) array: {exc}") from exc
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ArrayShapeError(f"{what} must have shape (N, 3), got {array.shape}")
+    if array.shape[0] == 0:
+        raise EmptyShapeError(f"{what} are empty")
+    if not np.isfinite(array).all():
+        raise NonFiniteError(f"{what} contain NaN or infinite coordinates")
+    if array.shape[0] < min_points:
+        raise DegenerateShapeError(
+            f"need at least {min_points} {what}, got {array.shape[0]}",
+            n_points=int(array.shape[0]),
+            min_points=min_points,
+        )
+    return np.ascontiguousarray(array)
+
+
+def _check_count(name: str, value: int, upper: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ArrayShapeError(f"{name} must be an integer, got {value!r}")
+    if not 0 <= value <= upper:
+        raise ArrayShapeError(f"{name} must be in [0, {upper}], got {value}")
+    return int(value)
+
+
+# --------------------------------------------------------------------------- farthest point
+
+
+def farthest_point_sampling(points: ArrayLike, n_samples: int, start_index: int = 0) -> NDArray:
+    """Greedy farthest-point (max-min) subset of a point set.
+
+    Starts at ``start_index``; each next sample is the point whose squared Euclidean distance
+    to the chosen set is largest (ties: lowest index). Exact and deterministic, O(N·n) time
+    with one vectorized pass over the points per sample.
+
+    Args:
+        points: ``(N, 3)`` positions.
+        n_samples: number of samples, ``0 <= n_samples <= N``.
+        start_index: index of the first sample.
+
+    Returns:
+        ``(n_samples,)`` int64 distinct indices into ``points``, in selection order.
+    """
+    pts = as_points(points)
+    n_points = pts.shape[0]
+    n_samples = _check_count("n_samples", n_samples, n_points)
+    if not 0 <= start_index < n_points:
+        raise IndexOutOfRangeError(
+            f"start_index {start_index} is outside [0, {n_points})", index=int(start_index)
+        )
+    coords = np.ascontiguousarray(pts.T)  # (3, N): one contiguous row per axis
+    min_d2 = np.full(n_points, np.inf)
+    d2 = np.empty(n_points)
+    diff = np.empty(n_points)
+    selected = np.empty(n_samples, dtype=np.int64)
+    current = int(start_index)
+    for k in range(n_samples):
+        selected[k] = current
+        np.subtract(coords[0], coords[0, current], out=diff)
+        np.multiply(diff, diff, out=d2)
+        for axis in (1, 2):
+            np.subtract(coords[axis], coords[axis, current], out=diff)
+            np.multiply(diff, diff, out=diff)
+            np.add(d2, diff, out=d2)
+        np.minimum(min_d2, d2, out=min_d2)
+        min_d2[current] = -np.inf  # never pick a chosen point again, even among duplicates
+        current = int(np.argmax(min_d2))
+    return selected
+
+
+def _farthest_point_sampling_reference(
+    points: ArrayLike, n_samples: int, start_index: int = 0
+) -> NDArray:
+    """Slow pure-Python farthest-point sampling with the same arithmetic; for tests only."""
+    rows = as_points(points).tolist()
+    min_d2 = [math.inf] * len(rows)
+    selected: list[int] = []
+    current = start_index
+    for _ in range(n_samples):
+        selected.append(current)
+        cx, cy, cz = rows[current]
+        for i, (x, y, z) in enumerate(rows):
+            dx, dy, dz = x - cx, y - cy, z - cz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < min_d2[i]:
+                min_d2[i] = d2
+        min_d2[current] = -math.inf
+        best, current = -math.inf, 0
+        for i, value in enumerate(min_d2):
+            if value > best:
+                best, current = value, i
+    return np.asarray(selected, dtype=np.int64)
+
+
+# --------------------------------------------------------------------------- Poisson disk
+
+POISSON_COUNT_REL_TOL = 0.01
+"""Default tolerance of :func:`poisson_disk_subsample`: ``|count − n_target| ≤ max(1, 1 %)``."""
+
+_RADIUS_SAMPLE = 1000  # points used to estimate the initial radius
+_PACKING = 2.4  # count ≈ 0.6·area/r² for dart throwing, area ≈ 4·N·(mean 1-NN)²
+
+
+def poisson_disk_subsample(
+    points: ArrayLike,
+    n_target: int,
+    seed: int | np.random.Generator = 0,
+    *,
+    rel_tol: float = POISSON_COUNT_REL_TOL,
+    max_iterations: int = 60,
+) -> NDArray:
+    """Poisson-disk (blue-noise) subset of a point set with about ``n_target`` points.
+
+    Dart throwing over the candidates: visit the points in a seeded random order and keep a
+    point unless a kept point lies within radius ``r`` (Euclidean), so kept points are more
+    than ``r`` apart and every dropped point is within ``r`` of a kept one (the idea of
+    MeshLab's ``subsample=True`` pruning, not bit-compatible with it). ``r`` is found by a
+    bracketed search in log-log space (count ∝ r^-dim) with the visiting order fixed, so the
+    result is a deterministic function of ``(points, n_target, seed)`` and invariant to
+    uniform scaling, rotation and translation of the input (up to floating-point ties).
+
+    The count is within ``max(1, ⌊rel_tol·n_target⌋)`` of ``n_target`` (±1 for 50, ±5 for
+    500, ±70 for 7000 with the default 1 %). Should no radius reach that band (too few
+    distinct candidates), the closest count found is returned. ``N <= n_target`` returns all
+    points. Candidates should outnumber ``n_target`` several times for a blue-noise result.
+
+    Args:
+        points: ``(N, 3)`` candidate positions.
+        n_target: wanted number of samples (>= 1).
+        seed: seed of the visiting order.
+
+    Returns:
+        ``(n,)`` int64 sorted indices into ``points``.
+    """
+    pts = as_points(points)
+    n_points = pts.shape[0]
+    if isinstance(n_target, bool) or not isinstance(n_target, int | np.integer) or n_target < 1:
+        raise ArrayShapeError(f"n_target must be a positive integer, got {n_target!r}")
+    if n_points <= n_target:
+        return np.arange(n_points, dtype=np.int64)
+    diagonal = float(np.linalg.norm(np.ptp(pts, axis=0)))
+    if not diagonal > 0.0:
+        raise DegenerateShapeError("cannot Poisson-disk sample points that all coincide")
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(n_points).tolist()
+    tree = cKDTree(pts)
+    tolerance = max(1, math.floor(rel_tol * n_target))
+    radius = _initial_radius(tree, pts, n_target, diagonal, rng)
+    below: tuple[float, int] | None = None  # (radius, count) with count > n_target
+    above: tuple[float, int] | None = None  # (radius, count) with count < n_target
+    previous: tuple[float, int] | None = None
+    best: list[int] = []
+    for _ in range(max_iterations):
+        accepted = _dart_throwing(tree, pts, order, radius)
+        count = len(accepted)
+        if not best or abs(count - n_target) < abs(len(best) - n_target):
+            best = accepted
+        if abs(count - n_target) <= tolerance:
+            break
+        if count > n_target:
+            below = (radius, count)
+        else:
+            above = (radius, count)
+        if above is not None and below is not None and above[0] - below[0] <= 1e-12 * above[0]:
+            break  # the count jumps over the tolerance band at this radius
+        next_radius = _next_radius((radius, count), previous, n_target, below, above)
+        previous, radius = (radius, count), next_radius
+        if radius <= 1e-12 * diagonal:
+            break  # fewer distinct points than n_target
+    return np.sort(np.asarray(best, dtype=np.int64))
+
+
+def _initial_radius(
+    tree: cKDTree, points: NDArray, n_target: int, diagonal: float, rng: np.random.Generator
+) -> float:
+    """Radius guess for ``n_target`` dart-throwing samples on a surface sampled by ``points``."""
+    n_points = points.shape[0]
+    probe = rng.choice(n_points, size=min(n_points, _RADIUS_SAMPLE), replace=False)
+    nn = tree.query(points[probe], k=2)[0][:, 1]
+    mean_nn = float(nn.mean())
+    if not mean_nn > 0.0:
+        return diagonal / math.sqrt(n_target)
+    return mean_nn * math.sqrt(_PACKING * n_points / n_target)
+
+
+def _dart_throwing(tree: cKDTree, points: NDArray, order: list[int], radius: float) -> list[int]:
+    """Keep each point of ``order`` unless a kept point lies within ``radius`` (inclusive).
+
+    Inherently sequential; the Python work is O(1) per candidate, plus one C-level ball query
+    per kept point.
+    """
+    alive = bytearray(b"\x01") * points.shape[0]
+    accepted: list[int] = []
+    for i in order:
+        if alive[i]:
+            accepted.append(i)
+            for j in tree.query_ball_point(points[i], radius, return_sorted=False):
+                alive[j] = 0
+    return accepted
+
+
+def _log_slope(a: tuple[float, int], b: tuple[float, int]) -> float:
+    """d log(count) / d log(radius) through two evaluations (negative when well behaved)."""
+    if a[0] == b[0]:
+        return 0.0
+    return math.log(max(a[1], 1) / max(b[1], 1)) / math.log(a[0] / b[0])
+
+
+def _next_radius(
+    current: tuple[float, int],
+    previous: tuple[float, int] | None,
+    n_target: int,
+    below: tuple[float, int] | None,
+    above: tuple[float, int] | None,
+) -> float:
+    """Next radius: log-log secant (slope −2 at first) while one-sided, then a safeguarded
+    log-log regula falsi inside the bracket ``below.radius < r < above.radius``."""
+    radius, count = current
+    if below is None or above is None:
+        slope = _log_slope(current, previous) if previous is not None else 0.0
+        if not slope < 0.0:
+            slope = -2.0  # count ∝ r^-2 on a surface
+        step = math.log(n_target / max(count, 1)) / slope
+        return radius * math.exp(min(max(step, -math.log(10.0)), math.log(10.0)))
+    log_lo, log_hi = math.log(below[0]), math.log(above[0])
+    slope = _log_slope(above, below)
+    middle = 0.5 * (log_lo + log_hi)
+    guess = log_lo + math.log(n_target / below[1]) / slope if slope < 0.0 else middle
+    margin = 0.1 * (log_hi - log_lo)
+    if not log_lo + margin <= guess <= log_hi - margin:
+        guess = middle
+    return math.exp(guess)
+
+
+def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
+    """Mean Euclidean distance from each point to its nearest other point (input units).
+
+    Duplicate points count with distance 0. Needs at least 2 points.
+    """
+    pts = as_points(points, min_points=2)
+    distances, _ = cKDTree(pts).query(pts, k=2)
+    return float(distances[:, 1].mean())
