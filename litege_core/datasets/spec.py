@@ -82,14 +82,13 @@ class DatasetSpec:
         return cls(**data)
 
 
-QUADRUPED_FAMILIES = ("cat", "dog", "horse", "cow", "hippo")
-BIPED_FAMILIES = ("human",)
-
-
 def preset(name: str, category: str) -> DatasetSpec:
     """Named presets: ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min) and ``full``
     (the paper's scale: ≥ 10K quadrupeds / ≥ 5K bipeds, for a 16-core machine)."""
-    families = QUADRUPED_FAMILIES if category == "quadruped" else BIPED_FAMILIES
+    from litege_core.synth import CATEGORIES, families
+
+    if category not in CATEGORIES:
+        raise InputError(f"unknown category {category!r}; expected one of {CATEGORIES}")
     sizes = {
         ("small", "quadruped"): {"train": 400, "val": 50, "test": 50},
         ("small", "biped"): {"train": 400, "val": 50, "test": 50},
@@ -101,6 +100,6 @@ def preset(name: str, category: str) -> DatasetSpec:
     return DatasetSpec(
         name=f"{category}-{name}",
         category=category,
-        families=families,
+        families=families(category),
         n_shapes=sizes[(name, category)],
     )

@@ -1,0 +1,261 @@
+"""Poses: a mode (walking, sitting, ...) plus per-joint axis-angle noise within joint limits.
+
+A pose is one rotation vector per joint (radians, local to the parent, in the rest frame's
+axes) and a root translation. Joint limits and mode offsets are written for the left side
+and the midline in *anatomical* components ``(r0, r1, r2)``; each joint has a frame whose
+columns give the world axes of those components (the identity for most joints, so r0 is
+flexion about the lateral x axis, r1 twist about y, r2 roll/abduction about z with positive
+values moving a left limb outwards). Right joints reuse their mirror's limits and frame and
+the rotation is mirrored: ``ω_right = (ωx, −ωy, −ωz)``.
+
+Sampling: ``ω = mode + clip(N(0, σ²), ±2σ)`` per component with ``σ = 0.2`` rad (scaled per
+joint), then clipped to the joint's limits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.errors import InputError
+from litege_core.synth.skeleton import Skeleton
+
+NOISE_STD = 0.2
+
+QUADRUPED_MODES = ("standing", "walking", "sitting", "lying")
+BIPED_MODES = ("standing", "walking", "arms_raised", "crouching")
+MODES = {"quadruped": QUADRUPED_MODES, "biped": BIPED_MODES}
+
+Limits = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+
+
+def _sym(a: float, b: float, c: float) -> Limits:
+    return ((-a, a), (-b, b), (-c, c))
+
+
+#: Quadruped limits (left/midline), per joint name without side suffix, and noise scale.
+QUADRUPED_LIMITS: dict[str, tuple[Limits, float]] = {
+    "pelvis": (_sym(0.12, 0.3, 0.08), 0.5),
+    "spine1": (_sym(0.25, 0.25, 0.15), 0.6),
+    "spine2": (_sym(0.25, 0.25, 0.15), 0.6),
+    "spine3": (_sym(0.25, 0.25, 0.15), 0.6),
+    "neck1": (_sym(0.6, 0.5, 0.3), 1.0),
+    "neck2": (_sym(0.6, 0.5, 0.3), 1.0),
+    "head": (_sym(0.6, 0.5, 0.3), 1.0),
+    "muzzle": (_sym(0.0, 0.0, 0.0), 0.0),
+    "jaw": (((0.0, 0.3), (-0.05, 0.05), (-0.05, 0.05)), 0.5),
+    "ear": (_sym(0.5, 0.4, 0.5), 1.0),
+    **{f"tail{i}": (_sym(0.6, 0.6, 0.3), 1.0) for i in range(1, 8)},
+    "shoulder": (((-1.4, 0.8), (-0.2, 0.2), (-0.12, 0.3)), 1.0),
+    "elbow": (((-0.15, 1.6), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+    "wrist": (((-0.3, 1.8), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+    "fpaw": (((-0.5, 0.6), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+    "hip": (((-1.4, 0.7), (-0.2, 0.2), (-0.12, 0.45)), 1.0),
+    "knee": (((-0.3, 2.3), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+    "ankle": (((-1.5, 0.4), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+    "hpaw": (((-0.5, 0.6), (-0.1, 0.1), (-0.1, 0.1)), 1.0),
+}
+
+BIPED_LIMITS: dict[str, tuple[Limits, float]] = {
+    "pelvis": (_sym(0.12, 0.4, 0.08), 0.5),
+    "spine1": (((-0.25, 0.5), (-0.3, 0.3), (-0.2, 0.2)), 0.6),
+    "spine2": (((-0.25, 0.5), (-0.3, 0.3), (-0.2, 0.2)), 0.6),
+    "spine3": (((-0.25, 0.5), (-0.3, 0.3), (-0.2, 0.2)), 0.6),
+    "neck": (_sym(0.5, 0.6, 0.3), 1.0),
+    "head": (_sym(0.5, 0.6, 0.3), 1.0),
+    "collar": (((-0.2, 0.2), (-0.2, 0.2), (-0.25, 0.5)), 0.5),
+    "shoulder": (((-1.4, 1.0), (-0.7, 0.7), (-0.8, 1.9)), 1.0),
+    "elbow": (((0.0, 2.2), (-0.5, 0.5), (-0.1, 0.1)), 1.0),
+    "wrist": (((-0.7, 0.7), (-0.3, 0.3), (-0.5, 0.5)), 1.0),
+    "hand": (((-0.3, 0.3), (-0.1, 0.1), (-0.2, 0.2)), 0.5),
+    "hip": (((-1.9, 0.6), (-0.5, 0.5), (-0.2, 0.6)), 1.0),
+    "knee": (((0.0, 1.7), (-0.1, 0.1), (-0.05, 0.05)), 1.0),
+    "ankle": (((-0.8, 0.6), (-0.2, 0.2), (-0.3, 0.3)), 1.0),
+    "foot": (((-0.3, 0.4), (-0.1, 0.1), (-0.1, 0.1)), 0.5),
+}
+
+LIMITS = {"quadruped": QUADRUPED_LIMITS, "biped": BIPED_LIMITS}
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A sampled pose.
+
+    Attributes:
+        mode: pose mode name.
+        rotations: ``(J, 3)`` rotation vectors (radians), world rest axes, local to parents.
+        root_translation: ``(3,)`` (posed shapes are grounded afterwards anyway).
+    """
+
+    mode: str
+    rotations: NDArray
+    root_translation: NDArray
+
+
+def _base(name: str) -> tuple[str, str]:
+    """(name without side suffix, side '' / '_l' / '_r')."""
+    for side in ("_l", "_r"):
+        if name.endswith(side):
+            return name[:-2], side
+    return name, ""
+
+
+def joint_frames(category: str, skeleton: Skeleton) -> NDArray:
+    """``(J, 3, 3)`` anatomical frames (columns: axes of components r0, r1, r2) for left and
+    midline joints; right joints hold their mirror's frame."""
+    frames = np.repeat(np.eye(3)[None], skeleton.n_joints, axis=0)
+    if category == "biped":
+        for name in ("elbow", "wrist", "hand"):
+            j = skeleton.index(name + "_l")
+            d = skeleton.tips[j] - skeleton.positions[j]
+            d /= np.linalg.norm(d)
+            flex = np.cross(d, [0.0, 0.0, 1.0])
+            flex /= np.linalg.norm(flex)
+            third = np.cross(flex, d)
+            frames[j] = np.stack([flex, d, third], axis=1)
+            frames[skeleton.index(name + "_r")] = frames[j]
+    return frames
+
+
+def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Generator) -> NDArray:
+    """``(J, 3)`` anatomical offsets of a mode; left and right are given separately."""
+    if mode not in MODES[category]:
+        raise InputError(
+            f"unknown {category} pose mode {mode!r}; expected one of {MODES[category]}"
+        )
+    out = np.zeros((skeleton.n_joints, 3))
+    phase = float(rng.uniform(0.0, 2.0 * np.pi))  # always drawn: keeps streams aligned
+    amount = float(rng.uniform(0.6, 1.0))
+
+    def put(name: str, r0: float = 0.0, r1: float = 0.0, r2: float = 0.0) -> None:
+        out[skeleton.index(name)] = (r0, r1, r2)
+
+    if category == "quadruped":
+        if mode == "walking":
+            for leg, upper, mid, low, offset in (
+                ("l", "shoulder", "elbow", "wrist", 0.0),
+                ("r", "shoulder", "elbow", "wrist", np.pi),
+                ("l", "hip", "knee", "ankle", np.pi),
+                ("r", "hip", "knee", "ankle", 0.0),
+            ):
+                s = np.sin(phase + offset)
+                lift = max(0.0, np.cos(phase + offset))
+                put(f"{upper}_{leg}", -0.45 * amount * s)
+                if upper == "shoulder":
+                    put(f"{mid}_{leg}", 0.5 * amount * lift)
+                    put(f"{low}_{leg}", 0.9 * amount * lift)
+                else:
+                    put(f"{mid}_{leg}", 0.6 * amount * lift)
+                    put(f"{low}_{leg}", -0.5 * amount * lift)
+            put("neck1", -0.1)
+            put("tail1", -0.2)
+        elif mode == "sitting":
+            tilt = -0.5 * (0.75 + 0.25 * amount)
+            put("pelvis", tilt)
+            for side in ("l", "r"):
+                put(f"shoulder_{side}", -tilt + 0.05)
+                put(f"hip_{side}", -0.5, 0.0, 0.3)
+                put(f"knee_{side}", 1.15)
+                put(f"ankle_{side}", -0.75 - 0.4 * tilt)
+            put("neck1", 0.2)
+            put("head", 0.25)
+            put("tail1", 0.4)
+        elif mode == "lying":
+            # Lying on one side (lateral recumbency), legs relaxed and a little flexed.
+            side_sign = 1.0 if phase < np.pi else -1.0
+            put("pelvis", 0.0, 0.0, side_sign * 1.45)
+            for side in ("l", "r"):
+                put(f"shoulder_{side}", -0.35 * amount, 0.0, 0.1)
+                put(f"elbow_{side}", 0.3 * amount)
+                put(f"wrist_{side}", 0.3 * amount)
+                put(f"hip_{side}", -0.3 * amount, 0.0, 0.1)
+                put(f"knee_{side}", 0.5 * amount)
+                put(f"ankle_{side}", -0.3 * amount)
+            put("neck1", 0.0, 0.0, -side_sign * 0.35)
+            put("tail1", 0.2)
+    else:
+        arms_down = -0.6
+        if mode == "standing":
+            for side in ("l", "r"):
+                put(f"shoulder_{side}", 0.0, 0.0, arms_down)
+                put(f"elbow_{side}", 0.15)
+        elif mode == "walking":
+            for side, offset in (("l", 0.0), ("r", np.pi)):
+                s = np.sin(phase + offset)
+                lift = max(0.0, np.cos(phase + offset))
+                put(f"hip_{side}", -0.45 * amount * s)
+                put(f"knee_{side}", 0.7 * amount * lift + 0.05)
+                put(f"ankle_{side}", -0.2 * amount * lift)
+                put(f"shoulder_{side}", 0.35 * amount * s, 0.0, arms_down)
+                put(f"elbow_{side}", 0.3 + 0.2 * amount * (1 - s))
+        elif mode == "arms_raised":
+            for side in ("l", "r"):
+                put(f"collar_{side}", 0.0, 0.0, 0.3)
+                put(f"shoulder_{side}", -0.2 * amount, 0.0, 1.1 + 0.5 * amount)
+                put(f"elbow_{side}", 0.3 * amount)
+        elif mode == "crouching":
+            depth = 0.7 + 0.3 * amount
+            put("spine1", 0.25 * depth)
+            put("spine2", 0.15 * depth)
+            for side in ("l", "r"):
+                put(f"hip_{side}", -1.05 * depth, 0.0, 0.25)
+                put(f"knee_{side}", 1.3 * depth)
+                put(f"ankle_{side}", -0.3 * depth)
+                put(f"shoulder_{side}", -0.6, 0.0, arms_down)
+                put(f"elbow_{side}", 0.6)
+    return out
+
+
+def posture_offsets(
+    skeleton: Skeleton, posture: dict[str, tuple[float, float, float]] | None
+) -> NDArray:
+    """``(J, 3)`` anatomical offsets from a family posture (keyed by name without side)."""
+    out = np.zeros((skeleton.n_joints, 3))
+    for j, name in enumerate(skeleton.names):
+        extra = (posture or {}).get(_base(name)[0])
+        if extra is not None:
+            out[j] = extra
+    return out
+
+
+def to_rotation_vectors(category: str, skeleton: Skeleton, anatomical: NDArray) -> NDArray:
+    """Map ``(J, 3)`` anatomical components to world-axis rotation vectors (mirroring the
+    right side)."""
+    frames = joint_frames(category, skeleton)
+    omega = np.einsum("jab,jb->ja", frames, anatomical)
+    right = np.array([_base(n)[1] == "_r" for n in skeleton.names])
+    omega[right] *= np.array([1.0, -1.0, -1.0])
+    return omega
+
+
+def sample_pose(
+    category: str,
+    mode: str,
+    skeleton: Skeleton,
+    rng: np.random.Generator,
+    noise_std: float = NOISE_STD,
+    posture: dict[str, tuple[float, float, float]] | None = None,
+    mode_scale: float = 1.0,
+) -> Pose:
+    """Draw a pose of ``mode``: offsets plus clipped Gaussian noise, within joint limits.
+
+    ``posture`` adds family-typical offsets (anatomical components, keyed by joint name
+    without side suffix) on top of the mode's; ``mode_scale`` shrinks the mode's offsets
+    (used to back off a fold that makes a thick-limbed family intersect itself).
+    """
+    limits_table = LIMITS[category]
+    offsets = mode_scale * mode_offsets(category, mode, skeleton, rng)
+    offsets += posture_offsets(skeleton, posture)
+    noise = np.clip(rng.standard_normal((skeleton.n_joints, 3)), -2.0, 2.0) * noise_std
+    anatomical = np.zeros((skeleton.n_joints, 3))
+    for j, name in enumerate(skeleton.names):
+        limits, scale = limits_table[_base(name)[0]]
+        lo = np.array([limits[k][0] for k in range(3)])
+        hi = np.array([limits[k][1] for k in range(3)])
+        # Mode offsets may go past the noise limits (sitting folds a knee fully): the
+        # clip range always contains the offset.
+        value = offsets[j] + noise[j] * scale
+        anatomical[j] = np.clip(value, np.minimum(lo, offsets[j]), np.maximum(hi, offsets[j]))
+    return Pose(mode, to_rotation_vectors(category, skeleton, anatomical), np.zeros(3))
