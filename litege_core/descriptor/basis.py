@@ -1,0 +1,434 @@
+"""The UDF-PCA basis: the frozen artifact that turns a canonical point cloud into a descriptor.
+
+``z = (udf(points) − μ) · Pᵀ`` — plain projection, no whitening or standardisation (reference
+spec §2.4–2.5). :class:`UdfPcaBasis` holds everything needed and nothing else: the grid spec,
+the informative voxel indices and centres, the UDF mean, the components, the explained
+variance and provenance metadata. It is saved as one ``.safetensors`` file (tensors) whose
+header metadata carries a JSON document (grid, counts, content hash, user metadata); no pickle.
+
+Precision: centres and mean are float32; components are **stored float16 on disk and used as
+float32**. The constructor rounds the components through float16, so an in-memory basis and
+its saved copy are identical and share one :attr:`UdfPcaBasis.content_hash`.
+
+Precompute-then-query: :meth:`UdfPcaBasis.engine` moves centres, mean and components to a
+device once and returns a :class:`DescriptorEngine` (cached per device and UDF backend);
+:meth:`UdfPcaBasis.describe` and :meth:`UdfPcaBasis.describe_batch` go through it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+from safetensors import SafetensorError, safe_open
+from safetensors.numpy import save_file
+
+from litege_core.descriptor._arrays import as_numeric, as_points, positive_int
+from litege_core.descriptor.grid import VoxelGrid
+from litege_core.descriptor.pca import PcaResult
+from litege_core.descriptor.udf import UdfBackend, UdfEvaluator, as_device, resolve_backend
+from litege_core.errors import ArrayShapeError, ArtifactError, InputError, LiteGEError
+
+FORMAT_NAME = "litege-udf-pca"
+FORMAT_VERSION = 1
+HASH_VERSION = b"litege-udf-pca-v1"
+_HEADER_KEY = "litege_udf_pca"
+
+#: name → on-disk dtype of every tensor of the file, in hashing order.
+TENSOR_DTYPES: dict[str, np.dtype] = {
+    "voxel_indices": np.dtype(np.int64),
+    "centers": np.dtype(np.float32),
+    "mean": np.dtype(np.float32),
+    "components": np.dtype(np.float16),
+    "explained_variance": np.dtype(np.float64),
+    "explained_variance_ratio": np.dtype(np.float64),
+}
+
+
+def _frozen(array: NDArray, dtype: np.dtype | type) -> NDArray:
+    out = np.array(array, dtype=dtype, copy=True, order="C")
+    out.setflags(write=False)
+    return out
+
+
+class DescriptorResult(NamedTuple):
+    """Descriptors of a batch of clouds.
+
+    Attributes:
+        descriptors: ``(B, k)`` float32 codes ``(udf − μ)Pᵀ``.
+        residual: ``(B,)`` float32 ``‖udf − μ − PᵀP(udf − μ)‖``, an out-of-distribution score.
+        udf: ``(B, M)`` float32 UDF at the informative voxels.
+    """
+
+    descriptors: torch.Tensor
+    residual: torch.Tensor
+    udf: torch.Tensor
+
+
+class DescriptorEngine:
+    """A basis placed on one device: centres, mean and components uploaded once.
+
+    Build with :meth:`UdfPcaBasis.engine`.
+    """
+
+    def __init__(self, basis: UdfPcaBasis, device: torch.device, udf_backend: UdfBackend) -> None:
+        self.device = device
+        self.n_components = basis.n_components
+        self.udf = UdfEvaluator(basis.centers, backend=udf_backend, device=device)
+        self.mean = torch.from_numpy(np.array(basis.mean)).to(device)  # (M,)
+        self.components = torch.from_numpy(np.array(basis.components)).to(device)  # (k, M)
+        self._components_t = self.components.T.contiguous()  # (M, k)
+
+    def describe_batch(self, clouds: ArrayLike | torch.Tensor) -> torch.Tensor:
+        """``(B, P, 3)`` canonical clouds (or a list of ``(P_b, 3)``) → ``(B, k)`` float32."""
+        with torch.no_grad():
+            return (self.udf(clouds) - self.mean) @ self._components_t
+
+    def describe_with_residual(self, clouds: ArrayLike | torch.Tensor) -> DescriptorResult:
+        """Descriptors plus the reconstruction residual and the UDF itself."""
+        with torch.no_grad():
+            udf = self.udf(clouds)
+            centred = udf - self.mean
+            codes = centred @ self._components_t
+            residual = torch.linalg.vector_norm(centred - codes @ self.components, dim=1)
+        return DescriptorResult(codes, residual, udf)
+
+
+@dataclass(frozen=True, eq=False)
+class UdfPcaBasis:
+    """Frozen UDF-PCA basis (see the module docstring).
+
+    Attributes:
+        grid: the voxel grid the indices refer to.
+        voxel_indices: ``(M,)`` int64 sorted unique flat indices of the informative voxels.
+        centers: ``(M, 3)`` float32 their centres, equal to ``grid.centers(voxel_indices)``.
+        mean: ``(M,)`` float32 mean UDF of the fit shapes.
+        components: ``(k, M)`` float32 (float16-representable) principal axes.
+        explained_variance: ``(k,)`` float64 variance along each component.
+        explained_variance_ratio: ``(k,)`` float64 fraction of the total UDF variance.
+        n_fit_shapes: number of shapes the basis was fitted on.
+        metadata: JSON-serialisable provenance (threshold, sample counts, seeds, ...).
+
+    Direct construction validates and raises :class:`~litege_core.errors.InputError`
+    subclasses; :meth:`load` reports the same problems as
+    :class:`~litege_core.errors.ArtifactError`.
+    """
+
+    grid: VoxelGrid
+    voxel_indices: NDArray
+    centers: NDArray
+    mean: NDArray
+    components: NDArray
+    explained_variance: NDArray
+    explained_variance_ratio: NDArray
+    n_fit_shapes: int
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.grid, VoxelGrid):
+            raise InputError(f"grid must be a VoxelGrid, got {type(self.grid).__name__}")
+        indices = self.grid.check_flat_indices(self.voxel_indices, "voxel_indices")
+        if indices.size == 0:
+            raise ArrayShapeError("a basis needs at least one informative voxel")
+        if np.any(np.diff(indices) <= 0):
+            raise ArrayShapeError("voxel_indices must be strictly increasing (sorted, unique)")
+        m = indices.shape[0]
+        centers = self._float_array("centers", (m, 3))
+        expected = self.grid.centers(indices, dtype=np.float32)
+        if not np.allclose(centers, expected, rtol=0.0, atol=1e-6 * max(1.0, self.grid.upper)):
+            worst = int(np.argmax(np.abs(centers - expected).max(axis=1)))
+            raise ArrayShapeError(
+                f"centers do not match the grid at voxel {int(indices[worst])}: "
+                f"{centers[worst].tolist()} vs {expected[worst].tolist()}"
+            )
+        mean = self._float_array("mean", (m,))
+        components = as_numeric(self.components, "components")
+        if components.ndim != 2 or components.shape[1] != m or components.shape[0] < 1:
+            raise ArrayShapeError(
+                f"components must have shape (k ≥ 1, {m}), got {components.shape}"
+            )
+        k = components.shape[0]
+        with np.errstate(over="ignore", invalid="ignore"):
+            half = components.astype(np.float16)
+        if not np.isfinite(half).all():
+            raise ArrayShapeError("components are not finite in float16 (|value| > 65504?)")
+        variance = self._float_array("explained_variance", (k,), np.float64)
+        ratio = self._float_array("explained_variance_ratio", (k,), np.float64)
+        if (variance < 0).any() or (ratio < 0).any() or ratio.sum() > 1.0 + 1e-6:
+            raise ArrayShapeError(
+                "explained variances must be non-negative with ratios summing to at most 1"
+            )
+        n_fit = positive_int(self.n_fit_shapes, "n_fit_shapes")
+        try:
+            metadata = json.loads(json.dumps(self.metadata, allow_nan=False))
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"metadata must be JSON-serialisable: {exc}") from exc
+        if not isinstance(metadata, dict):
+            raise InputError("metadata must be a JSON object")
+        for name, value in (
+            ("voxel_indices", indices),
+            ("centers", expected),
+            ("mean", mean),
+            ("components", half.astype(np.float32)),
+            ("explained_variance", variance),
+            ("explained_variance_ratio", ratio),
+        ):
+            object.__setattr__(self, name, _frozen(value, value.dtype))
+        object.__setattr__(self, "n_fit_shapes", n_fit)
+        object.__setattr__(self, "metadata", metadata)
+        object.__setattr__(self, "_engines", {})
+
+    def _float_array(self, name: str, shape: tuple[int, ...], dtype: type = np.float32) -> NDArray:
+        array = as_numeric(getattr(self, name), name)
+        if array.shape != shape:
+            raise ArrayShapeError(f"{name} must have shape {shape}, got {array.shape}")
+        array = array.astype(dtype)
+        if not np.isfinite(array).all():
+            raise ArrayShapeError(f"{name} contains NaN or infinite values")
+        return array
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def from_pca(
+        cls,
+        grid: VoxelGrid,
+        voxel_indices: ArrayLike,
+        pca: PcaResult,
+        n_fit_shapes: int | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> UdfPcaBasis:
+        """Basis from a fitted :class:`~litege_core.descriptor.pca.PcaResult` whose features
+        are the UDF at ``voxel_indices`` (in that order)."""
+        indices = grid.check_flat_indices(voxel_indices, "voxel_indices")
+        return cls(
+            grid=grid,
+            voxel_indices=indices,
+            centers=grid.centers(indices, dtype=np.float32),
+            mean=pca.mean,
+            components=pca.components,
+            explained_variance=pca.explained_variance,
+            explained_variance_ratio=pca.explained_variance_ratio,
+            n_fit_shapes=pca.n_samples if n_fit_shapes is None else n_fit_shapes,
+            metadata={"total_variance": pca.total_variance, **(metadata or {})},
+        )
+
+    def truncate(self, n_components: int) -> UdfPcaBasis:
+        """The same basis keeping only the first ``n_components`` (e.g. 240 of 400)."""
+        k = positive_int(n_components, "n_components")
+        if k > self.n_components:
+            raise InputError(f"cannot keep {k} of {self.n_components} components")
+        return UdfPcaBasis(
+            grid=self.grid,
+            voxel_indices=self.voxel_indices,
+            centers=self.centers,
+            mean=self.mean,
+            components=self.components[:k],
+            explained_variance=self.explained_variance[:k],
+            explained_variance_ratio=self.explained_variance_ratio[:k],
+            n_fit_shapes=self.n_fit_shapes,
+            metadata={**self.metadata, "truncated_from": self.n_components},
+        )
+
+    # ----------------------------------------------------------------- properties
+    @property
+    def n_voxels(self) -> int:
+        """``M``, informative voxels."""
+        return int(self.voxel_indices.shape[0])
+
+    @property
+    def n_components(self) -> int:
+        """``k``, descriptor length."""
+        return int(self.components.shape[0])
+
+    @cached_property
+    def pca(self) -> PcaResult:
+        """The basis as a float64 :class:`PcaResult` (numpy project / reconstruct /
+        reconstruction_residual)."""
+        total = float(self.metadata.get("total_variance", 0.0))
+        return PcaResult(
+            components=self.components.astype(np.float64),
+            mean=self.mean.astype(np.float64),
+            explained_variance=self.explained_variance,
+            explained_variance_ratio=self.explained_variance_ratio,
+            singular_values=np.sqrt(self.explained_variance * max(self.n_fit_shapes - 1, 1)),
+            total_variance=total,
+            n_samples=self.n_fit_shapes,
+        )
+
+    def _disk_tensors(self) -> dict[str, NDArray]:
+        return {
+            name: np.ascontiguousarray(getattr(self, name), dtype=dtype)
+            for name, dtype in TENSOR_DTYPES.items()
+        }
+
+    @cached_property
+    def content_hash(self) -> str:
+        """Hex SHA-256 over a version tag, the grid spec and every tensor (name, dtype, shape,
+        little-endian bytes as stored on disk). Metadata is not hashed."""
+        digest = hashlib.sha256(HASH_VERSION)
+        digest.update(json.dumps(self.grid.to_dict(), sort_keys=True).encode())
+        for name, array in self._disk_tensors().items():
+            digest.update(name.encode())
+            digest.update(array.dtype.newbyteorder("<").str.encode())
+            digest.update(np.asarray(array.shape, dtype="<i8").tobytes())
+            digest.update(array.astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
+        return digest.hexdigest()
+
+    @property
+    def nbytes_on_disk(self) -> int:
+        """Bytes of tensor data in the saved file (without the header)."""
+        return sum(a.nbytes for a in self._disk_tensors().values())
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, UdfPcaBasis) and other.content_hash == self.content_hash
+
+    def __hash__(self) -> int:
+        return hash(self.content_hash)
+
+    def __repr__(self) -> str:
+        return (
+            f"UdfPcaBasis(grid={self.grid}, n_voxels={self.n_voxels}, "
+            f"n_components={self.n_components}, n_fit_shapes={self.n_fit_shapes}, "
+            f"hash={self.content_hash[:12]})"
+        )
+
+    # ----------------------------------------------------------------- descriptors
+    def engine(
+        self, device: torch.device | str = "cpu", udf_backend: str | UdfBackend = "auto"
+    ) -> DescriptorEngine:
+        """The basis placed on ``device`` (built on first use, then cached)."""
+        dev = as_device(device)
+        backend = UdfBackend.parse(udf_backend)
+        key = (str(dev), backend)
+        engines: dict = self._engines  # type: ignore[attr-defined]
+        if key not in engines:
+            engines[key] = DescriptorEngine(self, dev, resolve_backend(backend, dev))
+        return engines[key]
+
+    def describe(
+        self, points: ArrayLike, device: torch.device | str = "cpu", udf_backend: str = "auto"
+    ) -> NDArray:
+        """Descriptor of one canonical cloud: ``(P, 3)`` → ``(k,)`` float32 numpy."""
+        pts = as_points(points, "points", dtype=np.float32)
+        codes = self.engine(device, udf_backend).describe_batch(pts[None])
+        return codes[0].cpu().numpy()
+
+    def describe_batch(
+        self,
+        clouds: ArrayLike | torch.Tensor,
+        device: torch.device | str = "cpu",
+        udf_backend: str = "auto",
+    ) -> torch.Tensor:
+        """Descriptors of ``(B, P, 3)`` canonical clouds (or a list of ``(P_b, 3)``) →
+        ``(B, k)`` float32 tensor on ``device``."""
+        return self.engine(device, udf_backend).describe_batch(clouds)
+
+    # ----------------------------------------------------------------- persistence
+    def header(self) -> dict[str, Any]:
+        """The JSON document stored in the file's header metadata."""
+        return {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "grid": self.grid.to_dict(),
+            "n_voxels": self.n_voxels,
+            "n_components": self.n_components,
+            "n_fit_shapes": self.n_fit_shapes,
+            "content_hash": self.content_hash,
+            "metadata": self.metadata,
+        }
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the basis to ``path`` (safetensors + JSON header metadata), atomically."""
+        target = os.fspath(path)
+        temporary = f"{target}.tmp-{os.getpid()}"
+        try:
+            save_file(
+                self._disk_tensors(),
+                temporary,
+                metadata={"format": FORMAT_NAME, _HEADER_KEY: json.dumps(self.header())},
+            )
+            os.replace(temporary, target)
+        except OSError as exc:
+            raise ArtifactError(f"cannot write basis to {target}: {exc}") from exc
+        finally:
+            if os.path.exists(temporary):
+                os.remove(temporary)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> UdfPcaBasis:
+        """Read and validate a basis written by :meth:`save`.
+
+        Raises:
+            ArtifactError: unreadable or truncated file, wrong format or version, missing or
+                extra tensors, wrong dtypes or shapes, indices outside the grid, centres not
+                matching the grid, or a content hash that differs from the recorded one.
+        """
+        source = os.fspath(path)
+        try:
+            with safe_open(source, framework="np") as handle:
+                file_metadata = handle.metadata() or {}
+                tensors = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
+        except (OSError, SafetensorError, ValueError, TypeError) as exc:
+            raise ArtifactError(f"cannot read basis file {source}: {exc}") from exc
+        if file_metadata.get("format") != FORMAT_NAME or _HEADER_KEY not in file_metadata:
+            raise ArtifactError(f"{source} is not a {FORMAT_NAME} file (header metadata missing)")
+        try:
+            header = json.loads(file_metadata[_HEADER_KEY])
+        except ValueError as exc:
+            raise ArtifactError(f"{source}: header JSON is invalid: {exc}") from exc
+        if not isinstance(header, dict):
+            raise ArtifactError(f"{source}: header JSON is not an object")
+        if header.get("format_version") != FORMAT_VERSION:
+            raise ArtifactError(
+                f"{source}: unsupported format_version {header.get('format_version')!r}, "
+                f"this library reads {FORMAT_VERSION}"
+            )
+        missing = sorted(set(TENSOR_DTYPES) - set(tensors))
+        extra = sorted(set(tensors) - set(TENSOR_DTYPES))
+        if missing or extra:
+            raise ArtifactError(f"{source}: missing tensors {missing}, unexpected tensors {extra}")
+        for name, dtype in TENSOR_DTYPES.items():
+            if tensors[name].dtype != dtype:
+                raise ArtifactError(
+                    f"{source}: tensor {name!r} has dtype {tensors[name].dtype}, expected {dtype}"
+                )
+        try:
+            basis = cls(
+                grid=VoxelGrid.from_dict(header.get("grid")),  # type: ignore[arg-type]
+                n_fit_shapes=header.get("n_fit_shapes"),  # type: ignore[arg-type]
+                metadata=header.get("metadata", {}),
+                **tensors,
+            )
+        except LiteGEError as exc:
+            raise ArtifactError(f"{source}: inconsistent basis: {exc}") from exc
+        for key, actual in (
+            ("n_voxels", basis.n_voxels),
+            ("n_components", basis.n_components),
+        ):
+            if header.get(key) != actual:
+                raise ArtifactError(
+                    f"{source}: header says {key}={header.get(key)!r}, tensors say {actual}"
+                )
+        if header.get("content_hash") != basis.content_hash:
+            raise ArtifactError(
+                f"{source}: content hash mismatch (header {header.get('content_hash')!r}, "
+                f"tensors {basis.content_hash!r}): the file was modified or corrupted"
+            )
+        return basis
+
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "TENSOR_DTYPES",
+    "DescriptorEngine",
+    "DescriptorResult",
+    "UdfPcaBasis",
+]
