@@ -215,8 +215,10 @@ def build_dataset(
     results = _pool_map(jobs, workers, (factory, distance_fn, shared, faces))
     started = time.perf_counter()
     for split, shard, indices in pending:
-        records = [next(results) for _ in indices]
-        bar.update(len(records))
+        records = []
+        for _ in indices:
+            records.append(next(results))
+            bar.update(1)
         keys = [spec.shape_key(split, index) for index in indices]
         tensors = _stack_shard(records, keys, spec, split)
         name = shard_name(split, shard)
