@@ -1,0 +1,122 @@
+"""Compare statistics of the procedural shape families with real shapes (evaluation data).
+
+For each group of shapes, on unit-area meshes:
+  * the ratio geodesic / Euclidean over vertex pairs (exact MMP from ``--sources`` farthest-point
+    sources per shape): median, 90th, 99th percentile and maximum (long tail = limb-to-limb
+    paths, expected on real animals);
+  * the PCA-aligned extents (sorted, divided by the longest) — body proportions;
+  * triangle quality: mean minimum angle and mean longest/shortest edge ratio.
+
+Groups: procedural quadrupeds (test seeds, one row per family), procedural bipeds, and, when
+``../shared/eval-data`` exists, TOSCA animals (cat, dog, horse, wolf) and FAUST humans. Real
+shapes are read for evaluation only and never copied.
+
+Usage: python scripts/compare_synth_real.py [--per-group 6] [--sources 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+from litege_core.geodesics import compute_distances
+from litege_core.io import load_shape
+from litege_core.sampling import farthest_point_sampling
+from litege_core.shape import Shape
+from litege_core.synth import families, generate_shape
+
+EVAL = Path(__file__).resolve().parents[1].parent / "shared" / "eval-data"
+
+
+def unit_area(shape: Shape) -> Shape:
+    vertices = shape.vertices - shape.vertices.mean(axis=0)
+    return shape.with_vertices(vertices / np.sqrt(shape.area))
+
+
+def shape_stats(shape: Shape, n_sources: int) -> dict[str, np.ndarray | float]:
+    shape = unit_area(shape)
+    vertices, faces = shape.vertices, shape.faces
+    sources = farthest_point_sampling(vertices, n_sources)
+    geodesic = compute_distances(shape, sources, method="exact").distances
+    euclid = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=2)
+    valid = (euclid > 0.05) & np.isfinite(geodesic)
+    centred = vertices - vertices.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    extents = np.sort(np.ptp(centred @ axes.T, axis=0))[::-1]
+    corners = vertices[faces]
+    edges = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)
+    a, b, c = edges[:, 1], edges[:, 2], edges[:, 0]  # side opposite corner 0, 1, 2
+    cosines = np.stack(
+        [
+            (b**2 + c**2 - a**2) / (2 * b * c),
+            (a**2 + c**2 - b**2) / (2 * a * c),
+            (a**2 + b**2 - c**2) / (2 * a * b),
+        ],
+        axis=1,
+    )
+    angles = np.degrees(np.arccos(np.clip(cosines, -1, 1)))
+    return {
+        "ratio": geodesic[valid] / euclid[valid],
+        "extents": extents / extents[0],
+        "min_angle": float(angles.min(axis=1).mean()),
+        "edge_ratio": float((edges.max(axis=1) / edges.min(axis=1)).mean()),
+    }
+
+
+def groups(per_group: int) -> dict[str, list[Shape]]:
+    result: dict[str, list[Shape]] = {}
+    for category in ("quadruped", "biped"):
+        names = families(category)
+        result[f"procedural {category}s"] = [
+            generate_shape(category, names[i % len(names)], 2_000_000 + i).to_shape()
+            for i in range(per_group)
+        ]
+    if EVAL.is_dir():
+        tosca = sorted((EVAL / "tosca_5k").glob("*.off"))
+        by_class: dict[str, list[Path]] = {}
+        for path in tosca:
+            by_class.setdefault(path.stem.rstrip("0123456789"), []).append(path)
+        picked = [p for paths in by_class.values() for p in paths[: max(1, per_group // 4)]]
+        result["TOSCA animals (real)"] = [load_shape(p) for p in picked]
+        faust = sorted((EVAL / "faust_5k").glob("*.off"))[:per_group]
+        result["FAUST humans (real)"] = [load_shape(p) for p in faust]
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--per-group", type=int, default=6)
+    parser.add_argument("--sources", type=int, default=12)
+    args = parser.parse_args()
+    print("### Procedural families vs real shapes (unit-area meshes)\n")
+    print(
+        f"- date {date.today()}; machine {platform.processor() or platform.machine()}; "
+        f"command `python scripts/compare_synth_real.py --per-group {args.per_group} "
+        f"--sources {args.sources}`; exact MMP geodesics from {args.sources} FPS sources per "
+        "shape to all vertices, pairs with Euclidean distance > 0.05\n"
+    )
+    print(
+        "| group | shapes | vertices | geo/euc median | p90 | p99 | max | extents (2nd, 3rd) "
+        "| mean min angle ° | mean edge ratio |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---|---:|---:|")
+    for name, shapes in groups(args.per_group).items():
+        stats = [shape_stats(s, args.sources) for s in shapes]
+        ratio = np.concatenate([s["ratio"] for s in stats])
+        extents = np.mean([s["extents"] for s in stats], axis=0)
+        q50, q90, q99 = np.percentile(ratio, [50, 90, 99])
+        print(
+            f"| {name} | {len(shapes)} | {int(np.mean([s.n_points for s in shapes]))} | "
+            f"{q50:.2f} | {q90:.2f} | {q99:.2f} | {ratio.max():.2f} | "
+            f"{extents[1]:.2f}, {extents[2]:.2f} | "
+            f"{np.mean([s['min_angle'] for s in stats]):.1f} | "
+            f"{np.mean([s['edge_ratio'] for s in stats]):.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
