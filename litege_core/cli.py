@@ -2,6 +2,8 @@
 
 Sub-commands:
     litege info FILE          load and validate a shape; print kind, counts, area, content hash
+    litege geodesic FILE      predicted geodesic distances (sources × targets) to a .npy file
+    litege path FILE          predicted geodesic path (polyline) to a .npy file
     litege data build ...     build (or resume) a ground-truth geodesic dataset
     litege data verify DIR    check a dataset's shard hashes and arrays
     litege serve [...]        start the HTTP service (needs the ``service`` extra)
@@ -14,10 +16,14 @@ import json
 import os
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from litege_core import __version__
-from litege_core.errors import LiteGEError, MissingDependencyError
+from litege_core.errors import InputError, LiteGEError, MissingDependencyError
 from litege_core.io import load_shape
+
+if TYPE_CHECKING:
+    from litege_core.predictor import Predictor
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -64,6 +70,104 @@ def _cmd_data_verify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_indices(text: str, what: str) -> list[int]:
+    """``"0,17,42"`` → ``[0, 17, 42]``; anything else is an :class:`InputError`."""
+    items = [item.strip() for item in text.split(",")]
+    try:
+        return [int(item) for item in items]
+    except ValueError:
+        raise InputError(
+            f"--{what} must be comma-separated integer indices, got {text!r}"
+        ) from None
+
+
+def _predictor(args: argparse.Namespace) -> Predictor:
+    import torch  # lazily: `litege info` stays light
+
+    from litege_core.bundle import DEFAULT_MODEL, load_bundle, load_shipped
+    from litege_core.predictor import Predictor
+
+    device = args.device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise InputError(f"unknown device {device!r}: {exc}") from exc
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"device {device!r} requested but CUDA is not available")
+    if args.bundle is not None:
+        bundle = load_bundle(args.bundle, device)
+    else:
+        bundle = load_shipped(args.model or DEFAULT_MODEL, device)
+    return Predictor(bundle, device)
+
+
+def _save_npy(path: str, array) -> None:
+    import numpy as np
+
+    try:
+        with open(path, "wb") as handle:  # exactly this path (np.save would add ".npy")
+            np.save(handle, array)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror}") from exc
+
+
+def _cmd_geodesic(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    sources = _parse_indices(args.sources, "sources")
+    targets = None if args.targets.strip() == "all" else _parse_indices(args.targets, "targets")
+    shape = load_shape(args.file, kind=args.kind)
+    predictor = _predictor(args)
+    state = predictor.register(shape, seed=args.seed)
+    distances = predictor.distances(state, sources, targets).astype(np.float32)
+    _save_npy(args.output, distances)
+    summary = {
+        "file": str(args.file),
+        "model": predictor.bundle.name,
+        "output": str(args.output),
+        "shape": list(distances.shape),
+        "units": "input",
+        "ood_score": state.ood_score,
+    }
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _cmd_path(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    shape = load_shape(args.file, kind=args.kind)
+    predictor = _predictor(args)
+    state = predictor.register(shape, seed=args.seed)
+    path = predictor.path(state, args.source, args.target)
+    _save_npy(args.output, np.asarray(path.points, dtype=np.float32))
+    summary = {
+        "file": str(args.file),
+        "model": predictor.bundle.name,
+        "output": str(args.output),
+        "n_points": int(path.points.shape[0]),
+        "length": path.length,
+        "predicted_distance": path.predicted_distance,
+        "n_steps": path.n_steps,
+        "converged": path.converged,
+    }
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", help="mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)")
+    parser.add_argument("--kind", choices=["mesh", "point_cloud"], default=None)
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--model", default=None, help="shipped model name (default: quadrupeds)")
+    which.add_argument("--bundle", default=None, help="model bundle directory")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the descriptor samples")
+    parser.add_argument("-o", "--output", required=True, help="output .npy file")
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     try:
         # The CLI is the one place that reaches from the core into the service package, and
@@ -86,6 +190,22 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("file")
     info.add_argument("--kind", choices=["mesh", "point_cloud"], default=None)
     info.set_defaults(handler=_cmd_info)
+
+    geodesic = commands.add_parser(
+        "geodesic", help="predicted geodesic distances, float32 (S, T), in the input's units"
+    )
+    _add_model_arguments(geodesic)
+    geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")
+    geodesic.add_argument("--targets", default="all", help="'all' (default) or i,j,...")
+    geodesic.set_defaults(handler=_cmd_geodesic)
+
+    path = commands.add_parser(
+        "path", help="predicted geodesic path, float32 (L, 3) polyline target → source"
+    )
+    _add_model_arguments(path)
+    path.add_argument("--source", required=True, type=int, help="source vertex/point index")
+    path.add_argument("--target", required=True, type=int, help="target vertex/point index")
+    path.set_defaults(handler=_cmd_path)
 
     data = commands.add_parser("data", help="ground-truth geodesic datasets")
     data_commands = data.add_subparsers(dest="data_command", required=True)
