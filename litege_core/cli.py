@@ -168,6 +168,38 @@ def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, help="output .npy file")
 
 
+def _cmd_eval_geodesic(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from litege_core.evaluation.geodesic import (
+        SETTINGS,
+        evaluate,
+        real_eval_shapes,
+        results_table,
+        synthetic_eval_shapes,
+    )
+
+    predictor = _predictor(args)
+    shapes = []
+    if args.dataset:
+        shapes += synthetic_eval_shapes(args.dataset, args.shapes)
+    eval_root = Path(args.eval_data)
+    real = {
+        "tosca": ("tosca_5k", "TOSCA animals (real)"),
+        "faust": ("faust_5k", "FAUST humans (real)"),
+    }
+    for key in args.real:
+        folder, group = real[key]
+        paths = sorted((eval_root / folder).glob("*.off"))[: args.real_shapes]
+        if not paths:
+            print(f"litege: no {key} shapes under {eval_root / folder}; skipped", file=sys.stderr)
+        shapes += real_eval_shapes(paths, group, args.sources)
+    settings = args.settings.split(",") if args.settings else SETTINGS
+    results = evaluate(shapes, predictor, settings, seed=args.seed)
+    print(results_table(results))
+    return 0
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     try:
         # The CLI is the one place that reaches from the core into the service package, and
@@ -218,6 +250,20 @@ def build_parser() -> argparse.ArgumentParser:
     verify = data_commands.add_parser("verify", help="verify a dataset directory")
     verify.add_argument("directory")
     verify.set_defaults(handler=_cmd_data_verify)
+
+    evaluation = commands.add_parser("eval", help="evaluate a model against baselines")
+    eval_commands = evaluation.add_subparsers(dest="eval_command", required=True)
+    eval_geo = eval_commands.add_parser("geodesic", help="geodesic error vs baselines")
+    _add_model_arguments(eval_geo)
+    eval_geo.add_argument("--dataset", help="dataset directory whose test split is evaluated")
+    eval_geo.add_argument("--shapes", type=int, default=20, help="synthetic shapes to evaluate")
+    eval_geo.add_argument("--real", nargs="*", default=[], choices=["tosca", "faust"])
+    eval_geo.add_argument("--real-shapes", type=int, default=32)
+    eval_geo.add_argument("--eval-data", default="../shared/eval-data")
+    eval_geo.add_argument("--sources", type=int, default=16, help="sources per real shape")
+    eval_geo.add_argument("--settings", default=None, help="comma-separated subset of settings")
+    eval_geo.add_argument("--seed", type=int, default=0)
+    eval_geo.set_defaults(handler=_cmd_eval_geodesic)
 
     serve = commands.add_parser("serve", help="start the HTTP service")
     serve.add_argument("--host", default="127.0.0.1")

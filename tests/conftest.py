@@ -30,3 +30,57 @@ def eval_data() -> Path:
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
+
+
+def make_blob(seed: int, subdivisions: int = 3):
+    """An asymmetric bent ellipsoid (well-defined PCA frame) as a mesh ``Shape``."""
+    from litege_core.shape import Shape
+
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    vertices = np.asarray(sphere.vertices) * [1.6 + rng.uniform(-0.3, 0.3), 1.0, 0.6]
+    vertices[:, 1] += 0.3 * vertices[:, 0] ** 2 * rng.uniform(0.5, 1.5)
+    return Shape.from_arrays(vertices, sphere.faces)
+
+
+@pytest.fixture(scope="session")
+def blob():
+    """Factory fixture: ``blob(seed, subdivisions=3)`` → a deformed-ellipsoid mesh Shape."""
+    return make_blob
+
+
+@pytest.fixture(scope="session")
+def toy_predictor(tmp_path_factory):
+    """A Predictor over a tiny bundle (4-component basis, untrained 32-wide net)."""
+    import torch
+
+    from litege_core.bundle import load_bundle, save_bundle
+    from litege_core.canonical import canonicalize_bbox
+    from litege_core.describe import shape_samples
+    from litege_core.descriptor import VoxelGrid, fit_basis
+    from litege_core.nets import GeodesicNet
+    from litege_core.predictor import Predictor
+
+    canonical = []
+    for seed in range(6):
+        shape = make_blob(seed, subdivisions=2)
+        transform = canonicalize_bbox(shape_samples(shape, 500, seed))
+        canonical.append((transform.apply(shape.vertices), np.asarray(shape.faces)))
+    basis = fit_basis(
+        canonical,
+        grid=VoxelGrid(resolution=21, pitch=0.1),
+        std_threshold=0.05,
+        n_components=4,
+        n_udf_samples=300,
+        seed=0,
+    )
+    torch.manual_seed(0)
+    directory = tmp_path_factory.mktemp("toy-bundle")
+    save_bundle(
+        directory,
+        name="toy",
+        category="toy",
+        basis=basis,
+        network=GeodesicNet(width=32, descriptor_dim=4).eval(),
+    )
+    return Predictor(load_bundle(directory))

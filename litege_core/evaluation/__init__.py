@@ -1,0 +1,1 @@
+"""Evaluation protocols: geodesic regression (and, later, matching) against baselines."""
