@@ -262,7 +262,6 @@ def build_parser() -> argparse.ArgumentParser:
     eval_geo.add_argument("--eval-data", default="../shared/eval-data")
     eval_geo.add_argument("--sources", type=int, default=16, help="sources per real shape")
     eval_geo.add_argument("--settings", default=None, help="comma-separated subset of settings")
-    eval_geo.add_argument("--seed", type=int, default=0)
     eval_geo.set_defaults(handler=_cmd_eval_geodesic)
 
     serve = commands.add_parser("serve", help="start the HTTP service")
