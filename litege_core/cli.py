@@ -157,13 +157,17 @@ def _cmd_path(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", help="mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)")
-    parser.add_argument("--kind", choices=["mesh", "point_cloud"], default=None)
+def _add_bundle_arguments(parser: argparse.ArgumentParser) -> None:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--model", default=None, help="shipped model name (default: quadrupeds)")
     which.add_argument("--bundle", default=None, help="model bundle directory")
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+
+
+def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", help="mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)")
+    parser.add_argument("--kind", choices=["mesh", "point_cloud"], default=None)
+    _add_bundle_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the descriptor samples")
     parser.add_argument("-o", "--output", required=True, help="output .npy file")
 
@@ -254,7 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation = commands.add_parser("eval", help="evaluate a model against baselines")
     eval_commands = evaluation.add_subparsers(dest="eval_command", required=True)
     eval_geo = eval_commands.add_parser("geodesic", help="geodesic error vs baselines")
-    _add_model_arguments(eval_geo)
+    _add_bundle_arguments(eval_geo)
+    eval_geo.add_argument("--seed", type=int, default=0)
     eval_geo.add_argument("--dataset", help="dataset directory whose test split is evaluated")
     eval_geo.add_argument("--shapes", type=int, default=20, help="synthetic shapes to evaluate")
     eval_geo.add_argument("--real", nargs="*", default=[], choices=["tosca", "faust"])
