@@ -6,6 +6,9 @@ Sub-commands:
     litege path FILE          predicted geodesic path (polyline) to a .npy file
     litege data build ...     build (or resume) a ground-truth geodesic dataset
     litege data verify DIR    check a dataset's shard hashes and arrays
+    litege train geodesic     train a geodesic model from a TOML config
+    litege geodesic / path    predicted distances / geodesic paths with a model bundle
+    litege eval geodesic      evaluate a model against the classical baselines
     litege serve [...]        start the HTTP service (needs the ``service`` extra)
 """
 
@@ -268,6 +271,10 @@ def build_parser() -> argparse.ArgumentParser:
     eval_geo.add_argument("--sources", type=int, default=16, help="sources per real shape")
     eval_geo.add_argument("--settings", default=None, help="comma-separated subset of settings")
     eval_geo.set_defaults(handler=_cmd_eval_geodesic)
+
+    from litege_core.train.command import add_train_parser
+
+    add_train_parser(commands)
 
     serve = commands.add_parser("serve", help="start the HTTP service")
     serve.add_argument("--host", default="127.0.0.1")

@@ -1,0 +1,315 @@
+"""A whole training run: dataset → basis → view tables → network → epochs → bundle.
+
+:func:`prepare_run` does everything before the first step (once per run: the tables are
+built in memory, deterministically from the config, and rebuilt identically on resume);
+:func:`train_geodesic` trains (optionally resuming from a checkpoint) and exports the best
+model with :func:`~litege_core.bundle.save_bundle` into ``RUN_DIR/bundle``.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+import litege_core
+from litege_core.bundle import save_bundle
+from litege_core.datasets import GeodesicDataset
+from litege_core.descriptor import UdfPcaBasis
+from litege_core.errors import InputError
+from litege_core.nets import GeodesicNet
+from litege_core.train.basis import prepare_basis
+from litege_core.train.config import TrainConfig
+from litege_core.train.data import (
+    PairSampler,
+    ValidationPairs,
+    ViewTables,
+    build_view_tables,
+    coordinate_statistics,
+    dataset_fingerprint,
+    load_split_arrays,
+    validation_pairs,
+)
+from litege_core.train.trainer import Trainer, TrainState, evaluate, seed_everything
+
+LOG = logging.getLogger("litege.train")
+BUNDLE_DIR = "bundle"
+CHECKPOINT_DIR = "checkpoints"
+LOG_FILE = "train.log"
+_VAL_SEED_OFFSET = 7919  # validation views and pairs use seed + offset
+
+
+@dataclass
+class PreparedRun:
+    """Everything :func:`train_geodesic` needs, built by :func:`prepare_run`."""
+
+    config: TrainConfig
+    device: torch.device
+    basis: UdfPcaBasis
+    basis_source: str
+    train: ViewTables
+    validation: ValidationPairs
+    network: GeodesicNet
+    trainer: Trainer
+    fingerprint: dict[str, Any]
+    coord_mean: list[float]
+    coord_std: list[float]
+    seconds: dict[str, float]
+
+
+@dataclass
+class RunResult:
+    """What :func:`train_geodesic` returns."""
+
+    state: TrainState
+    manifest: dict[str, Any] | None
+    run_dir: Path
+    prepared: PreparedRun
+
+
+def prepare_run(config: TrainConfig) -> PreparedRun:
+    """Load the dataset, prepare the basis, build the tables, create network and trainer."""
+    if config.train.threads:
+        torch.set_num_threads(config.train.threads)
+    device = config.resolve_device()
+    run_dir = config.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    dataset = GeodesicDataset(config.data.dataset)
+    fingerprint = dataset_fingerprint(config.data.dataset)
+    train_arrays = load_split_arrays(dataset, "train", config.data.max_train_shapes)
+    val_arrays = load_split_arrays(dataset, "val", config.data.max_val_shapes)
+    if len(val_arrays["seed"]) == 0:
+        raise InputError(f"dataset {config.data.dataset} has no validation shapes")
+    seconds["load"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    basis, basis_source = prepare_basis(
+        config.basis, run_dir, dataset, train_arrays, config.train.seed
+    )
+    seconds["basis"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    common = dict(
+        faces=dataset.faces,
+        basis=basis,
+        clean_samples=config.data.clean_samples,
+        augment=config.augment,
+        device=device,
+        chunk=config.data.view_chunk,
+    )
+    train = build_view_tables(
+        train_arrays, n_views=config.data.views_per_shape, seed=config.train.seed, **common
+    )
+    val_tables = build_view_tables(
+        val_arrays,
+        n_views=1 + config.data.val_augmented_views,
+        seed=config.train.seed + _VAL_SEED_OFFSET,
+        **common,
+    )
+    val = validation_pairs(
+        val_tables,
+        config.data.val_sources,
+        config.data.val_targets,
+        config.train.seed + _VAL_SEED_OFFSET,
+    )
+    seconds["tables"] = time.perf_counter() - start
+    LOG.info(
+        "tables: %d train views of %d shapes, %d val views (%d fixed pairs), %d vertices, "
+        "%d source rows, built in %.1f s on %s",
+        train.n_views,
+        train.n_shapes,
+        val_tables.n_views,
+        val.n_pairs,
+        train.n_vertices,
+        train.n_rows,
+        seconds["tables"],
+        device,
+    )
+
+    seed_everything(config.train.seed)
+    network = GeodesicNet(config.network.width, basis.n_components, config.network.output)
+    mean, std = coordinate_statistics(train)
+    network.set_coord_normalization(mean, std)
+    network.to(device)
+    sampler = PairSampler(
+        train,
+        config.train.batch_views,
+        config.train.sources_per_view,
+        config.train.targets_per_view,
+        config.train.seed,
+    )
+    provenance = {"dataset": fingerprint["manifest_sha256"], "basis_hash": basis.content_hash}
+    trainer = Trainer(config, network, sampler, val, run_dir / CHECKPOINT_DIR, provenance)
+    return PreparedRun(
+        config=config,
+        device=device,
+        basis=basis,
+        basis_source=basis_source,
+        train=train,
+        validation=val,
+        network=network,
+        trainer=trainer,
+        fingerprint=fingerprint,
+        coord_mean=mean.tolist(),
+        coord_std=std.tolist(),
+        seconds=seconds,
+    )
+
+
+def residual_statistics(tables: ViewTables) -> dict[str, float]:
+    """Mean, std and 99th percentile of the training views' PCA reconstruction residuals
+    (all views, and clean views only): the reference for an out-of-distribution score."""
+    residual = tables.residual.double().cpu().numpy()
+    clean = residual[tables.kind.cpu().numpy() == 0]
+    return {
+        "residual_mean": float(residual.mean()),
+        "residual_std": float(residual.std()),
+        "residual_p99": float(np.quantile(residual, 0.99)),
+        "residual_clean_mean": float(clean.mean()),
+        "residual_clean_std": float(clean.std()),
+    }
+
+
+def export(prepared: PreparedRun, state: TrainState, seconds_total: float) -> dict[str, Any]:
+    """Load the best weights, evaluate them and write ``RUN_DIR/bundle``; returns the
+    bundle manifest."""
+    config = prepared.config
+    trainer = prepared.trainer
+    trainer.load_best()
+    report = evaluate(prepared.network, prepared.validation)
+    steps_per_second = state.step / state.step_seconds if state.step_seconds > 0 else None
+    training = {
+        "config": config.to_dict(),
+        "config_hash": config.content_hash(),
+        "dataset": prepared.fingerprint,
+        "basis_source": prepared.basis_source,
+        "n_train_shapes": prepared.train.n_shapes,
+        "n_train_views": prepared.train.n_views,
+        "n_val_views": prepared.validation.tables.n_views,
+        "steps": state.step,
+        "epochs": state.epoch,
+        "best_epoch": state.best_epoch,
+        "stopped_early": state.stopped_early,
+        "pairs_per_step": config.train.pairs_per_step,
+        "steps_per_second": steps_per_second,
+        "coord_mean": prepared.coord_mean,
+        "coord_std": prepared.coord_std,
+        **residual_statistics(prepared.train),
+        "seconds": {**prepared.seconds, "train": state.seconds, "total": seconds_total},
+        "device": str(prepared.device),
+        "device_name": (
+            torch.cuda.get_device_name(prepared.device)
+            if prepared.device.type == "cuda"
+            else platform.processor() or platform.machine()
+        ),
+        "torch": torch.__version__,
+        "litege": litege_core.__version__,
+        "history": state.history,
+    }
+    metrics = {
+        "val_mean_error": report.mean,
+        "val_median_error": report.median,
+        "val_l1": report.l1,
+        "val_by_kind": report.by_kind,
+        "val_gt_mean": report.gt_mean,
+        "val_pairs": report.n_pairs,
+        "normalization": "validation ground-truth mean = 100",
+    }
+    manifest = save_bundle(
+        config.run_dir / BUNDLE_DIR,
+        name=config.output.name,
+        category=config.output.category,
+        basis=prepared.basis,
+        network=prepared.network.cpu(),
+        training=training,
+        metrics=metrics,
+        weights_dtype=config.output.torch_weights_dtype,
+    )
+    prepared.network.to(prepared.device)
+    LOG.info(
+        "exported %s: val mean %.3f median %.3f (best epoch %d) → %s",
+        config.output.name,
+        report.mean,
+        report.median,
+        state.best_epoch,
+        config.run_dir / BUNDLE_DIR,
+    )
+    return manifest
+
+
+def train_geodesic(
+    config: TrainConfig,
+    *,
+    resume: str | Path | None = None,
+    max_epochs: int | None = None,
+    export_bundle: bool = True,
+) -> RunResult:
+    """Run (or resume) a training and export the bundle.
+
+    Args:
+        config: the run configuration.
+        resume: a ``last.safetensors`` checkpoint to continue from.
+        max_epochs: stop after this many epochs in this call (no export unless the run is
+            finished); ``None``: train to the end.
+        export_bundle: write ``RUN_DIR/bundle`` when training is finished.
+    """
+    start = time.perf_counter()
+    run_dir = config.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(run_dir / LOG_FILE)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
+    LOG.addHandler(handler)
+    if LOG.level == logging.NOTSET or LOG.level > logging.INFO:
+        LOG.setLevel(logging.INFO)
+    try:
+        LOG.info(
+            "training %s: %d epochs × %d steps × %d pairs, lr %g → %g (%s cosine), seed %d",
+            config.output.name,
+            config.train.epochs,
+            config.train.steps_per_epoch,
+            config.train.pairs_per_step,
+            config.train.lr,
+            config.train.eta_min,
+            config.train.schedule,
+            config.train.seed,
+        )
+        prepared = prepare_run(config)
+        if resume is not None:
+            changed = prepared.trainer.load_checkpoint(resume)
+            LOG.info(
+                "resumed from %s at epoch %d, step %d%s",
+                resume,
+                prepared.trainer.state.epoch,
+                prepared.trainer.state.step,
+                f" (changed: {', '.join(changed)})" if changed else "",
+            )
+        state = prepared.trainer.fit(max_epochs)
+        finished = state.stopped_early or state.epoch >= config.train.epochs
+        manifest = None
+        if export_bundle and finished:
+            manifest = export(prepared, state, time.perf_counter() - start)
+        return RunResult(state, manifest, run_dir, prepared)
+    finally:
+        LOG.removeHandler(handler)
+        handler.close()
+
+
+__all__ = [
+    "BUNDLE_DIR",
+    "CHECKPOINT_DIR",
+    "LOG_FILE",
+    "PreparedRun",
+    "RunResult",
+    "export",
+    "prepare_run",
+    "residual_statistics",
+    "train_geodesic",
+]

@@ -1,0 +1,55 @@
+import argparse
+import json
+
+import pytest
+
+from litege_core.bundle import load_bundle
+from litege_core.errors import ArtifactError
+from litege_core.train import add_train_parser
+from litege_core.train.pipeline import train_geodesic
+
+
+def _toml(data: dict) -> str:
+    lines = []
+    for table, values in data.items():
+        lines.append(f"[{table}]")
+        for key, value in values.items():
+            lines.append(f"{key} = {json.dumps(value)}")  # str/int/float/bool are valid TOML
+    return "\n".join(lines) + "\n"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="litege")
+    add_train_parser(parser.add_subparsers(dest="command", required=True))
+    return parser
+
+
+def test_parser_registers_train_geodesic():
+    args = _parser().parse_args(
+        ["train", "geodesic", "--config", "c.toml", "--resume", "r", "--out", "o"]
+    )
+    assert (args.config, args.resume, args.out) == ("c.toml", "r", "o")
+    assert callable(args.handler)
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["train", "geodesic"])  # --config is required
+
+
+def test_command_trains_and_exports(make_config, tmp_path, capsys):
+    config = make_config("from-file", train={"epochs": 1, "steps_per_epoch": 3})
+    path = tmp_path / "toy.toml"
+    path.write_text(_toml(config.to_dict()))
+    out = tmp_path / "elsewhere"
+    args = _parser().parse_args(["train", "geodesic", "--config", str(path), "--out", str(out)])
+    assert args.handler(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["steps"] == 3 and summary["bundle"] == str(out / "bundle")
+    bundle = load_bundle(out / "bundle")
+    assert bundle.manifest["training"]["config"]["output"]["dir"] == str(out)
+    assert not config.run_dir.exists()
+
+
+def test_resume_from_a_foreign_file_fails_clearly(make_config, tmp_path):
+    bogus = tmp_path / "bogus.safetensors"
+    bogus.write_bytes(b"not a checkpoint")
+    with pytest.raises(ArtifactError, match="cannot read checkpoint"):
+        train_geodesic(make_config(), resume=bogus)

@@ -1,0 +1,91 @@
+import json
+
+import pytest
+import torch
+
+from litege_core.bundle import load_bundle
+from litege_core.errors import InputError
+from litege_core.train import trainer as trainer_module
+from litege_core.train.pipeline import prepare_run, train_geodesic
+from litege_core.train.trainer import LAST, ValidationReport, cosine_lr, evaluate, read_checkpoint
+
+
+def test_cosine_schedule(make_config):
+    config = make_config(train={"epochs": 4, "steps_per_epoch": 10})
+    assert cosine_lr(0, config) == pytest.approx(1e-2)
+    assert cosine_lr(20, config) == pytest.approx(0.5 * (1e-2 + 1e-4))
+    assert cosine_lr(40, config) == pytest.approx(1e-4)
+    per_epoch = config.replace(train={"schedule": "epoch"})
+    assert cosine_lr(19, per_epoch) == cosine_lr(10, per_epoch) > cosine_lr(20, per_epoch)
+
+
+def test_exact_resume_equals_uninterrupted_run(make_config):
+    straight = train_geodesic(make_config("straight"), export_bundle=False)
+    config = make_config("interrupted")
+    first = train_geodesic(config, max_epochs=1)
+    assert first.state.epoch == 1 and first.manifest is None
+    resumed = train_geodesic(
+        config, resume=config.run_dir / "checkpoints" / LAST, export_bundle=False
+    )
+    assert resumed.state.epoch == 2 and resumed.state.step == straight.state.step == 10
+    a = straight.prepared.network.state_dict()
+    b = resumed.prepared.network.state_dict()
+    assert a.keys() == b.keys()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+    losses = [h["loss"] for h in straight.state.history]
+    assert [h["loss"] for h in resumed.state.history] == losses
+
+
+def test_resume_refuses_a_different_config(make_config):
+    config = make_config("a")
+    train_geodesic(config, max_epochs=1)
+    changed = make_config("a", train={"seed": 4})
+    with pytest.raises(InputError, match=r"train\.seed"):
+        train_geodesic(changed, resume=config.run_dir / "checkpoints" / LAST)
+
+
+def test_early_stopping_after_patience(make_config, monkeypatch):
+    errors = iter([5.0, 4.0, 4.5, 4.2, 3.0, 1.0])
+
+    def fake_evaluate(net, pairs):
+        value = next(errors)
+        return ValidationReport(value, value, value, {}, 1.0, 1)
+
+    monkeypatch.setattr(trainer_module, "evaluate", fake_evaluate)
+    config = make_config(train={"epochs": 6, "steps_per_epoch": 1, "patience": 2})
+    prepared = prepare_run(config)
+    state = prepared.trainer.fit()
+    assert state.stopped_early and state.epoch == 4
+    assert state.best_epoch == 2 and state.best_error == 4.0
+    assert [h["best"] for h in state.history] == [True, True, False, False]
+
+
+def test_training_reduces_validation_error_and_exports_a_bundle(make_config):
+    config = make_config(
+        "smoke",
+        fitted_basis=True,
+        train={"epochs": 3, "steps_per_epoch": 40, "batch_views": 8},
+        output={"weights_dtype": "float16"},
+    )
+    prepared = prepare_run(config)
+    before = evaluate(prepared.network, prepared.validation).mean
+    result = train_geodesic(config)
+    after = result.state.best_error
+    assert after < 0.8 * before, (before, after)
+    assert (config.run_dir / "basis.safetensors").exists()  # fitted, saved next to the run
+    manifest = result.manifest
+    bundle = load_bundle(config.run_dir / "bundle")
+    assert bundle.content_hash == manifest["content_hash"] and bundle.name == "toy"
+    training = bundle.manifest["training"]
+    assert training["steps"] == 120 and training["best_epoch"] >= 1
+    assert training["residual_std"] > 0 and len(training["history"]) == 3
+    assert training["dataset"]["counts"] == {"train": 8, "val": 3, "test": 0}
+    assert bundle.manifest["metrics"]["val_mean_error"] == pytest.approx(after, rel=1e-2)
+    weights = read_checkpoint(config.run_dir / "checkpoints" / "best.safetensors")[0]
+    torch.testing.assert_close(bundle.network.coord_std, weights["coord_std"])
+    assert (config.run_dir / "train.log").read_text().count("epoch ") >= 3
+    json.dumps(bundle.manifest)  # JSON-safe
+    # the run directory's fitted basis is not silently reused with other fit settings
+    with pytest.raises(InputError, match="fitted with other settings"):
+        prepare_run(config.replace(basis={"std_threshold": 0.2}))
