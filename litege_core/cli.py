@@ -85,20 +85,11 @@ def _parse_indices(text: str, what: str) -> list[int]:
 
 
 def _predictor(args: argparse.Namespace) -> Predictor:
-    import torch  # lazily: `litege info` stays light
-
     from litege_core.bundle import DEFAULT_MODEL, load_bundle, load_shipped
+    from litege_core.device import resolve_device
     from litege_core.predictor import Predictor
 
-    device = args.device
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        parsed = torch.device(device)
-    except (RuntimeError, ValueError) as exc:
-        raise InputError(f"unknown device {device!r}: {exc}") from exc
-    if parsed.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"device {device!r} requested but CUDA is not available")
+    device = resolve_device(args.device)
     if args.bundle is not None:
         bundle = load_bundle(args.bundle, device)
     else:

@@ -64,6 +64,7 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
+from litege_core.arrays import frozen
 from litege_core.bundle import ModelBundle
 from litege_core.canonical import BBOX_SQRT_AREA, Transform, canonicalize_bbox
 from litege_core.describe import shape_samples
@@ -216,12 +217,6 @@ class FoldedGeodesicNet:
 
 
 # --------------------------------------------------------------------------- shape state
-
-
-def _frozen(array: NDArray) -> NDArray:
-    array = np.ascontiguousarray(array)
-    array.setflags(write=False)
-    return array
 
 
 @dataclass(frozen=True, eq=False)
@@ -460,13 +455,13 @@ class Predictor:
                     kind=shape.kind,
                     n_points=shape.n_points,
                     transform=transforms[b],
-                    descriptor=_frozen(descriptors[b].cpu().numpy()),
+                    descriptor=frozen(descriptors[b].cpu().numpy()),
                     residual=residual,
                     ood_score=self._ood_score(residual),
                     ood_calibrated=self._ood is not None,
                     bundle_hash=self.bundle.content_hash,
                     vertices=shape.vertices,
-                    canonical_points=_frozen(canonical[b]),
+                    canonical_points=frozen(canonical[b]),
                     faces=shape.faces,
                     canonical_vertices=rows(points, b),
                     shape_embedding=shape_emb[b].clone(),

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from litege_core.arrays import frozen
 from litege_core.errors import ArrayShapeError, EmptyShapeError, NonFiniteError
 
 DEFAULT_CANDIDATES = 16
@@ -36,12 +37,6 @@ DEFAULT_CANDIDATES = 16
 
 DEFAULT_NORMAL_NEIGHBOURS = 10
 """Neighbours of a cloud point used for its local-PCA normal."""
-
-
-def _frozen(array: NDArray) -> NDArray:
-    array = np.ascontiguousarray(array)
-    array.setflags(write=False)
-    return array
 
 
 def as_query_points(points: ArrayLike, name: str = "points") -> NDArray:
@@ -193,8 +188,8 @@ class MeshProjector:
     def __init__(
         self, vertices: ArrayLike, faces: ArrayLike, candidates: int = DEFAULT_CANDIDATES
     ) -> None:
-        self.vertices = _frozen(np.asarray(vertices, dtype=np.float64))
-        self.faces = _frozen(np.asarray(faces, dtype=np.int64))
+        self.vertices = frozen(np.asarray(vertices, dtype=np.float64))
+        self.faces = frozen(np.asarray(faces, dtype=np.int64))
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or self.faces.shape[0] == 0:
             raise EmptyShapeError("a mesh projector needs at least one triangle")
         corners = self.vertices[self.faces]  # (F, 3, 3)
@@ -205,7 +200,7 @@ class MeshProjector:
         self.candidates = max(1, min(int(candidates), self.n_faces))
         normals = np.cross(self._b - self._a, self._c - self._a)
         norms = np.linalg.norm(normals, axis=1, keepdims=True)
-        self.face_normals = _frozen(normals / np.where(norms > 0, norms, 1.0))
+        self.face_normals = frozen(normals / np.where(norms > 0, norms, 1.0))
 
     @property
     def n_faces(self) -> int:
@@ -277,7 +272,7 @@ class CloudProjector:
     def __init__(
         self, points: ArrayLike, normal_neighbours: int = DEFAULT_NORMAL_NEIGHBOURS
     ) -> None:
-        self.points = _frozen(np.asarray(points, dtype=np.float64))
+        self.points = frozen(np.asarray(points, dtype=np.float64))
         if self.points.ndim != 2 or self.points.shape[1] != 3 or self.points.shape[0] < 2:
             raise EmptyShapeError("a cloud projector needs at least two points")
         self._tree = cKDTree(self.points)
@@ -297,7 +292,7 @@ class CloudProjector:
         local = local - local.mean(axis=1, keepdims=True)
         covariance = np.einsum("nki,nkj->nij", local, local)
         _, vectors = np.linalg.eigh(covariance)
-        return _frozen(vectors[:, :, 0])
+        return frozen(vectors[:, :, 0])
 
     def neighbours(self, points: ArrayLike, k: int) -> tuple[NDArray, NDArray]:
         """``(distance (Q, k), index (Q, k) int64)`` of the ``k`` nearest cloud points."""

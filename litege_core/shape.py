@@ -10,6 +10,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from litege_core.arrays import frozen
 from litege_core.errors import ArrayShapeError, EmptyShapeError
 from litege_core.validate import DEFAULT_LIMITS, ShapeLimits, triangle_areas, validate_arrays
 
@@ -30,12 +31,6 @@ class ShapeKind(enum.StrEnum):
             raise ArrayShapeError(
                 f"unknown shape kind {value!r}; expected one of {[k.value for k in cls]}"
             ) from exc
-
-
-def _frozen(array: NDArray) -> NDArray:
-    array = np.array(array, copy=True)
-    array.setflags(write=False)
-    return array
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,8 +73,8 @@ class Shape:
             raise EmptyShapeError("a mesh needs faces; pass kind='point_cloud' for a point set")
         checked_vertices, checked_faces = validate_arrays(vertices, faces, limits)
         return cls(
-            vertices=_frozen(checked_vertices),
-            faces=None if checked_faces is None else _frozen(checked_faces),
+            vertices=frozen(checked_vertices),
+            faces=None if checked_faces is None else frozen(checked_faces),
             kind=resolved,
         )
 
@@ -113,7 +108,7 @@ class Shape:
         """``(F,)`` triangle areas in squared input units (read-only); meshes only."""
         if self.faces is None:
             raise ArrayShapeError("a point cloud has no faces")
-        return _frozen(triangle_areas(self.vertices, self.faces))
+        return frozen(triangle_areas(self.vertices, self.faces))
 
     @cached_property
     def area(self) -> float:

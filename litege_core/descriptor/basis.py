@@ -30,10 +30,12 @@ from numpy.typing import ArrayLike, NDArray
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save_file
 
+from litege_core.arrays import frozen
 from litege_core.descriptor._arrays import as_numeric, as_points, positive_int
 from litege_core.descriptor.grid import VoxelGrid
 from litege_core.descriptor.pca import PcaResult
-from litege_core.descriptor.udf import UdfBackend, UdfEvaluator, as_device, resolve_backend
+from litege_core.descriptor.udf import UdfBackend, UdfEvaluator, resolve_backend
+from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError, LiteGEError
 
 FORMAT_NAME = "litege-udf-pca"
@@ -50,12 +52,6 @@ TENSOR_DTYPES: dict[str, np.dtype] = {
     "explained_variance": np.dtype(np.float64),
     "explained_variance_ratio": np.dtype(np.float64),
 }
-
-
-def _frozen(array: NDArray, dtype: np.dtype | type) -> NDArray:
-    out = np.array(array, dtype=dtype, copy=True, order="C")
-    out.setflags(write=False)
-    return out
 
 
 class DescriptorResult(NamedTuple):
@@ -180,7 +176,7 @@ class UdfPcaBasis:
             ("explained_variance", variance),
             ("explained_variance_ratio", ratio),
         ):
-            object.__setattr__(self, name, _frozen(value, value.dtype))
+            object.__setattr__(self, name, frozen(value, value.dtype))
         object.__setattr__(self, "n_fit_shapes", n_fit)
         object.__setattr__(self, "metadata", metadata)
         object.__setattr__(self, "_engines", {})
@@ -304,7 +300,7 @@ class UdfPcaBasis:
         self, device: torch.device | str = "cpu", udf_backend: str | UdfBackend = "auto"
     ) -> DescriptorEngine:
         """The basis placed on ``device`` (built on first use, then cached)."""
-        dev = as_device(device)
+        dev = resolve_device(device)
         backend = UdfBackend.parse(udf_backend)
         key = (str(dev), backend)
         engines: dict = self._engines  # type: ignore[attr-defined]

@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from litege_core.descriptor._arrays import as_clouds, as_points, positive_int
+from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, InputError, MissingDependencyError
 
 #: Elements of the (B, chunk, P) distance block materialised at once by the torch backend.
@@ -78,18 +79,6 @@ class UdfBackend(enum.StrEnum):
 def pykdtree_available() -> bool:
     """Whether the optional ``pykdtree`` package can be imported."""
     return importlib.util.find_spec("pykdtree") is not None
-
-
-def as_device(device: torch.device | str) -> torch.device:
-    """``device`` as a :class:`torch.device`; InputError when malformed or, for CUDA,
-    when no CUDA device is available."""
-    try:
-        out = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise InputError(f"invalid torch device {device!r}: {exc}") from exc
-    if out.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"device {device!r} requested but CUDA is not available")
-    return out
 
 
 def resolve_backend(backend: str | UdfBackend, device: torch.device | str = "cpu") -> UdfBackend:
@@ -217,7 +206,7 @@ class UdfEvaluator:
         device: torch.device | str = "cpu",
         workers: int = -1,
     ) -> None:
-        self.device = as_device(device)
+        self.device = resolve_device(device)
         self.backend = resolve_backend(backend, self.device)
         if self.backend is UdfBackend.PYKDTREE and not pykdtree_available():
             raise MissingDependencyError("the 'pykdtree' UDF backend needs `pip install pykdtree`")
@@ -300,7 +289,6 @@ __all__ = [
     "TORCH_BLOCK_ELEMENTS",
     "UdfBackend",
     "UdfEvaluator",
-    "as_device",
     "compute_udf",
     "pykdtree_available",
     "resolve_backend",

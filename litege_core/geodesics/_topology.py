@@ -29,11 +29,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-
-def _frozen(array: NDArray) -> NDArray:
-    array = np.ascontiguousarray(array)
-    array.setflags(write=False)
-    return array
+from litege_core.arrays import frozen
 
 
 def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
@@ -108,13 +104,13 @@ class MeshTopology:
         )
         _, labels = connected_components(adjacency, directed=False)
         return cls(
-            vertices=_frozen(vertices[to_original]),
-            faces=_frozen(to_compact[kept]),
-            to_original=_frozen(to_original),
-            to_compact=_frozen(to_compact),
-            component=_frozen(labels.astype(np.int64)),
-            edges=_frozen(edges),
-            nonmanifold_edges=_frozen(edges[counts > 2]),
+            vertices=frozen(vertices[to_original]),
+            faces=frozen(to_compact[kept]),
+            to_original=frozen(to_original),
+            to_compact=frozen(to_compact),
+            component=frozen(labels.astype(np.int64)),
+            edges=frozen(edges),
+            nonmanifold_edges=frozen(edges[counts > 2]),
             n_dropped_faces=n_dropped,
         )
 

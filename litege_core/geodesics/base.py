@@ -18,6 +18,7 @@ from typing import ClassVar, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from litege_core.arrays import frozen
 from litege_core.errors import (
     ArrayShapeError,
     ComputationError,
@@ -28,12 +29,6 @@ from litege_core.geodesics._topology import MeshTopology
 from litege_core.shape import Shape
 
 ParamValue = bool | int | float | str
-
-
-def _read_only(array: NDArray) -> NDArray:
-    array = np.ascontiguousarray(array)
-    array.setflags(write=False)
-    return array
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,8 +52,8 @@ class GeodesicResult:
     params: Mapping[str, ParamValue] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "distances", _read_only(self.distances))
-        object.__setattr__(self, "sources", _read_only(self.sources))
+        object.__setattr__(self, "distances", frozen(self.distances))
+        object.__setattr__(self, "sources", frozen(self.sources))
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
 
     def __repr__(self) -> str:

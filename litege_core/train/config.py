@@ -277,18 +277,9 @@ class TrainConfig:
 
     def resolve_device(self) -> torch.device:
         """``train.device`` as a torch device (``auto``: CUDA if available, else CPU)."""
-        import torch
+        from litege_core.device import resolve_device
 
-        name = self.train.device
-        if name == "auto":
-            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-        try:
-            device = torch.device(name)
-        except (RuntimeError, TypeError) as exc:
-            raise InputError(f"invalid train.device {name!r}: {exc}") from exc
-        if device.type == "cuda" and not torch.cuda.is_available():
-            raise InputError(f"train.device={name!r} but CUDA is not available")
-        return device
+        return resolve_device(self.train.device)
 
     @property
     def run_dir(self) -> Path:

@@ -1,0 +1,24 @@
+"""Choosing the torch device: one rule for the library, the CLI and training."""
+
+from __future__ import annotations
+
+import torch
+
+from litege_core.errors import InputError
+
+
+def resolve_device(spec: str | torch.device = "auto") -> torch.device:
+    """``"auto"`` → CUDA when available, else CPU; otherwise ``spec`` parsed and checked.
+
+    Raises:
+        InputError: a malformed device, or CUDA requested on a machine without it.
+    """
+    if isinstance(spec, str) and spec == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(spec)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise InputError(f"invalid torch device {spec!r}: {exc}") from exc
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"device {spec!r} requested but CUDA is not available")
+    return device
