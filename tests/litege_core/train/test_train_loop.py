@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -89,3 +90,24 @@ def test_training_reduces_validation_error_and_exports_a_bundle(make_config):
     # the run directory's fitted basis is not silently reused with other fit settings
     with pytest.raises(InputError, match="fitted with other settings"):
         prepare_run(config.replace(basis={"std_threshold": 0.2}))
+
+
+def test_train_then_evaluate_end_to_end(make_config, toy_dataset):
+    """A tiny run, exported, reloaded bit-exactly, then evaluated with the real protocol."""
+    from litege_core.evaluation.geodesic import evaluate as evaluate_protocol
+    from litege_core.evaluation.geodesic import synthetic_eval_shapes
+    from litege_core.predictor import Predictor
+
+    config = make_config(
+        "e2e", fitted_basis=True, train={"epochs": 2, "steps_per_epoch": 40, "batch_views": 8}
+    )
+    train_geodesic(config)
+    first, second = (load_bundle(config.run_dir / "bundle") for _ in range(2))
+    for key, value in first.network.state_dict().items():
+        assert torch.equal(value, second.network.state_dict()[key]), key
+    shapes = synthetic_eval_shapes(toy_dataset, limit=3, split="val")
+    results = evaluate_protocol(shapes, Predictor(first), settings=("mesh", "cloud_300"))
+    litege = {r.setting: r for r in results if r.method == "LiteGE"}
+    assert set(litege) == {"mesh", "cloud_300"}
+    # Units or frames mixed up anywhere in the chain give errors of order 100.
+    assert all(np.isfinite(r.mean) and r.mean < 40 for r in litege.values()), litege
