@@ -163,22 +163,31 @@ class _HalfMesh:
         self.P[keep] = target
         return True
 
-    def try_flip(self, a: int, b: int) -> bool:
-        """Flip interior edge ``(a, b)`` if that lowers the valence deviation."""
+    def _flip_candidate(self, a: int, b: int) -> tuple | None:
+        """``(f1, f2, face1, face2, c, d)`` for a flippable interior edge ``(a, b)``, with
+        ``face1`` holding the directed edge a→b and ``c``, ``d`` the opposite corners; ``None``
+        when the edge is on a boundary or the flip would create a duplicate edge."""
         shared = self.edge_faces(a, b)
         if len(shared) != 2:
-            return False
+            return None
         f1, f2 = sorted(shared)
         face1, face2 = self.faces[f1], self.faces[f2]
         assert face1 is not None and face2 is not None
-        # Orient so that face1 holds the directed edge a→b.
         r = face1.index(a)
         if face1[(r + 1) % 3] != b:
             f1, f2, face1, face2 = f2, f1, face2, face1
         c = next(v for v in face1 if v not in (a, b))
         d = next(v for v in face2 if v not in (a, b))
         if c == d or (self.bnd[c] and self.bnd[d]) or d in self.neighbors(c):
+            return None
+        return f1, f2, face1, face2, c, d
+
+    def try_flip(self, a: int, b: int) -> bool:
+        """Flip interior edge ``(a, b)`` if that lowers the valence deviation."""
+        candidate = self._flip_candidate(a, b)
+        if candidate is None:
             return False
+        f1, f2, face1, face2, c, d = candidate
         before = sum(self.valence_deviation(v, 0) for v in (a, b, c, d))
         after = (
             self.valence_deviation(a, -1)
@@ -205,19 +214,10 @@ class _HalfMesh:
 
     def try_quality_flip(self, a: int, b: int, gain_deg: float = 5.0) -> bool:
         """Flip interior edge ``(a, b)`` if that raises the smallest angle of its two faces."""
-        shared = self.edge_faces(a, b)
-        if len(shared) != 2:
+        candidate = self._flip_candidate(a, b)
+        if candidate is None:
             return False
-        f1, f2 = sorted(shared)
-        face1, face2 = self.faces[f1], self.faces[f2]
-        assert face1 is not None and face2 is not None
-        r = face1.index(a)
-        if face1[(r + 1) % 3] != b:
-            f1, f2, face1, face2 = f2, f1, face2, face1
-        c = next(v for v in face1 if v not in (a, b))
-        d = next(v for v in face2 if v not in (a, b))
-        if c == d or (self.bnd[c] and self.bnd[d]) or d in self.neighbors(c):
-            return False
+        f1, f2, face1, face2, c, d = candidate
         new1, new2 = [c, a, d], [d, b, c]
         before = min(_min_angle(self.P[face1]), _min_angle(self.P[face2]))
         after = min(_min_angle(self.P[new1]), _min_angle(self.P[new2]))
