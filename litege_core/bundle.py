@@ -93,7 +93,7 @@ def save_bundle(
     weights_dtype: torch.dtype = torch.float32,
 ) -> dict[str, Any]:
     """Write a bundle; returns its manifest. ``weights_dtype=torch.float16`` halves the size of
-    the network weights (normalization buffers stay float32)."""
+    the network parameters (buffers stay float32); non-finite weights are refused."""
     from safetensors.torch import save_file
 
     if network.descriptor_dim != basis.n_components:
@@ -104,10 +104,20 @@ def save_bundle(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     basis.save(directory / BASIS_FILE)
+    # Only parameters are narrowed: buffers (BatchNorm running statistics, coordinate
+    # normalization) keep float32, since a running variance can exceed float16's range.
+    parameters = {name for name, _ in network.named_parameters()}
     tensors = {
-        key: value.to(weights_dtype) if value.is_floating_point() and "coord_" not in key else value
+        key: value.to(weights_dtype) if key in parameters and value.is_floating_point() else value
         for key, value in state_to_tensors(network).items()
     }
+    bad = [
+        key
+        for key, value in tensors.items()
+        if value.is_floating_point() and not torch.isfinite(value).all()
+    ]
+    if bad:
+        raise InputError(f"weights are not finite in {weights_dtype} (e.g. {bad[0]})")
     save_file(tensors, str(directory / NETWORK_FILE))
     files = {f: file_sha256(directory / f) for f in (BASIS_FILE, NETWORK_FILE)}
     core = {

@@ -110,3 +110,29 @@ def test_missing_and_inconsistent_bundles(tmp_path, basis, network):
     (tmp_path / "b" / BASIS_FILE).unlink()
     with pytest.raises(ArtifactError):
         load_bundle(tmp_path / "b")
+
+
+def test_float16_export_keeps_large_buffers_finite(tmp_path, basis):
+    torch.manual_seed(0)
+    network = GeodesicNet(width=16, descriptor_dim=4).eval()
+    network.final_layers[1].running_var.fill_(1e6)  # beyond float16's range (65504)
+    save_bundle(
+        tmp_path / "b",
+        name="t",
+        category="t",
+        basis=basis,
+        network=network,
+        weights_dtype=torch.float16,
+    )
+    loaded = load_bundle(tmp_path / "b").network
+    assert loaded.final_layers[1].running_var.max().item() == 1e6
+    network.final_layers[0].weight.data[0, 0] = 1e9  # a parameter that float16 cannot hold
+    with pytest.raises(InputError, match="not finite"):
+        save_bundle(
+            tmp_path / "c",
+            name="t",
+            category="t",
+            basis=basis,
+            network=network,
+            weights_dtype=torch.float16,
+        )
