@@ -182,6 +182,15 @@ class _HalfMesh:
             return None
         return f1, f2, face1, face2, c, d
 
+    def _apply_flip(self, f1: int, f2: int, a: int, b: int, c: int, d: int) -> None:
+        """Flip edge (a, b): faces ``f1 = (a, b, c)``, ``f2 = (b, a, d)`` become
+        ``(c, a, d)``, ``(d, b, c)``."""
+        self.faces[f1], self.faces[f2] = [c, a, d], [d, b, c]
+        self.vf[a].discard(f2)
+        self.vf[b].discard(f1)
+        self.vf[c].add(f2)
+        self.vf[d].add(f1)
+
     def try_flip(self, a: int, b: int) -> bool:
         """Flip interior edge ``(a, b)`` if that lowers the valence deviation."""
         candidate = self._flip_candidate(a, b)
@@ -205,11 +214,7 @@ class _HalfMesh:
                 return False
         if float(n1 @ n2) <= 0.2 * np.linalg.norm(n1) * np.linalg.norm(n2):
             return False
-        self.faces[f1], self.faces[f2] = new1, new2
-        self.vf[a].discard(f2)
-        self.vf[b].discard(f1)
-        self.vf[c].add(f2)
-        self.vf[d].add(f1)
+        self._apply_flip(f1, f2, a, b, c, d)
         return True
 
     def try_quality_flip(self, a: int, b: int, gain_deg: float = 5.0) -> bool:
@@ -227,11 +232,7 @@ class _HalfMesh:
         for n in (self._normal(new1), self._normal(new2)):
             if float(n @ n_ref) <= 0.5 * np.linalg.norm(n) * np.linalg.norm(n_ref):
                 return False
-        self.faces[f1], self.faces[f2] = new1, new2
-        self.vf[a].discard(f2)
-        self.vf[b].discard(f1)
-        self.vf[c].add(f2)
-        self.vf[d].add(f1)
+        self._apply_flip(f1, f2, a, b, c, d)
         return True
 
     def compact(self) -> tuple[NDArray, NDArray, NDArray]:
