@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from litege_core.enums import ParsableEnum
 from litege_core.errors import (
     ArrayShapeError,
     ArtifactError,
@@ -422,21 +423,14 @@ def calibrate_poisson_target(
 # --------------------------------------------------------------------------- dispatcher
 
 
-class CanonicalizationMethod(enum.StrEnum):
+class CanonicalizationMethod(ParsableEnum):
     """The three canonicalization pipelines of spec §1."""
+
+    _noun = enum.nonmember("canonicalization")
 
     BBOX = "bbox"
     UNIT_AREA = "unit_area"
     POISSON = "poisson"
-
-    @classmethod
-    def parse(cls, value: str | CanonicalizationMethod) -> CanonicalizationMethod:
-        try:
-            return cls(value)
-        except ValueError as exc:
-            raise InputError(
-                f"unknown canonicalization {value!r}; expected one of {[m.value for m in cls]}"
-            ) from exc
 
 
 def canonicalize(

@@ -11,26 +11,21 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.arrays import frozen
+from litege_core.enums import ParsableEnum
 from litege_core.errors import ArrayShapeError, EmptyShapeError
 from litege_core.validate import DEFAULT_LIMITS, ShapeLimits, triangle_areas, validate_arrays
 
 HASH_VERSION = b"litege-shape-v1"
 
 
-class ShapeKind(enum.StrEnum):
+class ShapeKind(ParsableEnum):
     """What the vertices are: a triangle mesh or a bare point cloud."""
+
+    _noun = enum.nonmember("shape kind")
+    _error = enum.nonmember(ArrayShapeError)
 
     MESH = "mesh"
     POINT_CLOUD = "point_cloud"
-
-    @classmethod
-    def parse(cls, value: str | ShapeKind) -> ShapeKind:
-        try:
-            return cls(value)
-        except ValueError as exc:
-            raise ArrayShapeError(
-                f"unknown shape kind {value!r}; expected one of {[k.value for k in cls]}"
-            ) from exc
 
 
 @dataclass(frozen=True, eq=False)

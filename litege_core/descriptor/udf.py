@@ -52,28 +52,22 @@ from scipy.spatial import cKDTree
 
 from litege_core.descriptor._arrays import as_clouds, as_points, positive_int
 from litege_core.device import resolve_device
-from litege_core.errors import ArrayShapeError, InputError, MissingDependencyError
+from litege_core.enums import ParsableEnum
+from litege_core.errors import ArrayShapeError, MissingDependencyError
 
 #: Elements of the (B, chunk, P) distance block materialised at once by the torch backend.
 TORCH_BLOCK_ELEMENTS = 1 << 24
 
 
-class UdfBackend(enum.StrEnum):
+class UdfBackend(ParsableEnum):
     """How the nearest sample point of each voxel centre is found."""
+
+    _noun = enum.nonmember("UDF backend")
 
     AUTO = "auto"
     KDTREE = "kdtree"
     PYKDTREE = "pykdtree"
     TORCH = "torch"
-
-    @classmethod
-    def parse(cls, value: str | UdfBackend) -> UdfBackend:
-        try:
-            return cls(value)
-        except ValueError as exc:
-            raise InputError(
-                f"unknown UDF backend {value!r}; expected one of {[b.value for b in cls]}"
-            ) from exc
 
 
 def pykdtree_available() -> bool:
