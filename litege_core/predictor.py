@@ -220,6 +220,71 @@ class FoldedGeodesicNet:
 
 
 @dataclass(frozen=True, eq=False)
+class ShapeRecord:
+    """The small, serializable half of a registration: everything :meth:`Predictor.restore`
+    needs besides the shape's own arrays to rebuild its :class:`ShapeState` without
+    recomputing the UDF-PCA descriptor.
+
+    Attributes:
+        shape_id: content hash of the shape it describes.
+        bundle_hash: content hash of the bundle that computed it.
+        transform: user frame → canonical frame.
+        descriptor: ``(k,)`` float32 UDF-PCA descriptor (read-only).
+        residual: PCA reconstruction residual (canonical units).
+        seed: seed of the surface samples the descriptor came from.
+    """
+
+    shape_id: str
+    bundle_hash: str
+    transform: Transform
+    descriptor: NDArray
+    residual: float
+    seed: int
+
+    def to_arrays(self) -> dict[str, NDArray]:
+        """Plain numpy arrays (for safetensors or any other pickle-free format)."""
+        return {
+            "shape_id": np.frombuffer(self.shape_id.encode("ascii"), dtype=np.uint8).copy(),
+            "bundle_hash": np.frombuffer(self.bundle_hash.encode("ascii"), dtype=np.uint8).copy(),
+            "rotation": np.asarray(self.transform.rotation, dtype=np.float64),
+            "center": np.asarray(self.transform.center, dtype=np.float64),
+            "scale": np.array([self.transform.scale], dtype=np.float64),
+            "descriptor": np.asarray(self.descriptor, dtype=np.float32),
+            "residual": np.array([self.residual], dtype=np.float64),
+            "seed": np.array([self.seed], dtype=np.int64),
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, NDArray]) -> ShapeRecord:
+        """Inverse of :meth:`to_arrays`.
+
+        Raises:
+            ArtifactError: keys are missing or arrays have the wrong shape or values.
+        """
+        try:
+            descriptor = np.asarray(arrays["descriptor"], dtype=np.float32)
+            record = cls(
+                shape_id=bytes(np.asarray(arrays["shape_id"], dtype=np.uint8)).decode("ascii"),
+                bundle_hash=bytes(np.asarray(arrays["bundle_hash"], dtype=np.uint8)).decode(
+                    "ascii"
+                ),
+                transform=Transform(
+                    arrays["rotation"], arrays["center"], float(arrays["scale"].reshape(-1)[0])
+                ),
+                descriptor=frozen(descriptor),
+                residual=float(arrays["residual"].reshape(-1)[0]),
+                seed=int(arrays["seed"].reshape(-1)[0]),
+            )
+        except (KeyError, IndexError, ValueError, TypeError, UnicodeDecodeError) as exc:
+            raise ArtifactError(f"malformed shape record: {exc}") from exc
+        except InputError as exc:
+            raise ArtifactError(f"malformed shape record: {exc}") from exc
+        if descriptor.ndim != 1 or not np.all(np.isfinite(descriptor)):
+            raise ArtifactError("malformed shape record: descriptor must be a finite vector")
+        return record
+
+
+@dataclass(frozen=True, eq=False)
 class ShapeState:
     """Everything cached for one registered shape (build with :meth:`Predictor.register`).
 
@@ -243,6 +308,7 @@ class ShapeState:
         shape_bias: ``(n,)`` tensor, shape part of the folded point MLP (on-the-fly points).
         point_embeddings: ``(N, n)`` tensor, ``e_p`` of every vertex / point.
         head_features: ``(N, 2n)`` tensor, ``e_p`` through the head's first linear layer.
+        record: the :class:`ShapeRecord` the state was built from (what a cache stores).
 
     Tensors are shared with the predictor's caches: treat them as read-only. The surface
     projector used by xyz queries and paths is built on first use and kept with the state.
@@ -265,6 +331,7 @@ class ShapeState:
     shape_bias: torch.Tensor = field(repr=False)
     point_embeddings: torch.Tensor = field(repr=False)
     head_features: torch.Tensor = field(repr=False)
+    record: ShapeRecord | None = field(default=None, repr=False)
     _lazy: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -426,8 +493,63 @@ class Predictor:
         engine = self.bundle.basis.engine(self.device)
         clouds = [t.apply(p) for t, p in zip(transforms, samples, strict=True)]
         described = engine.describe_with_residual(clouds)
-        descriptors = described.descriptors.to(self.device, torch.float32)
+        descriptors = described.descriptors.detach().cpu().numpy().astype(np.float32)
         residuals = described.residual.detach().cpu().numpy().astype(np.float64)
+        records = [
+            ShapeRecord(
+                shape_id=shape.content_hash,
+                bundle_hash=self.bundle.content_hash,
+                transform=transforms[b],
+                descriptor=frozen(descriptors[b]),
+                residual=float(residuals[b]),
+                seed=int(seed),
+            )
+            for b, shape in enumerate(shapes)
+        ]
+        return self.restore_many(shapes, records)
+
+    def restore(self, shape: Shape, record: ShapeRecord) -> ShapeState:
+        """Rebuild a state from its :class:`ShapeRecord` without recomputing the descriptor."""
+        return self.restore_many([shape], [record])[0]
+
+    def restore_many(
+        self, shapes: Sequence[Shape], records: Sequence[ShapeRecord]
+    ) -> list[ShapeState]:
+        """:meth:`restore` for several shapes at once (the embedding half of registration).
+
+        The result equals :meth:`register_many` with the records' seed: registration is this
+        method applied to freshly computed records. This is what a cache stores: the record is
+        a few hundred bytes, the embeddings it rebuilds are ``N × 3n`` floats.
+
+        Raises:
+            InputError: a record belongs to another shape or another bundle.
+        """
+        shapes, records = list(shapes), list(records)
+        if len(shapes) != len(records):
+            raise InputError(f"got {len(shapes)} shapes and {len(records)} records")
+        if not shapes:
+            return []
+        k = self.bundle.basis.n_components
+        for shape, record in zip(shapes, records, strict=True):
+            if not isinstance(shape, Shape) or not isinstance(record, ShapeRecord):
+                raise InputError("restore_many takes Shape objects and ShapeRecord objects")
+            if record.shape_id != shape.content_hash:
+                raise InputError(
+                    f"record of shape {record.shape_id[:12]}… does not belong to shape "
+                    f"{shape.content_hash[:12]}…"
+                )
+            if record.bundle_hash != self.bundle.content_hash:
+                raise InputError(
+                    "this shape record was computed with another model bundle; register it again"
+                )
+            if record.descriptor.shape != (k,):
+                raise ArrayShapeError(
+                    f"record descriptor has shape {record.descriptor.shape}, bundle expects ({k},)"
+                )
+        transforms = [r.transform for r in records]
+        descriptors = torch.from_numpy(np.stack([r.descriptor for r in records])).to(
+            self.device, torch.float32
+        )
         canonical = [t.apply(s.vertices) for t, s in zip(transforms, shapes, strict=True)]
         counts = [c.shape[0] for c in canonical]
         with torch.no_grad():
@@ -447,19 +569,18 @@ class Predictor:
             return part.clone() if len(shapes) > 1 else part
 
         states = []
-        for b, shape in enumerate(shapes):
-            residual = float(residuals[b])
+        for b, (shape, record) in enumerate(zip(shapes, records, strict=True)):
             states.append(
                 ShapeState(
-                    shape_id=shape.content_hash,
+                    shape_id=record.shape_id,
                     kind=shape.kind,
                     n_points=shape.n_points,
-                    transform=transforms[b],
-                    descriptor=frozen(descriptors[b].cpu().numpy()),
-                    residual=residual,
-                    ood_score=self._ood_score(residual),
+                    transform=record.transform,
+                    descriptor=record.descriptor,
+                    residual=record.residual,
+                    ood_score=self._ood_score(record.residual),
                     ood_calibrated=self._ood is not None,
-                    bundle_hash=self.bundle.content_hash,
+                    bundle_hash=record.bundle_hash,
                     vertices=shape.vertices,
                     canonical_points=frozen(canonical[b]),
                     faces=shape.faces,
@@ -468,6 +589,7 @@ class Predictor:
                     shape_bias=biases[b].clone(),
                     point_embeddings=rows(embeddings, b),
                     head_features=rows(features, b),
+                    record=record,
                 )
             )
         return states
