@@ -9,7 +9,7 @@ Sub-commands:
     litege train geodesic     train a geodesic model from a TOML config
     litege geodesic / path    predicted distances / geodesic paths with a model bundle
     litege eval geodesic      evaluate a model against the classical baselines
-    litege serve [...]        start the HTTP service (needs the ``service`` extra)
+    litege serve [...]        start the REST + gRPC service (needs the ``service`` extra)
 """
 
 from __future__ import annotations
@@ -207,7 +207,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         raise MissingDependencyError(
             "the service is not installed; install with: pip install 'litege[service]'"
         ) from exc
-    run(host=args.host, port=args.port)
+    run(args.host, args.port, args.grpc_port, rest=not args.no_rest, grpc=not args.no_grpc)
     return 0
 
 
@@ -267,9 +267,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_train_parser(commands)
 
-    serve = commands.add_parser("serve", help="start the HTTP service")
-    serve.add_argument("--host", default="127.0.0.1")
-    serve.add_argument("--port", type=int, default=8000)
+    serve = commands.add_parser(
+        "serve",
+        help="start the REST and gRPC service",
+        description="Start the REST (FastAPI) and gRPC servers in one process. Every setting "
+        "comes from LITEGE_* environment variables (see README); these flags override them.",
+    )
+    serve.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, default=None, help="REST port (default 8000)")
+    serve.add_argument("--grpc-port", type=int, default=None, help="gRPC port (default 50051)")
+    serve.add_argument("--no-rest", action="store_true", help="serve gRPC only")
+    serve.add_argument("--no-grpc", action="store_true", help="serve REST only")
     serve.set_defaults(handler=_cmd_serve)
     return parser
 

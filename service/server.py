@@ -1,44 +1,100 @@
-"""The HTTP service as it stands in this milestone.
-
-What exists: ``/healthz`` and ``/version`` (library version and the capabilities the core
-provides). The geodesic, path and correspondence endpoints arrive with the service issue; until
-then the server says so at start-up and in ``/version`` rather than pretending.
-"""
+"""``litege serve``: the REST and gRPC servers in one process, sharing one runtime."""
 
 from __future__ import annotations
 
-import fastapi
+import asyncio
+import contextlib
+import signal
+import sys
 
 from litege_core import __version__
+from service.logs import configure_logging
+from service.settings import Settings
 
-ROUTES_SERVED = ("/healthz", "/version", "/docs")
-NOT_YET_SERVED = ("/shapes", "/geodesic", "/paths", "/correspondences")
-
-
-def create_app() -> fastapi.FastAPI:
-    app = fastapi.FastAPI(title="LiteGE", version=__version__)
-
-    @app.get("/healthz")
-    def healthz() -> dict[str, str]:
-        return {"status": "ok"}
-
-    @app.get("/version")
-    def version() -> dict[str, object]:
-        return {
-            "version": __version__,
-            "serves": list(ROUTES_SERVED),
-            "not_yet_served": list(NOT_YET_SERVED),
-        }
-
-    return app
+SHUTDOWN_GRACE_S = 10.0
 
 
-def run(host: str = "127.0.0.1", port: int = 8000) -> None:
+def banner(settings: Settings, rest: bool, grpc: bool, device: str) -> str:
+    """What ``litege serve`` prints at start-up: where it listens and with which defaults."""
+    store = (
+        f"redis {settings.public_summary()['redis_url']} (+ {settings.hot_cache_bytes >> 20} MiB "
+        "in-process hot tier)"
+        if settings.redis_url
+        else f"in-process ({settings.memory_cache_bytes >> 20} MiB, set LITEGE_REDIS_URL for Redis)"
+    )
+    lines = [f"LiteGE {__version__}"]
+    if rest:
+        url = f"http://{settings.host}:{settings.port}"
+        lines.append(f"  REST   {url}  (docs {url}/docs, metrics {url}/metrics)")
+    if grpc:
+        lines.append(f"  gRPC   {settings.host}:{settings.grpc_port}  (health, reflection)")
+    lines += [
+        f"  models {', '.join(settings.models)} (default {settings.default_model}) on {device}",
+        f"  cache  {store}",
+        f"  auth   {'X-API-Key required' if settings.api_key else 'none (set LITEGE_API_KEY)'}",
+    ]
+    return "\n".join(lines)
+
+
+async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> None:
+    """Run until SIGINT/SIGTERM, then drain: stop accepting, finish in-flight requests and
+    queued work, close the store."""
     import uvicorn
 
-    print(
-        f"LiteGE {__version__} serving {', '.join(ROUTES_SERVED)} on http://{host}:{port}\n"
-        f"Not yet served (service milestone pending): {', '.join(NOT_YET_SERVED)}",
-        flush=True,
-    )
-    uvicorn.run(create_app(), host=host, port=port, log_level="info")
+    from service.app import create_app
+    from service.grpc_server import start_grpc_server
+    from service.runtime import Runtime
+
+    if not (rest or grpc):
+        raise ValueError("nothing to serve: both REST and gRPC are disabled")
+    runtime = await Runtime.start(settings)
+    grpc_server = None
+    try:
+        if grpc:
+            grpc_server, _ = await start_grpc_server(runtime, settings.host, settings.grpc_port)
+        print(banner(settings, rest, grpc, str(runtime.device)), flush=True)
+        if rest:
+            config = uvicorn.Config(
+                create_app(runtime=runtime),
+                host=settings.host,
+                port=settings.port,
+                log_config=None,
+                access_log=False,
+                timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
+            )
+            await uvicorn.Server(config).serve()  # returns after SIGINT/SIGTERM
+        else:
+            await _wait_for_signal()
+    finally:
+        if grpc_server is not None:
+            await grpc_server.stop(SHUTDOWN_GRACE_S)
+        await runtime.close()
+
+
+async def _wait_for_signal() -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+
+
+def run(
+    host: str | None = None,
+    port: int | None = None,
+    grpc_port: int | None = None,
+    *,
+    rest: bool = True,
+    grpc: bool = True,
+) -> None:
+    """Blocking entry point of ``litege serve`` (settings from ``LITEGE_*``, flags win)."""
+    overrides = {
+        k: v for k, v in (("host", host), ("port", port), ("grpc_port", grpc_port)) if v is not None
+    }
+    settings = Settings(**overrides)
+    configure_logging(settings.log_format, settings.log_level)
+    try:
+        asyncio.run(serve(settings, rest=rest, grpc=grpc))
+    except KeyboardInterrupt:  # pragma: no cover - second Ctrl-C
+        sys.exit(130)

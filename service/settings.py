@@ -1,0 +1,99 @@
+"""Service settings: one validated class, read from ``LITEGE_*`` environment variables."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+MiB = 1024 * 1024
+
+
+class Settings(BaseSettings):
+    """Every knob of the service. Defaults are the embedded single-machine setup: in-process
+    cache, shipped models, CPU unless a GPU is present, no API key, loopback only."""
+
+    model_config = SettingsConfigDict(env_prefix="LITEGE_", extra="ignore", frozen=True)
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    grpc_port: int = Field(50051, ge=0, le=65535)
+
+    models: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
+    default_model: str = "quadrupeds"
+    device: str = "auto"
+
+    redis_url: str | None = None
+    cache_ttl_s: float = Field(7 * 24 * 3600.0, gt=0)
+    memory_cache_bytes: int = Field(1024 * MiB, ge=MiB)
+    """Bound of the in-process artifact store when there is no Redis."""
+    hot_cache_bytes: int = Field(256 * MiB, ge=MiB)
+    """Bound of the in-process tier in front of Redis."""
+    state_cache_bytes: int = Field(512 * MiB, ge=MiB)
+    """Bound of the live (embedded, on-device) shape states."""
+
+    api_key: str | None = None
+
+    max_upload_bytes: int = Field(64 * MiB, ge=1024)
+    max_vertices: int = Field(500_000, ge=4)
+    max_faces: int = Field(1_000_000, ge=1)
+    max_queries: int = Field(1_000_000, ge=1)
+    """Largest sources × targets per request (and points per path request × path count)."""
+    max_path_requests: int = Field(64, ge=1)
+    max_concurrency: int = Field(64, ge=1)
+
+    batch_max_size: int = Field(64, ge=1)
+    batch_max_wait_ms: float = Field(2.0, ge=0)
+    queue_size: int = Field(256, ge=1)
+    request_timeout_s: float = Field(60.0, gt=0)
+    torch_threads: int | None = Field(None, ge=1)
+
+    log_format: Literal["json", "text"] = "json"
+    log_level: str = "INFO"
+
+    @field_validator("models", mode="before")
+    @classmethod
+    def _split_models(cls, value: object) -> object:
+        if isinstance(value, str):
+            return tuple(part.strip() for part in value.split(",") if part.strip())
+        return value
+
+    @field_validator("redis_url", "api_key", mode="before")
+    @classmethod
+    def _empty_is_none(cls, value: object) -> object:
+        return None if isinstance(value, str) and not value.strip() else value
+
+    @model_validator(mode="after")
+    def _check(self) -> Settings:
+        if not self.models:
+            raise ValueError("LITEGE_MODELS must name at least one model")
+        if self.default_model not in self.models:
+            raise ValueError(
+                f"LITEGE_DEFAULT_MODEL={self.default_model!r} is not in LITEGE_MODELS={self.models}"
+            )
+        if self.api_key is not None and len(self.api_key) < 16:
+            raise ValueError("LITEGE_API_KEY must be at least 16 characters (or unset)")
+        if self.redis_url is not None and not self.redis_url.startswith(
+            ("redis://", "rediss://", "unix://")
+        ):
+            raise ValueError(f"LITEGE_REDIS_URL must be a redis:// URL, got {self.redis_url!r}")
+        return self
+
+    def public_summary(self) -> dict[str, object]:
+        """The settings printed at start-up and served by ``/version`` (no secrets)."""
+        summary = self.model_dump()
+        summary["api_key"] = "set" if self.api_key else None
+        if self.redis_url:
+            summary["redis_url"] = _redact_url(self.redis_url)
+        return summary
+
+
+def _redact_url(url: str) -> str:
+    """``redis://user:secret@host`` → ``redis://user:***@host``."""
+    scheme, sep, rest = url.partition("://")
+    if "@" not in rest:
+        return url
+    credentials, _, host = rest.rpartition("@")
+    user = credentials.split(":", 1)[0]
+    return f"{scheme}{sep}{user}:***@{host}"
