@@ -1,4 +1,8 @@
-"""Fixtures of the service tests: real servers on loopback, in a background thread.
+"""Fixtures of the service tests: real servers on loopback, and real Redis servers.
+
+The shared Redis (``LITEGE_TEST_REDIS_URL``, default ``redis://127.0.0.1:6379/15``) must be
+running: tests FAIL, not skip, without it (CI starts one). Outage tests start their own
+``redis-server`` on a free port (``private_redis``) so they can kill, freeze and restart it.
 
 :class:`LiveService` runs the real :class:`~service.runtime.Runtime`, the real uvicorn server
 (REST) and the real gRPC server on one asyncio loop in a daemon thread, bound to free loopback
@@ -9,15 +13,23 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import os
+import shutil
+import signal
 import socket
+import subprocess
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 import pytest
+import redis
 import trimesh
 import uvicorn
+from redis.backoff import NoBackoff
+from redis.retry import Retry
 
 from litege_core.shape import Shape
 from service.app import create_app
@@ -25,6 +37,8 @@ from service.runtime import Runtime
 from service.settings import Settings
 
 TEST_MODEL = "quadrupeds"
+SHARED_REDIS_URL = os.environ.get("LITEGE_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
+REDIS_SERVER = shutil.which("redis-server") or "/usr/bin/redis-server"
 
 
 def service_settings(**overrides: Any) -> Settings:
@@ -153,3 +167,107 @@ def mesh_bytes(test_shape: Callable[[int], Shape]) -> Callable[[int, str], bytes
 def thread_pool() -> Iterator[concurrent.futures.ThreadPoolExecutor]:
     with concurrent.futures.ThreadPoolExecutor(16) as pool:
         yield pool
+
+
+# --------------------------------------------------------------------------- Redis
+
+
+@pytest.fixture(scope="session")
+def shared_redis_url() -> str:
+    """URL of the shared test Redis; fails the test clearly when it does not answer."""
+    client = redis.Redis.from_url(SHARED_REDIS_URL, socket_timeout=1, socket_connect_timeout=1)
+    try:
+        client.ping()
+    except redis.exceptions.RedisError as exc:
+        pytest.fail(
+            f"the store tests need a Redis server at {SHARED_REDIS_URL} ({exc}); start one "
+            "with: redis-server --daemonize yes --bind 127.0.0.1 --port 6379 --save '' "
+            "--appendonly no   (or set LITEGE_TEST_REDIS_URL)",
+            pytrace=False,
+        )
+    finally:
+        client.close()
+    return SHARED_REDIS_URL
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class RedisProcess:
+    """A private ``redis-server`` subprocess on a fixed port that tests may kill/restart."""
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self.url = f"redis://127.0.0.1:{port}/0"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self, timeout_s: float = 5.0) -> None:
+        assert self.proc is None or self.proc.poll() is not None, "already running"
+        self.proc = subprocess.Popen(
+            [
+                REDIS_SERVER,
+                "--port",
+                str(self.port),
+                "--bind",
+                "127.0.0.1",
+                "--save",
+                "",
+                "--appendonly",
+                "no",
+                "--daemonize",
+                "no",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        client = redis.Redis(
+            port=self.port,
+            socket_timeout=0.2,
+            socket_connect_timeout=0.2,
+            retry=Retry(NoBackoff(), 0),  # redis-py's default retries sleep for seconds
+        )
+        deadline = time.monotonic() + timeout_s
+        try:
+            while True:
+                try:
+                    client.ping()
+                    return
+                except redis.exceptions.RedisError as exc:
+                    if self.proc.poll() is not None or time.monotonic() > deadline:
+                        msg = f"redis-server did not start on port {self.port}"
+                        raise RuntimeError(msg) from exc
+                    time.sleep(0.02)
+        finally:
+            client.close()
+
+    def kill(self) -> None:
+        """SIGKILL the server (an abrupt outage) and wait for it to be gone."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+
+    def freeze(self) -> None:
+        """SIGSTOP: the port still accepts connections but nothing answers (a hung server)."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGSTOP)
+
+    def thaw(self) -> None:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGCONT)
+
+    def client(self) -> redis.Redis:
+        return redis.Redis(port=self.port, socket_timeout=1, socket_connect_timeout=1)
+
+
+@pytest.fixture
+def private_redis() -> Iterator[RedisProcess]:
+    """A running private redis-server on a free port, killed after the test."""
+    if not os.path.exists(REDIS_SERVER):
+        pytest.fail(f"the outage tests need {REDIS_SERVER}", pytrace=False)
+    server = RedisProcess(_free_port())
+    server.start()
+    yield server
+    server.kill()
