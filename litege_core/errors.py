@@ -14,6 +14,7 @@ gRPC status mapping.
     │   │   └── UnsupportedFormatError unknown or unsupported file extension/format
     │   ├── EmptyShapeError            no vertices / no faces where required
     │   ├── NonFiniteError             NaN or inf coordinates
+    │   │   └── CoordinateRangeError   finite coordinates too large for float64 arithmetic
     │   ├── ArrayShapeError            wrong array rank, width or dtype
     │   ├── FaceIndexError             face indices outside [0, n_vertices)
     │   ├── NonTriangularFacesError    polygons that are not triangles
@@ -64,6 +65,10 @@ class NonFiniteError(InputError):
     code = "non-finite-coordinates"
 
 
+class CoordinateRangeError(NonFiniteError):
+    code = "coordinate-out-of-range"
+
+
 class ArrayShapeError(InputError):
     code = "bad-array-shape"
 
@@ -104,6 +109,7 @@ __all__ = [
     "ArrayShapeError",
     "ArtifactError",
     "ComputationError",
+    "CoordinateRangeError",
     "DegenerateShapeError",
     "EmptyShapeError",
     "FaceIndexError",

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from litege_core.errors import (
     ArrayShapeError,
+    CoordinateRangeError,
     DegenerateShapeError,
     EmptyShapeError,
     FaceIndexError,
@@ -21,6 +22,13 @@ from litege_core.errors import (
     NonTriangularFacesError,
     ShapeTooLargeError,
 )
+
+MAX_ABS_COORDINATE = 1e12
+"""Largest accepted ``|coordinate|``: squares and covariances of larger values overflow or
+lose all precision in float64 (e.g. 1e200 gives an infinite PCA covariance)."""
+
+MIN_EXTENT = 1e-9
+"""Smallest accepted bounding-box extent (largest side), in the input units."""
 
 
 @dataclass(frozen=True)
@@ -43,6 +51,7 @@ def validate_vertices(vertices: ArrayLike, limits: ShapeLimits = DEFAULT_LIMITS)
         EmptyShapeError: ``N == 0``.
         ShapeTooLargeError: ``N > limits.max_vertices``.
         NonFiniteError: any NaN or infinite coordinate.
+        CoordinateRangeError: a coordinate beyond ``±MAX_ABS_COORDINATE``.
     """
     try:
         array = np.asarray(vertices)
@@ -71,6 +80,12 @@ def validate_vertices(vertices: ArrayLike, limits: ShapeLimits = DEFAULT_LIMITS)
             first_index=int(bad[0]),
             count=int(bad.size),
         )
+    largest = float(np.abs(array).max())
+    if largest > MAX_ABS_COORDINATE:
+        raise CoordinateRangeError(
+            f"coordinates up to {largest:.3g} in magnitude; the limit is {MAX_ABS_COORDINATE:g} "
+            "(rescale the shape)"
+        )
     return array
 
 
@@ -91,6 +106,8 @@ def validate_faces(
     except (ValueError, TypeError) as exc:
         raise NonTriangularFacesError(f"faces are ragged (mixed polygon sizes): {exc}") from exc
     if array.dtype == object:
+        if array.ndim == 2 and array.shape[1] == 3:  # rectangular: Python ints beyond int64
+            raise FaceIndexError("face indices must be integers within the int64 range")
         raise NonTriangularFacesError("faces are ragged (mixed polygon sizes)")
     if array.size == 0:
         raise EmptyShapeError("mesh has no faces")
@@ -140,15 +157,19 @@ def validate_arrays(
     Returns ``(vertices float64 (N, 3), faces int64 (F, 3) or None)``.
 
     Raises:
-        DegenerateShapeError: a mesh with zero total area, or a point cloud whose points
-            all coincide.
+        DegenerateShapeError: a mesh with zero total area, a point cloud whose points
+            all coincide, or a bounding box smaller than ``MIN_EXTENT``.
         (and everything :func:`validate_vertices` / :func:`validate_faces` raise)
     """
     checked_vertices = validate_vertices(vertices, limits)
+    extent = float(np.ptp(checked_vertices, axis=0).max())
+    if faces is None and not extent > 0.0:
+        raise DegenerateShapeError("all points of the point cloud coincide")
+    if not extent >= MIN_EXTENT:
+        raise DegenerateShapeError(
+            f"the shape's largest extent is {extent:.3g}, below {MIN_EXTENT:g}: rescale it"
+        )
     if faces is None:
-        extent = np.ptp(checked_vertices, axis=0).max()
-        if not extent > 0.0:
-            raise DegenerateShapeError("all points of the point cloud coincide")
         return checked_vertices, None
     checked_faces = validate_faces(faces, checked_vertices.shape[0], limits)
     total_area = float(triangle_areas(checked_vertices, checked_faces).sum())

@@ -37,6 +37,11 @@ _TABLE: dict[type[core.LiteGEError], tuple[int, grpc.StatusCode, str]] = {
     ),
     core.EmptyShapeError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Empty shape"),
     core.NonFiniteError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Non-finite coordinates"),
+    core.CoordinateRangeError: (
+        422,
+        grpc.StatusCode.INVALID_ARGUMENT,
+        "Coordinates out of range",
+    ),
     core.ArrayShapeError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Badly shaped array"),
     core.FaceIndexError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Face index out of range"),
     core.NonTriangularFacesError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Faces not triangles"),

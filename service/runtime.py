@@ -266,17 +266,6 @@ class Runtime:
 
     def shape_from_arrays(self, vertices: Any, faces: Any = None, kind: str | None = None) -> Shape:
         """Validate JSON/proto arrays within the upload limits."""
-        try:
-            vertices = np.asarray(vertices, dtype=np.float64)
-            faces = None if faces is None else np.asarray(faces)
-        except (TypeError, ValueError) as exc:
-            raise ArrayShapeError(
-                f"vertices and faces must be regular numeric arrays: {exc}"
-            ) from exc
-        if faces is not None and faces.size and faces.dtype.kind not in "iu":
-            if not np.all(np.isfinite(faces)) or np.any(faces != np.round(faces)):
-                raise ArrayShapeError("faces must be integer vertex indices")
-            faces = faces.astype(np.int64)
         return Shape.from_arrays(vertices, faces, kind=kind, limits=self.limits)
 
     @staticmethod

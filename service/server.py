@@ -42,7 +42,7 @@ async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> 
     import uvicorn
 
     from service.app import create_app
-    from service.grpc_server import start_grpc_server
+    from service.grpc_server import start_grpc_server, stop_grpc_server
     from service.runtime import Runtime
 
     if not (rest or grpc):
@@ -67,7 +67,7 @@ async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> 
             await _wait_for_signal()
     finally:
         if grpc_server is not None:
-            await grpc_server.stop(SHUTDOWN_GRACE_S)
+            await stop_grpc_server(grpc_server, SHUTDOWN_GRACE_S)
         await runtime.close()
 
 

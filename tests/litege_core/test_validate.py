@@ -96,3 +96,27 @@ def test_zero_area_mesh_is_degenerate():
 def test_coincident_point_cloud_is_degenerate():
     with pytest.raises(DegenerateShapeError):
         validate_arrays(np.ones((5, 3)), None)
+
+
+def test_huge_coordinates_are_refused():
+    from litege_core.errors import CoordinateRangeError
+
+    vertices = np.array([[0, 0, 0], [1e200, 0, 0], [0, 1, 0]], dtype=float)
+    with pytest.raises(CoordinateRangeError, match="rescale"):
+        validate_arrays(vertices, None)
+    validate_arrays(vertices / 1e190, None)  # 1e10 is fine
+
+
+def test_microscopic_shapes_are_degenerate():
+    vertices = np.array([[0, 0, 0], [1e-12, 0, 0], [0, 1e-12, 0]], dtype=float)
+    with pytest.raises(DegenerateShapeError, match="rescale"):
+        validate_arrays(vertices, [[0, 1, 2]])
+    with pytest.raises(DegenerateShapeError, match="rescale"):
+        validate_arrays(vertices, None)
+
+
+def test_face_indices_beyond_int64():
+    from litege_core.errors import FaceIndexError
+
+    with pytest.raises(FaceIndexError, match="int64"):
+        validate_faces([[0, 1, 2**70]], 3)
