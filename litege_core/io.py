@@ -168,8 +168,10 @@ def _read_with_trimesh(data: bytes, file_format: str) -> tuple[NDArray, NDArray 
 def _translate_parse_error(exc: Exception, file_format: str) -> LiteGEError:
     """Map a trimesh parsing exception onto the most precise LiteGE error."""
     message = str(exc)
-    # OBJ faces beyond the vertex list surface as numpy IndexError, OFF as a ValueError.
-    if isinstance(exc, IndexError) or "face index" in message.lower():
+    # OBJ faces beyond the vertex list surface as numpy IndexError ("index 7 is out of bounds
+    # ..."), OFF as a ValueError; a plain "list index out of range" is a truncated header.
+    numpy_bounds = isinstance(exc, IndexError) and "out of bounds" in message
+    if numpy_bounds or "face index" in message.lower():
         return FaceIndexError(
             f"{file_format.upper()} file has a face index out of range: {message}"
         )

@@ -186,3 +186,11 @@ def test_read_arrays_returns_raw_arrays(mesh):
     data = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(file_type="off")
     vertices, faces = read_arrays(data.encode(), "off")
     assert vertices.shape == (mesh.n_points, 3) and faces.shape == (mesh.n_faces, 3)
+
+
+def test_garbage_after_a_ply_magic_is_a_malformed_file():
+    from litege_core.errors import FaceIndexError, ShapeFileError
+
+    with pytest.raises(ShapeFileError) as error:
+        load_shape(b"ply\nthis is not a ply file\n", file_format="ply")
+    assert not isinstance(error.value, FaceIndexError)
