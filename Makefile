@@ -17,6 +17,7 @@ serve: $(STAMP)
 	$(BIN)/litege serve
 
 test: $(STAMP)
+	scripts/ensure_redis.sh
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 
