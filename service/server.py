@@ -7,6 +7,8 @@ import contextlib
 import signal
 import sys
 
+import uvicorn
+
 from litege_core import __version__
 from service.logs import configure_logging
 from service.settings import Settings
@@ -39,8 +41,6 @@ def banner(settings: Settings, rest: bool, grpc: bool, device: str) -> str:
 async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> None:
     """Run until SIGINT/SIGTERM, then drain: stop accepting, finish in-flight requests and
     queued work, close the store."""
-    import uvicorn
-
     from service.app import create_app
     from service.grpc_server import start_grpc_server, stop_grpc_server
     from service.runtime import Runtime
@@ -53,6 +53,7 @@ async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> 
         if grpc:
             grpc_server, _ = await start_grpc_server(runtime, settings.host, settings.grpc_port)
         print(banner(settings, rest, grpc, str(runtime.device)), flush=True)
+        stop = _stop_on_signals()
         if rest:
             config = uvicorn.Config(
                 create_app(runtime=runtime),
@@ -62,22 +63,39 @@ async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> 
                 access_log=False,
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
             )
-            await uvicorn.Server(config).serve()  # returns after SIGINT/SIGTERM
+            rest_server = _DrainingServer(config)
+            serving = asyncio.ensure_future(rest_server.serve())
+            await asyncio.wait(
+                [serving, asyncio.ensure_future(stop.wait())], return_when="FIRST_COMPLETED"
+            )
+            rest_server.should_exit = True  # stop accepting, finish in-flight requests
+            await serving
         else:
-            await _wait_for_signal()
+            await stop.wait()
     finally:
         if grpc_server is not None:
             await stop_grpc_server(grpc_server, SHUTDOWN_GRACE_S)
         await runtime.close()
 
 
-async def _wait_for_signal() -> None:
+def _stop_on_signals() -> asyncio.Event:
+    """An event set by SIGINT/SIGTERM (the process then drains and exits with status 0)."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, stop.set)
-    await stop.wait()
+    return stop
+
+
+class _DrainingServer(uvicorn.Server):
+    """uvicorn without its own signal handling: :func:`serve` owns the signals so that the
+    gRPC server and the runtime drain after the REST server, and the exit status is 0 (uvicorn
+    would re-raise the signal and kill the process before that)."""
+
+    @contextlib.contextmanager
+    def capture_signals(self):  # type: ignore[override]
+        yield
 
 
 def run(
