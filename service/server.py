@@ -61,6 +61,7 @@ async def serve(settings: Settings, *, rest: bool = True, grpc: bool = True) -> 
                 port=settings.port,
                 log_config=None,
                 access_log=False,
+                http="httptools",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
             )
             rest_server = _DrainingServer(config)

@@ -44,7 +44,10 @@ class Settings(BaseSettings):
     max_concurrency: int = Field(64, ge=1)
 
     batch_max_size: int = Field(64, ge=1)
-    batch_max_wait_ms: float = Field(2.0, ge=0)
+    batch_max_wait_ms: float = Field(0.0, ge=0)
+    """Extra wait for more jobs once one arrived. 0 = greedy: jobs that arrive while the compute
+    thread is busy form the next batch, so batches grow with load and an idle service adds no
+    latency (measured: a 2 ms wait added 2 ms to every single-client request)."""
     queue_size: int = Field(256, ge=1)
     request_timeout_s: float = Field(60.0, gt=0)
     torch_threads: int | None = Field(None, ge=1)
