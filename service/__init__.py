@@ -1,1 +1,4 @@
-"""LiteGE service: the thin HTTP (and later gRPC) layer over ``litege_core``. Owns no maths."""
+"""LiteGE service: REST and gRPC servers, shape store and batching over ``litege_core``.
+
+Owns no maths. Kept import-light: ``python -m service.healthcheck`` loads it on every probe.
+"""

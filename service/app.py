@@ -152,11 +152,10 @@ class GuardMiddleware:
     """Pure ASGI middleware: request body limit (buffered, so the app never sees more than
     the limit), concurrency limit, latency metrics and one JSON access-log line per request."""
 
-    def __init__(self, app: ASGIApp, settings: Settings, metrics: ServiceMetrics) -> None:
+    def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
         self.max_body = settings.max_upload_bytes + MULTIPART_OVERHEAD
         self.max_concurrency = settings.max_concurrency
-        self.metrics = metrics
         self.in_flight = 0
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -165,6 +164,7 @@ class GuardMiddleware:
             return
         started = time.perf_counter()
         path = scope.get("path", "")
+        metrics: ServiceMetrics = scope["app"].state.runtime.metrics  # exists after start-up
         status_holder = {"status": 500}
 
         async def send_wrapper(message: Message) -> None:
@@ -175,7 +175,7 @@ class GuardMiddleware:
         metered = path not in UNMETERED
         try:
             if metered and self.in_flight >= self.max_concurrency:
-                self.metrics.rejected.labels("concurrency").inc()
+                metrics.rejected.labels("concurrency").inc()
                 error = OverloadedError(
                     f"more than {self.max_concurrency} concurrent requests; retry later",
                     retry_after_s=1.0,
@@ -184,7 +184,7 @@ class GuardMiddleware:
                 await problem_response(error, path)(scope, receive, send_wrapper)
                 return
             self.in_flight += metered
-            self.metrics.in_flight.labels("http").inc()
+            metrics.in_flight.labels("http").inc()
             try:
                 body = await self._read_body(scope, receive)
                 if body is None:
@@ -196,15 +196,13 @@ class GuardMiddleware:
                 await self.app(scope, _replay(body, receive), send_wrapper)
             finally:
                 self.in_flight -= metered
-                self.metrics.in_flight.labels("http").dec()
+                metrics.in_flight.labels("http").dec()
         finally:
             elapsed = time.perf_counter() - started
             route = scope.get("route")
             route_path = getattr(route, "path", "unmatched")
             status = status_holder["status"]
-            self.metrics.http_latency.labels(scope["method"], route_path, str(status)).observe(
-                elapsed
-            )
+            metrics.http_latency.labels(scope["method"], route_path, str(status)).observe(elapsed)
             if metered:
                 log.info(
                     "request",
@@ -304,25 +302,12 @@ def create_app(settings: Settings | None = None, runtime: Runtime | None = None)
     if runtime is not None:
         app.state.runtime = runtime
 
-    def metrics() -> ServiceMetrics:
-        return app.state.runtime.metrics
-
     _install_error_handlers(app)
-    # The middleware needs the runtime's metrics, which exist only after start-up: resolve
-    # them lazily through a proxy object.
-    app.add_middleware(GuardMiddleware, settings=settings, metrics=_MetricsProxy(metrics))
+    app.add_middleware(GuardMiddleware, settings=settings)
     _add_probe_routes(app)
     _add_shape_routes(app)
     _add_query_routes(app)
     return app
-
-
-class _MetricsProxy:
-    def __init__(self, get: Any) -> None:
-        self._get = get
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._get(), name)
 
 
 def _add_probe_routes(app: FastAPI) -> None:

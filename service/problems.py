@@ -79,8 +79,3 @@ def problem_for(exc: core.LiteGEError) -> ProblemKind:
                 status = exc.status
             return ProblemKind(cls.code, status, grpc_status, title)  # type: ignore[attr-defined]
     raise TypeError(f"{type(exc).__name__} is not a LiteGEError")
-
-
-def all_problem_kinds() -> list[ProblemKind]:
-    """Every entry (documentation and tests)."""
-    return [problem_for(cls("")) for cls in _TABLE]  # type: ignore[abstract]

@@ -65,16 +65,20 @@ def test_augmented_views_are_seeded_and_within_settings(train_split):
 def test_view_tables_layout(train_split, toy_basis_path):
     dataset, arrays = train_split
     basis = UdfPcaBasis.load(toy_basis_path)
-    tables = build_view_tables(
-        arrays,
-        dataset.faces,
-        basis,
-        n_views=3,
-        clean_samples=400,
-        augment=AugmentConfig(min_points=200, max_points=800),
-        seed=1,
-        chunk=5,
-    )
+
+    def build(**chunking):
+        return build_view_tables(
+            arrays,
+            dataset.faces,
+            basis,
+            n_views=3,
+            clean_samples=400,
+            augment=AugmentConfig(min_points=200, max_points=800),
+            seed=1,
+            **chunking,
+        )
+
+    tables = build(chunk=5)
     n_shapes, n_vertices = arrays["vertices"].shape[:2]
     assert tables.n_views == 3 * n_shapes and tables.n_shapes == n_shapes
     assert tables.descriptors.shape == (3 * n_shapes, basis.n_components)
@@ -103,25 +107,8 @@ def test_view_tables_layout(train_split, toy_basis_path):
     np.testing.assert_allclose(tables.descriptors[6].numpy(), expected, atol=1e-5)
     # a second build is identical (deterministic seeds everywhere); another chunking changes
     # the matmul batch shapes, so only float32 rounding may differ
-    again = build_view_tables(
-        arrays,
-        dataset.faces,
-        basis,
-        n_views=3,
-        clean_samples=400,
-        augment=AugmentConfig(min_points=200, max_points=800),
-        seed=1,
-        chunk=5,
-    )
-    rechunked = build_view_tables(
-        arrays,
-        dataset.faces,
-        basis,
-        n_views=3,
-        clean_samples=400,
-        augment=AugmentConfig(min_points=200, max_points=800),
-        seed=1,
-    )
+    again = build(chunk=5)
+    rechunked = build()
     torch.testing.assert_close(rechunked.descriptors, tables.descriptors, rtol=1e-5, atol=1e-6)
     assert torch.equal(again.descriptors, tables.descriptors)
     assert torch.equal(again.vertices, tables.vertices)
