@@ -155,6 +155,8 @@ class ShapeRepository:
     def _lookup(
         self, shape_id: str, model: str, shape_hint: Shape | None = None
     ) -> ShapeState | None:
+        """The shape's live state, restored from the store if needed; ``None`` if unknown.
+        ``shape_hint`` (a re-upload: same content hash) spares decoding the stored arrays."""
         with self._lock:
             state = self._live.get((model, shape_id))
             if state is not None:
@@ -168,7 +170,7 @@ class ShapeRepository:
         if raw_arrays is None:
             self.metrics.cache.labels("store", "miss").inc()
             return None
-        shape = self._decode_shape(shape_id, raw_arrays, keys)
+        shape = shape_hint or self._decode_shape(shape_id, raw_arrays, keys)
         if shape is None:
             self.metrics.cache.labels("store", "corrupt").inc()
             return None
