@@ -187,23 +187,21 @@ class Dockerfile:
             values[name.strip()] = default.strip().strip('"')
         return values
 
-    def env(self) -> dict[str, str]:
+    def _key_values(self, instruction: str) -> dict[str, str]:
+        """``NAME=value`` pairs of every ``ENV`` or ``LABEL`` instruction."""
         values = {}
-        for rest in self.all("ENV"):
+        for rest in self.all(instruction):
             for token in shlex.split(rest):
                 name, sep, value = token.partition("=")
                 if sep:
                     values[name] = value
         return values
 
+    def env(self) -> dict[str, str]:
+        return self._key_values("ENV")
+
     def labels(self) -> dict[str, str]:
-        values = {}
-        for rest in self.all("LABEL"):
-            for token in shlex.split(rest):
-                name, sep, value = token.partition("=")
-                if sep:
-                    values[name] = value
-        return values
+        return self._key_values("LABEL")
 
     def exposed_ports(self) -> set[int]:
         ports = set()
