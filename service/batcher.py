@@ -74,6 +74,11 @@ class MicroBatcher:
             self._task = asyncio.get_running_loop().create_task(self._run(), name="litege-batcher")
 
     @property
+    def accepting(self) -> bool:
+        """Whether :meth:`submit` takes jobs (started and not shutting down)."""
+        return self._task is not None and not self._closing
+
+    @property
     def depth(self) -> int:
         return self._queue.qsize()
 
@@ -85,7 +90,7 @@ class MicroBatcher:
             DeadlineExceededError: no result within ``timeout_s``.
             NotReadyError: the batcher is shutting down.
         """
-        if self._closing or self._task is None:
+        if not self.accepting:
             raise NotReadyError("the service is shutting down")
         if kind not in self.handlers:
             raise KeyError(kind)

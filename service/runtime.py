@@ -236,7 +236,7 @@ class Runtime:
         degraded = health.degraded or not health.available
         self.metrics.store_degraded.set(1.0 if degraded else 0.0)
         return Readiness(
-            ready=not self.batcher._closing,
+            ready=self.batcher.accepting,
             degraded=degraded,
             detail={
                 "models": {
