@@ -1,22 +1,27 @@
 """T-Net, the 6D rotation representation, the rotation angle and the T-Net loss."""
 
+import json
 import math
 
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
+from torch import nn
 
-from litege_core.errors import ArrayShapeError, EmptyShapeError
+from litege_core.errors import ArrayShapeError, EmptyShapeError, InputError
 from litege_core.nets import (
     POINT_LOSS_WEIGHT,
     TNet,
     align_points,
+    load_state,
     rotate_points,
     rotation_angle,
     rotation_from_6d,
+    state_to_tensors,
     tnet_loss,
 )
 from litege_core.nets.rotation import ANGLE_CLAMP_EPS
+from litege_core.nets.tnet import REFERENCE_CONV_WIDTHS, REFERENCE_FC_WIDTHS
 
 
 def random_rotations(n: int, seed: int = 0) -> torch.Tensor:
@@ -197,3 +202,76 @@ def test_tnet_rejects_bad_input() -> None:
         net(torch.randn(1, 10, 2))
     with pytest.raises(EmptyShapeError):
         net(torch.randn(1, 0, 3))
+
+
+# --------------------------------------------------------------------------- widths / config
+
+
+def _conv_reference(net: TNet, points: torch.Tensor) -> torch.Tensor:
+    """The textbook PointNet evaluation: Conv1d on (B, C, N), max over N."""
+    return net.fc(net.point_mlp(points.transpose(1, 2)).amax(dim=2))
+
+
+@pytest.mark.parametrize("mode", ["train", "eval"])
+def test_tnet_linear_evaluation_equals_conv1d(mode: str) -> None:
+    torch.manual_seed(3)
+    net = TNet((8, 16, 32), (16, 8))
+    net.train()
+    with torch.no_grad():
+        net(torch.randn(4, 50, 3))  # non-trivial running statistics
+    getattr(net, mode)()
+    cloud = torch.randn(3, 41, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(net(cloud), _conv_reference(net, cloud), atol=1e-5, rtol=1e-5)
+
+
+def test_tnet_custom_widths_layout_and_config_round_trip() -> None:
+    net = TNet(conv_widths=(16, 32, 64), fc_widths=(32, 16))
+    convs = [(m.in_channels, m.out_channels) for m in net.modules() if isinstance(m, nn.Conv1d)]
+    linears = [(m.in_features, m.out_features) for m in net.modules() if isinstance(m, nn.Linear)]
+    assert convs == [(3, 16), (16, 32), (32, 64)]
+    assert linears == [(64, 32), (32, 16), (16, 6)]
+    assert net.config() == {"conv_widths": [16, 32, 64], "fc_widths": [32, 16]}
+    assert json.loads(json.dumps(net.config())) == net.config()
+    again = TNet.from_config(net.config())
+    assert again.config() == net.config()
+    load_state(again, state_to_tensors(net))  # same layout: strict load works
+
+
+def test_tnet_default_config_is_the_reference() -> None:
+    assert TNet().config() == {
+        "conv_widths": list(REFERENCE_CONV_WIDTHS),
+        "fc_widths": list(REFERENCE_FC_WIDTHS),
+    }
+    assert REFERENCE_CONV_WIDTHS == (128, 512, 2048) and REFERENCE_FC_WIDTHS == (512, 128)
+    assert TNet.from_config({"fc_widths": [8]}).conv_widths == REFERENCE_CONV_WIDTHS
+
+
+def test_tnet_without_fc_hidden_layers() -> None:
+    net = TNet((8,), ()).eval()
+    assert [type(m) for m in net.fc] == [nn.Linear]
+    with torch.no_grad():
+        assert net(torch.randn(2, 10, 3)).shape == (2, 6)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        {"conv_widths": []},
+        {"conv_widths": [8, 0]},
+        {"conv_widths": [8, -1]},
+        {"conv_widths": [8, 2.5]},
+        {"conv_widths": [True]},
+        {"conv_widths": "64"},
+        {"fc_widths": 16},
+        {"widths": [8]},
+    ],
+)
+def test_tnet_config_validation(config: dict) -> None:
+    with pytest.raises(InputError):
+        TNet.from_config(config)
+
+
+def test_tnet_from_config_needs_a_dict() -> None:
+    with pytest.raises(InputError):
+        TNet.from_config([64, 128])  # type: ignore[arg-type]
