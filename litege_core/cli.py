@@ -4,6 +4,7 @@ Sub-commands:
     litege info FILE          load and validate a shape; print kind, counts, area, content hash
     litege geodesic FILE      predicted geodesic distances (sources × targets) to a .npy file
     litege path FILE          predicted geodesic path (polyline) to a .npy file
+    litege match X Y          for each query point of X, the matched point of Y (.npy, int64)
     litege data build ...     build (or resume) a ground-truth geodesic dataset
     litege data verify DIR    check a dataset's shard hashes and arrays
     litege train geodesic     train a geodesic model from a TOML config
@@ -151,6 +152,37 @@ def _cmd_path(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_match(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+
+    from litege_core.device import resolve_device
+    from litege_core.matching import MatchingModel
+
+    queries = None if args.queries.strip() == "all" else _parse_indices(args.queries, "queries")
+    start = time.perf_counter()
+    source = load_shape(args.x_file, kind=args.x_kind)
+    target = load_shape(args.y_file, kind=args.y_kind)
+    model = MatchingModel.load(args.bundle or args.model, resolve_device(args.device))
+    x, y = model.prepare_many([source, target], seed=args.seed, scaling=args.scaling)
+    result = model.match(x, y, queries, beams=args.beams)
+    _save_npy(args.output, result.indices.astype(np.int64))
+    summary = {
+        "x_file": str(args.x_file),
+        "y_file": str(args.y_file),
+        "model": model.name,
+        "output": str(args.output),
+        "n_queries": int(result.indices.size),
+        "scaling": [x.scaling, y.scaling],
+        "evaluations": result.evaluations,
+        "mean_predicted_distance": float(result.distance.mean()),
+        "seconds": round(time.perf_counter() - start, 3),
+    }
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
 def _add_bundle_arguments(parser: argparse.ArgumentParser) -> None:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--model", default=None, help="shipped model name (default: quadrupeds)")
@@ -262,6 +294,32 @@ def build_parser() -> argparse.ArgumentParser:
     eval_geo.add_argument("--sources", type=int, default=16, help="sources per real shape")
     eval_geo.add_argument("--settings", default=None, help="comma-separated subset of settings")
     eval_geo.set_defaults(handler=_cmd_eval_geodesic)
+
+    match = commands.add_parser(
+        "match",
+        help="match points of X to Y: int64 (N,) indices into Y's vertices/points",
+        description="For each query point of X, the vertex/point of Y minimizing the predicted "
+        "cross-shape geodesic (coarse-to-fine search), in Y's original indexing.",
+    )
+    match.add_argument("x_file", help="source shape X (mesh or point cloud file)")
+    match.add_argument("y_file", help="target shape Y (mesh or point cloud file)")
+    match.add_argument("--queries", default="all", help="'all' (default) or i,j,... of X")
+    which = match.add_mutually_exclusive_group()
+    which.add_argument("--model", default="quadrupeds", help="shipped matching model name")
+    which.add_argument("--bundle", default=None, help="matching bundle directory")
+    match.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    match.add_argument("--x-kind", choices=["mesh", "point_cloud"], default=None)
+    match.add_argument("--y-kind", choices=["mesh", "point_cloud"], default=None)
+    match.add_argument(
+        "--scaling",
+        default="auto",
+        choices=["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"],
+        help="how both shapes are scaled (auto: from mesh boundary / cloud size)",
+    )
+    match.add_argument("--beams", type=int, default=None, help="candidates kept per coarse tier")
+    match.add_argument("--seed", type=int, default=0, help="seed of the samples")
+    match.add_argument("-o", "--output", required=True, help="output .npy file")
+    match.set_defaults(handler=_cmd_match)
 
     from litege_core.train.command import add_train_parser
 

@@ -1,0 +1,104 @@
+"""``litege match``: output file, agreement with the library, errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from litege_core.cli import main
+from litege_core.io import load_shape
+from litege_core.matching import MatchingModel, save_matching_bundle
+from litege_core.synth import families, generate_shape
+
+
+@pytest.fixture(scope="module")
+def bundle_dir(tmp_path_factory):
+    bundle = MatchingModel.tiny_random(0).bundle
+    directory = tmp_path_factory.mktemp("match") / "tiny-matching"
+    save_matching_bundle(
+        directory,
+        name="tiny",
+        category="test",
+        basis=bundle.basis,
+        tnet=bundle.tnet,
+        networks=list(bundle.networks),
+        pipeline=bundle.pipeline,
+        search=bundle.search,
+    )
+    return directory
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("shapes")
+    paths = []
+    for k, family in enumerate(families("quadruped")[:2]):
+        shape = generate_shape("quadruped", family, 2_000_000 + k)
+        path = directory / f"{family}.obj"
+        trimesh.Trimesh(shape.vertices, shape.faces, process=False).export(path)
+        paths.append(path)
+    return paths
+
+
+def test_match_writes_int64_indices_equal_to_the_library(bundle_dir, files, tmp_path, capsys):
+    out = tmp_path / "m.npy"
+    code = main(
+        [
+            "match",
+            str(files[0]),
+            str(files[1]),
+            "--bundle",
+            str(bundle_dir),
+            "--queries",
+            "0,5,17",
+            "-o",
+            str(out),
+        ]
+    )
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_queries"] == 3 and summary["scaling"] == ["unit_area", "unit_area"]
+    matches = np.load(out)
+    assert matches.dtype == np.int64 and matches.shape == (3,)
+    model = MatchingModel.load(bundle_dir)
+    x, y = model.prepare_many([load_shape(files[0]), load_shape(files[1])])
+    np.testing.assert_array_equal(matches, model.match(x, y, [0, 5, 17]).indices)
+
+
+def test_match_all_queries_covers_every_point_of_x(bundle_dir, files, tmp_path):
+    out = tmp_path / "all.npy"
+    assert (
+        main(["match", str(files[0]), str(files[1]), "--bundle", str(bundle_dir), "-o", str(out)])
+        == 0
+    )
+    assert np.load(out).shape == (load_shape(files[0]).n_points,)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--queries", "0,999999"], "outside"),
+        (["--queries", "a,b"], "integer"),
+    ],
+)
+def test_match_reports_bad_input_with_exit_code_2(
+    bundle_dir, files, tmp_path, capsys, extra, message
+):
+    out = tmp_path / "bad.npy"
+    code = main(
+        ["match", str(files[0]), str(files[1]), "--bundle", str(bundle_dir), *extra, "-o", str(out)]
+    )
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_match_unknown_model_is_a_clear_error(files, tmp_path, capsys):
+    code = main(
+        ["match", str(files[0]), str(files[1]), "--model", "nope", "-o", str(tmp_path / "x.npy")]
+    )
+    assert code == 2
+    assert "unknown matching model" in capsys.readouterr().err
