@@ -1,0 +1,245 @@
+"""Training tables of the matching network (reference-spec §3.4, §1.6).
+
+Every view of a training shape is what a user would send, randomly rotated, then put through
+the *inference* frame (:func:`~litege_core.matching.frame.align_shapes`: unit-area or Poisson
+scaling, then the T-Net), so the T-Net's alignment noise is baked into the training inputs as
+it is at test time (spec §1.6 "Important"). Views the T-Net misaligns by more than
+``reject_angle`` are dropped (the training-time rejection filter, 0.66 rad).
+
+A training pair is two views of *different* shapes ``(a, b)``, a shared source row ``r`` and a
+vertex ``t``: the source is vertex ``sources[r]`` on X = view ``a`` and the destination vertex
+``t`` on Y = view ``b`` (or, with probability ½, source ``t`` on X and destination
+``sources[r]`` on Y), and the target is ``target_scale × ½ (g_a(r, t) + g_b(r, t))`` with the
+unit-area geodesics ``g`` (the shared template topology makes vertex ``t`` correspond).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from litege_core.descriptor import UdfPcaBasis
+from litege_core.errors import InputError
+from litege_core.matching.frame import MatchingPipeline, align_shapes
+from litege_core.nets import TNet
+from litege_core.shape import Shape
+from litege_core.train.augment import augmented_view
+from litege_core.train.config import AugmentConfig
+from litege_core.variants import random_rotation
+
+REJECT_ANGLE = 0.66
+"""T-Net misalignment (rad) above which a training view is rejected (spec §1.6)."""
+
+
+@dataclass
+class MatchingTables:
+    """Per-view tensors on one device (``W`` views of ``S`` shapes, ``V`` vertices, ``R`` rows).
+
+    Attributes:
+        descriptors: ``(W, E)`` float32.
+        vertices: ``(W, V, 3)`` float32 vertices in the view's aligned unit-area frame.
+        shape: ``(W,)`` int64 shape of each view.
+        distances: ``(S, R, V)`` unit-area geodesics from the shape's source rows (float32).
+        sources: ``(S, R)`` int64 source vertex of each row.
+        angle: ``(W,)`` float32 T-Net misalignment of each view (rad).
+    """
+
+    descriptors: torch.Tensor
+    vertices: torch.Tensor
+    shape: torch.Tensor
+    distances: torch.Tensor
+    sources: torch.Tensor
+    angle: torch.Tensor
+
+    def to(self, device: torch.device | str) -> MatchingTables:
+        return MatchingTables(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+    @property
+    def n_views(self) -> int:
+        return int(self.shape.shape[0])
+
+
+def misalignment(transform_rotation: NDArray, view_rotation: NDArray) -> float:
+    """Angle (rad) of the residual rotation ``R_frame · R_view`` (0 = perfectly undone)."""
+    residual = transform_rotation @ view_rotation
+    return float(np.arccos(np.clip((np.trace(residual) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def build_matching_tables(
+    arrays: dict[str, NDArray],
+    faces: NDArray,
+    n_shared: int,
+    basis: UdfPcaBasis,
+    tnet: TNet,
+    pipeline: MatchingPipeline,
+    *,
+    n_views: int,
+    augment: AugmentConfig,
+    seed: int,
+    reject_angle: float = REJECT_ANGLE,
+    device: torch.device | str = "cpu",
+    chunk: int = 32,
+) -> MatchingTables:
+    """Views of every shape of a split (view 0 the clean mesh, the others augmented clouds).
+
+    Args:
+        arrays: a dataset split (vertices ``(S, V, 3)`` raw, sources ``(S, R)``, distances
+            ``(S, R, V)`` raw units, area ``(S,)``, seed ``(S,)``).
+        faces: ``(F, 3)`` shared triangulation.
+        n_shared: the first ``n_shared`` rows are the shared sources (kept; the rest dropped).
+        basis, tnet, pipeline: the matching frame and descriptor.
+        n_views: views per shape; augment: settings of views 1..n-1 (``rotate`` should be
+            on: view 0 is always rotated); seed: run seed; reject_angle: the filter (rad).
+    """
+    if n_views < 1:
+        raise InputError("n_views must be at least 1")
+    raw = np.asarray(arrays["vertices"], dtype=np.float64)
+    n_shapes = raw.shape[0]
+    engine = basis.engine(device)
+    descriptors, vertices, shape_of, angles = [], [], [], []
+    pending: list[tuple[int, Shape, NDArray, NDArray]] = []
+
+    def flush() -> None:
+        if not pending:
+            return
+        frames = align_shapes([p[1] for p in pending], tnet, pipeline, seed=seed)
+        kept = []
+        for (s, _, user_vertices, rotation), (transform, cloud, _) in zip(
+            pending, frames, strict=True
+        ):
+            angle = misalignment(transform.rotation, rotation)
+            if angle > reject_angle:
+                continue
+            kept.append(cloud.astype(np.float32))
+            vertices.append(transform.apply(user_vertices).astype(np.float32))
+            shape_of.append(s)
+            angles.append(angle)
+        if kept:
+            descriptors.append(engine.describe_batch(kept).detach().float().cpu())
+        pending.clear()
+
+    for s in range(n_shapes):
+        for j in range(n_views):
+            rng = np.random.default_rng([seed, int(arrays["seed"][s]), j])
+            if j == 0:  # the clean mesh, randomly rotated
+                rotation = random_rotation(rng)
+                user_vertices = raw[s] @ rotation.T
+                shape = Shape.from_arrays(user_vertices, faces)
+            else:
+                view = augmented_view(raw[s], faces, float(arrays["area"][s]), augment, rng)
+                rotation = view.rotation
+                user_vertices = raw[s] @ rotation.T
+                shape = Shape.from_arrays(view.points, None)
+            pending.append((s, shape, user_vertices, rotation))
+            if len(pending) >= chunk:
+                flush()
+    flush()
+    if not shape_of:
+        raise InputError("every view was rejected by the T-Net filter")
+    scale = 1.0 / np.sqrt(np.asarray(arrays["area"], dtype=np.float64))
+    distances = np.asarray(arrays["distances"][:, :n_shared], dtype=np.float32)
+    distances = distances * scale[:, None, None].astype(np.float32)
+    return MatchingTables(
+        descriptors=torch.cat(descriptors).to(device),
+        vertices=torch.from_numpy(np.stack(vertices)).to(device),
+        shape=torch.tensor(shape_of, dtype=torch.int64, device=device),
+        distances=torch.from_numpy(distances).to(device),
+        sources=torch.from_numpy(arrays["sources"][:, :n_shared].astype(np.int64)).to(device),
+        angle=torch.tensor(angles, dtype=torch.float32, device=device),
+    )
+
+
+@dataclass
+class MatchingBatch:
+    """``P`` training pairs: coordinates, descriptors and targets (target units)."""
+
+    src: torch.Tensor
+    dst: torch.Tensor
+    desc_src: torch.Tensor
+    desc_dst: torch.Tensor
+    target: torch.Tensor
+
+
+def view_pairs(tables: MatchingTables, n_pairs: int, generator: torch.Generator) -> torch.Tensor:
+    """``(n_pairs, 2)`` random ordered pairs of views of different shapes."""
+    w = tables.n_views
+    device = tables.shape.device
+    a = torch.randint(0, w, (n_pairs,), generator=generator, device=device)
+    b = torch.randint(0, w, (n_pairs,), generator=generator, device=device)
+    same = tables.shape[a] == tables.shape[b]
+    for _ in range(8):  # redraw the (rare) same-shape pairs
+        if not same.any():
+            break
+        b = torch.where(
+            same, torch.randint(0, w, (n_pairs,), generator=generator, device=device), b
+        )
+        same = tables.shape[a] == tables.shape[b]
+    if same.any():
+        raise InputError("need views of at least two different shapes")
+    return torch.stack([a, b], dim=1)
+
+
+def sample_batch(
+    tables: MatchingTables,
+    n_view_pairs: int,
+    rows_per_pair: int,
+    targets_per_pair: int,
+    target_scale: float,
+    generator: torch.Generator,
+) -> MatchingBatch:
+    """A random training batch of ``n_view_pairs × rows_per_pair × targets_per_pair`` pairs."""
+    device = tables.shape.device
+    pairs = view_pairs(tables, n_view_pairs, generator)
+    n_rows = tables.sources.shape[1]
+    n_vertices = tables.vertices.shape[1]
+    per = rows_per_pair * targets_per_pair
+    a = pairs[:, 0].repeat_interleave(per)
+    b = pairs[:, 1].repeat_interleave(per)
+    total = a.shape[0]
+    row = torch.randint(0, n_rows, (total,), generator=generator, device=device)
+    t = torch.randint(0, n_vertices, (total,), generator=generator, device=device)
+    sa, sb = tables.shape[a], tables.shape[b]
+    source_vertex = tables.sources[sa, row]
+    target = 0.5 * (tables.distances[sa, row, t] + tables.distances[sb, row, t]) * target_scale
+    swap = torch.rand(total, generator=generator, device=device) < 0.5
+    x_vertex = torch.where(swap, t, source_vertex)
+    y_vertex = torch.where(swap, source_vertex, t)
+    return MatchingBatch(
+        src=tables.vertices[a, x_vertex],
+        dst=tables.vertices[b, y_vertex],
+        desc_src=tables.descriptors[a],
+        desc_dst=tables.descriptors[b],
+        target=target,
+    )
+
+
+@dataclass
+class ValidationSet:
+    """Fixed validation pairs of clean views of different shapes.
+
+    Attributes:
+        pairs: ``(Q, 2)`` view pairs.
+        batch: fixed regression pairs for the (masked) L1.
+    """
+
+    pairs: torch.Tensor
+    batch: MatchingBatch
+
+
+def validation_set(
+    tables: MatchingTables,
+    n_view_pairs: int,
+    rows_per_pair: int,
+    targets_per_pair: int,
+    target_scale: float,
+    seed: int,
+) -> ValidationSet:
+    generator = torch.Generator(device=tables.shape.device).manual_seed(seed)
+    batch = sample_batch(
+        tables, n_view_pairs, rows_per_pair, targets_per_pair, target_scale, generator
+    )
+    pairs = view_pairs(tables, n_view_pairs, generator)
+    return ValidationSet(pairs=pairs, batch=batch)
