@@ -273,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     data_commands = data.add_subparsers(dest="data_command", required=True)
     build = data_commands.add_parser("build", help="build or resume a dataset")
     build.add_argument("--category", choices=["quadruped", "biped"], default="quadruped")
-    build.add_argument("--preset", choices=["small", "full"], default="small")
+    build.add_argument("--preset", choices=["small", "full", "matching"], default="small")
     build.add_argument("--out", default=None, help="directory (default data/CATEGORY-PRESET)")
     build.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     build.set_defaults(handler=_cmd_data_build)

@@ -83,8 +83,11 @@ class DatasetSpec:
 
 
 def preset(name: str, category: str) -> DatasetSpec:
-    """Named presets: ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min) and ``full``
-    (the paper's scale: ≥ 10K quadrupeds / ≥ 5K bipeds, for a 16-core machine)."""
+    """Named presets: ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min), ``full``
+    (the paper's scale: ≥ 10K quadrupeds / ≥ 5K bipeds, for a 16-core machine) and
+    ``matching`` (180 shapes with only the shared sources, which are all the matching target
+    uses: the CPU-sized matching training set; matching is evaluated on freshly generated
+    test-seed shapes, so it has no test split)."""
     from litege_core.synth import CATEGORIES, families
 
     if category not in CATEGORIES:
@@ -94,6 +97,8 @@ def preset(name: str, category: str) -> DatasetSpec:
         ("small", "biped"): {"train": 400, "val": 50, "test": 50},
         ("full", "quadruped"): {"train": 10_000, "val": 300, "test": 200},
         ("full", "biped"): {"train": 5_000, "val": 200, "test": 100},
+        ("matching", "quadruped"): {"train": 160, "val": 20, "test": 0},
+        ("matching", "biped"): {"train": 160, "val": 20, "test": 0},
     }
     if (name, category) not in sizes:
         raise InputError(f"unknown preset {name!r} for category {category!r}")
@@ -102,4 +107,5 @@ def preset(name: str, category: str) -> DatasetSpec:
         category=category,
         families=families(category),
         n_shapes=sizes[(name, category)],
+        n_extra_sources=0 if name == "matching" else DatasetSpec.n_extra_sources,
     )
