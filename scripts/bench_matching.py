@@ -134,7 +134,7 @@ def main() -> None:
     )
     print(
         f"- command `python scripts/bench_matching.py {args.model} --runs {args.runs} "
-        f"--threads {args.threads}`"
+        f"--threads {args.threads} --queries {args.queries}`"
     )
     print()
     print("| step | ms |")
