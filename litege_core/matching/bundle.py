@@ -133,7 +133,7 @@ def save_matching_bundle(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     basis.save(directory / BASIS_FILE)
-    save_file(_narrowed(tnet, torch.float32), str(directory / TNET_FILE))
+    save_file(_narrowed(tnet, weights_dtype), str(directory / TNET_FILE))
     for k, net in enumerate(networks):
         save_file(_narrowed(net, weights_dtype), str(directory / network_file(k)))
     names = [BASIS_FILE, TNET_FILE, *(network_file(k) for k in range(len(networks)))]
