@@ -161,3 +161,27 @@ def test_spec_validation_and_presets():
     assert sum(small.n_shapes.values()) >= 500 and len(small.families) == 5
     assert sum(preset("full", "quadruped").n_shapes.values()) >= 10_000
     assert DatasetSpec.from_dict(json.loads(small.to_json())) == small
+
+
+def test_heat_solver_is_recorded_close_to_exact_and_not_mixed_on_resume(tmp_path):
+    spec = toy_spec(n_shapes={"train": 2, "val": 0, "test": 0}, n_extra_sources=0)
+    manifest = build_dataset(
+        spec, tmp_path / "h", EllipsoidFactory(), solver="heat", progress=False
+    )
+    assert manifest["solver"].startswith("heat method")
+    arrays = GeodesicDataset(tmp_path / "h").load_split("train")
+    shape = Shape.from_arrays(arrays["vertices"][0].astype(np.float64), SPHERE.faces)
+    exact = compute_distances(shape, arrays["sources"][0], method="exact").distances
+    positive = exact > 0
+    relative = np.abs(arrays["distances"][0][positive] - exact[positive]) / exact[positive]
+    assert relative.mean() < 0.05
+    with pytest.raises(ArtifactError, match="solver"):
+        build_dataset(spec, tmp_path / "h", EllipsoidFactory(), solver="exact", progress=False)
+    with pytest.raises(InputError, match="unknown solver"):
+        build_dataset(spec, tmp_path / "x", EllipsoidFactory(), solver="guess", progress=False)
+
+
+def test_matching_preset_keeps_only_shared_sources():
+    spec = preset("matching", "quadruped")
+    assert spec.n_extra_sources == 0 and spec.n_shapes["test"] == 0
+    assert spec.n_shapes["train"] >= 100 and spec.n_shapes["val"] >= 16
