@@ -10,6 +10,9 @@ Sub-commands:
     litege train geodesic     train a geodesic model from a TOML config
     litege geodesic / path    predicted distances / geodesic paths with a model bundle
     litege eval geodesic      evaluate a model against the classical baselines
+    litege eval matching      evaluate a matching model against NN and ZoomOut baselines
+    litege render FILE        PNG heatmap of predicted distances (isolines, path), offscreen
+    litege render-match X Y   PNG of a correspondence X → Y (colour transfer), offscreen
     litege serve [...]        start the REST + gRPC service (needs the ``service`` extra)
 """
 
@@ -53,7 +56,9 @@ def _cmd_data_build(args: argparse.Namespace) -> int:
 
     spec = preset(args.preset, args.category)
     directory = args.out or f"data/{spec.name}"
-    manifest = build_dataset(spec, directory, factory_for(args.category), workers=args.workers)
+    manifest = build_dataset(
+        spec, directory, factory_for(args.category), workers=args.workers, solver=args.solver
+    )
     print(
         json.dumps(
             {
@@ -230,6 +235,66 @@ def _cmd_eval_geodesic(args: argparse.Namespace) -> int:
     return 0
 
 
+def _split_list(text: str | None, allowed: Sequence[str], what: str) -> list[str]:
+    """``"a,b"`` → ``["a", "b"]`` checked against ``allowed`` (``""`` → none)."""
+    items = [item.strip() for item in (text or "").split(",") if item.strip()]
+    unknown = [item for item in items if item not in allowed]
+    if unknown:
+        raise InputError(f"--{what}: unknown {unknown}; expected a subset of {list(allowed)}")
+    return items
+
+
+def _cmd_eval_matching(args: argparse.Namespace) -> int:
+    from litege_core.evaluation.matching import (
+        load_matching_model,
+        machine_header,
+        results_table,
+        run_matching_evaluation,
+    )
+    from litege_core.evaluation.matching_data import REAL_SETS, SYNTHETIC_SETTINGS
+
+    settings = _split_list(args.settings, SYNTHETIC_SETTINGS, "settings")
+    real = _split_list(args.real, REAL_SETS, "real")
+    baselines = _split_list(args.baselines, ("nn", "zoomout"), "baselines")
+    model = load_matching_model(args.model, args.device)
+
+    def log(message: str) -> None:
+        print(f"litege: {message}", file=sys.stderr, flush=True)
+
+    results = run_matching_evaluation(
+        model,
+        settings=settings,
+        real=real,
+        eval_data=args.eval_data,
+        n_pairs=args.pairs,
+        n_queries=args.queries,
+        baselines=baselines,
+        seed=args.seed,
+        device=args.device,
+        rotate_input=not args.no_rotate,
+        workers=args.workers,
+        log=log,
+    )
+    meta = {
+        "model": f"{model.name} ({model.content_hash[:12]})",
+        "device": str(model.device),
+        "pairs/set": str(args.pairs),
+        "queries/pair": str(args.queries),
+        "seed": str(args.seed),
+    }
+    header = machine_header(meta)
+    print(results_table(results, header))
+    if args.json:
+        try:
+            with open(args.json, "w", encoding="utf-8") as handle:
+                json.dump(
+                    {"meta": header, "results": [r.to_dict() for r in results]}, handle, indent=2
+                )
+        except OSError as exc:
+            raise InputError(f"cannot write {args.json}: {exc.strerror}") from exc
+    return 0
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     try:
         # The CLI is the one place that reaches from the core into the service package, and
@@ -276,6 +341,12 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--preset", choices=["small", "full", "matching"], default="small")
     build.add_argument("--out", default=None, help="directory (default data/CATEGORY-PRESET)")
     build.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    build.add_argument(
+        "--solver",
+        choices=["exact", "heat"],
+        default="exact",
+        help="ground-truth geodesics: exact MMP (default) or the ~80× faster heat method",
+    )
     build.set_defaults(handler=_cmd_data_build)
     verify = data_commands.add_parser("verify", help="verify a dataset directory")
     verify.add_argument("directory")
@@ -321,9 +392,44 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("-o", "--output", required=True, help="output .npy file")
     match.set_defaults(handler=_cmd_match)
 
+    eval_match = eval_commands.add_parser(
+        "matching", help="matching error, AUC, flips and time vs NN and ZoomOut baselines"
+    )
+    eval_match.add_argument(
+        "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
+    )
+    eval_match.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    eval_match.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
+    eval_match.add_argument("--queries", type=int, default=100, help="query points per pair")
+    eval_match.add_argument(
+        "--settings",
+        default="template,remesh5k,aniso10k,broken40,cloud8k,cloud500",
+        help="comma-separated synthetic settings ('' for none)",
+    )
+    eval_match.add_argument(
+        "--real",
+        default="tosca,tosca-landmarks,faust",
+        help="comma-separated real sets, read from --eval-data when present ('' for none)",
+    )
+    eval_match.add_argument("--eval-data", default="../shared/eval-data")
+    eval_match.add_argument("--baselines", default="nn,zoomout", help="nn, zoomout ('' for none)")
+    eval_match.add_argument("--seed", type=int, default=0)
+    eval_match.add_argument(
+        "--no-rotate", action="store_true", help="keep inputs in their frame (default: random)"
+    )
+    eval_match.add_argument(
+        "--workers", type=int, default=1, help="processes for ground-truth geodesics"
+    )
+    eval_match.add_argument("--json", default=None, help="also write the results as JSON")
+    eval_match.set_defaults(handler=_cmd_eval_matching)
+
     from litege_core.train.command import add_train_parser
 
     add_train_parser(commands)
+
+    from litege_core.render.commands import add_render_parsers
+
+    add_render_parsers(commands)  # render, render-match (litege_core/render/commands.py)
 
     serve = commands.add_parser(
         "serve",

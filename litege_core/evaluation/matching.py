@@ -1,0 +1,539 @@
+"""Matching evaluation: LiteGE against nearest neighbour after alignment and ZoomOut.
+
+Protocol (reference-spec §5.4 and §7.3, pair sets in :mod:`litege_core.evaluation.matching_data`):
+
+* **Error of a match**: the exact geodesic distance, on the target Y scaled to unit area,
+  between the predicted point and the ground-truth point; reported as the mean ×100 over the
+  pooled matches of a setting.
+* **AUC** ×100: recall ``P(error ≤ t)`` at ``linspace(0, T, 40)``, trapezoid rule, divided by
+  ``T``; ``T = 0.1`` for ``template`` and ``0.2`` for every other setting (paper).
+* **Flip rate**: a match is a left-right flip when its error under the *mirrored* ground truth
+  is below ``FLIP_RATIO`` × its error under the true one and at least ``FLIP_MARGIN`` smaller
+  (points near the symmetry plane, whose mirror is themselves, never count). Reported
+  separately, only where a mirror map exists (synthetic shapes: the template's exact symmetry;
+  TOSCA landmarks: ``sym.info``; TOSCA dense: ``NAME.sym.vts`` when present).
+* **Time**: seconds per pair end to end, preprocessing of both shapes included. A shape used in
+  several pairs is preprocessed once and its measured preprocessing time is charged to every
+  pair it takes part in, so the per-pair figure is what a pair costs from scratch.
+
+Methods:
+
+* ``litege``: :meth:`MatchingModel.prepare` both shapes, :meth:`MatchingModel.match` the queries.
+* ``nn``: the same :meth:`MatchingModel.prepare` (``prepared.aligned``: the model's own alignment
+  into the unit-area frame), then the nearest Y point of each query (a KD-tree). Its time
+  includes the whole ``prepare`` (descriptor and NN cache too, which NN alone would not need);
+  LiteGE's also includes the per-point network features (memoized per shape).
+* ``zoomout``: functional maps with ``pyFM`` (PyPI ``pyfmaps``, extra ``litege[eval]``): unit-area
+  centred shapes, 100 Laplace–Beltrami eigenpairs (cotangent Laplacian on meshes, robust
+  "tufted" Laplacian on point clouds and broken meshes), 100 WKS descriptors (every 2nd kept),
+  an initial ``30 × 30`` map (descriptor preservation + commutativity, Laplacian commutativity,
+  orientation term on meshes), ZoomOut ``30 → 100`` in steps of 5 on 1000 farthest-point
+  samples of each shape, then the pointwise map of the queries in the ``100``-dim basis.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from litege_core.errors import MissingDependencyError
+from litege_core.evaluation.matching_data import MatchPair
+from litege_core.shape import Shape
+
+N_THRESHOLDS = 40
+FLIP_RATIO = 0.5
+FLIP_MARGIN = 0.05  # unit-area units (5 on the ×100 scale)
+METHODS = ("litege", "nn", "zoomout")
+ROBUST_BOUNDARY = 0.02  # meshes with more boundary edges (broken scans) use the tufted Laplacian
+METHOD_LABELS = {"litege": "LiteGE", "nn": "NN (aligned)", "zoomout": "ZoomOut (pyFM)"}
+
+
+# ----------------------------------------------------------------------------- metrics
+
+
+def auc_threshold(setting: str) -> float:
+    """AUC upper threshold: 0.1 for same-topology (``template``) pairs, 0.2 otherwise."""
+    return 0.1 if setting == "template" else 0.2
+
+
+def mean_error_x100(errors: ArrayLike) -> float:
+    """Mean unit-area geodesic error ×100 (NaN for no matches)."""
+    errors = np.asarray(errors, dtype=np.float64)
+    return float(100.0 * errors.mean()) if errors.size else float("nan")
+
+
+def auc_x100(errors: ArrayLike, threshold: float, n_thresholds: int = N_THRESHOLDS) -> float:
+    """Area under the recall curve ``P(error ≤ t)``, ``t ∈ linspace(0, T, n)``, trapezoid rule,
+    divided by ``T``, ×100 (100 = every error is 0)."""
+    errors = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if not errors.size:
+        return float("nan")
+    thresholds = np.linspace(0.0, threshold, n_thresholds)
+    recall = (errors[None, :] <= thresholds[:, None]).mean(axis=1)
+    return float(100.0 * np.trapezoid(recall, thresholds) / threshold)
+
+
+def flips(
+    errors: ArrayLike,
+    mirror_errors: ArrayLike,
+    ratio: float = FLIP_RATIO,
+    margin: float = FLIP_MARGIN,
+) -> NDArray:
+    """Boolean mask of left-right flipped matches (see the module doc)."""
+    errors = np.asarray(errors, dtype=np.float64)
+    mirror_errors = np.asarray(mirror_errors, dtype=np.float64)
+    return (mirror_errors < ratio * errors) & (errors - mirror_errors >= margin)
+
+
+# ----------------------------------------------------------------------------- methods
+
+
+@dataclass
+class Timed:
+    """A prepared shape and the seconds its preparation took."""
+
+    value: Any
+    seconds: float
+
+
+class MatchMethod:
+    """A matching method: ``prepare`` each shape once, then ``match`` queries of X on Y.
+
+    ``prep_key`` names the preparation; methods with the same key share prepared shapes (and
+    their measured time).
+    """
+
+    name = ""
+    prep_key = ""
+
+    def prepare(self, shape: Shape) -> Any:
+        raise NotImplementedError
+
+    def match(self, x: Any, y: Any, queries: NDArray) -> NDArray:
+        raise NotImplementedError
+
+
+class LiteGEMethod(MatchMethod):
+    name = "litege"
+
+    def __init__(self, model, seed: int = 0) -> None:
+        self.model = model
+        self.seed = seed
+        self.prep_key = f"litege:{model.content_hash}:{seed}"
+
+    def prepare(self, shape: Shape):
+        prepared = self.model.prepare(shape, seed=self.seed)
+        self.model.features(prepared)  # memoized per shape: charge it to the preparation
+        return prepared
+
+    def match(self, x, y, queries: NDArray) -> NDArray:
+        return self.model.match(x, y, queries).indices
+
+
+class NearestNeighbourMethod(MatchMethod):
+    """Nearest Y point of each query in the model's aligned unit-area frame."""
+
+    name = "nn"
+
+    def __init__(self, model, seed: int = 0) -> None:
+        self.model = model
+        self.seed = seed
+        self.prep_key = f"nn:{model.content_hash}:{seed}"
+
+    def prepare(self, shape: Shape):
+        return self.model.prepare(shape, seed=self.seed)
+
+    def match(self, x, y, queries: NDArray) -> NDArray:
+        tree = cKDTree(np.asarray(y.aligned, dtype=np.float64))
+        return tree.query(np.asarray(x.aligned, dtype=np.float64)[queries])[1].astype(np.int64)
+
+
+@dataclass(frozen=True)
+class ZoomOutSettings:
+    """The functional-map baseline's settings (module doc)."""
+
+    n_eigen: int = 100
+    n_descriptors: int = 100
+    descriptor_step: int = 2
+    k_init: int = 30
+    zoomout_step: int = 5
+    n_samples: int = 1000
+    w_descr: float = 1.0
+    w_lap: float = 0.1
+    w_dcomm: float = 1.0
+    w_orient: float = 1.0
+
+    @property
+    def n_iterations(self) -> int:
+        return (self.n_eigen - self.k_init) // self.zoomout_step
+
+
+def boundary_edge_fraction(faces: NDArray) -> float:
+    """Fraction of a mesh's edges that border one triangle only (0 for a closed mesh)."""
+    edges = np.sort(np.asarray(faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return float((counts == 1).mean())
+
+
+def _import_pyfm():
+    try:
+        from pyFM.functional import FunctionalMapping
+        from pyFM.mesh import TriMesh
+    except ImportError as exc:
+        raise MissingDependencyError(
+            "the ZoomOut baseline needs pyFM: pip install 'litege[eval]' (PyPI pyfmaps)"
+        ) from exc
+    return TriMesh, FunctionalMapping
+
+
+class ZoomOutMethod(MatchMethod):
+    """Functional maps + ZoomOut with pyFM (needs ``pyfmaps``)."""
+
+    name = "zoomout"
+
+    def __init__(self, settings: ZoomOutSettings = ZoomOutSettings()) -> None:
+        _import_pyfm()
+        self.settings = settings
+        self.prep_key = f"zoomout:{settings}"
+
+    def prepare(self, shape: Shape):
+        from pyFM.signatures import mesh_WKS
+
+        from litege_core.sampling import farthest_point_sampling
+
+        TriMesh, _ = _import_pyfm()
+        s = self.settings
+        mesh = TriMesh(
+            np.asarray(shape.vertices, dtype=np.float64),
+            None if shape.faces is None else np.asarray(shape.faces),
+            normalize=shape.is_mesh,
+        )
+        robust = not shape.is_mesh or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
+        mesh.process(k=s.n_eigen, robust=robust)
+        if not shape.is_mesh:  # unit area as the point-cloud Laplacian's mass measures it
+            mesh.scale(1.0 / np.sqrt(float(mesh.A.sum())))
+        descriptors = mesh_WKS(mesh, s.n_descriptors, k=s.n_eigen)[:, :: s.descriptor_step]
+        samples = farthest_point_sampling(mesh.vertices, min(s.n_samples, mesh.n_vertices))
+        return {"mesh": mesh, "wks": descriptors, "samples": samples, "orient": shape.is_mesh}
+
+    def match(self, x, y, queries: NDArray) -> NDArray:
+        from pyFM.refine.zoomout import mesh_zoomout_refine
+        from pyFM.spectral import FM_to_p2p
+
+        _, FunctionalMapping = _import_pyfm()
+        s = self.settings
+        # mesh1 = Y, mesh2 = X: the pointwise map p2p_21 sends X points to Y points.
+        # Both spectra were computed by prepare (fit would recompute them only if missing).
+        model = FunctionalMapping(y["mesh"], x["mesh"])
+        model.add_descriptors(y["wks"], x["wks"], normalize=True)
+        orient = s.w_orient if (x["orient"] and y["orient"]) else 0.0
+        model.fit(
+            K=(s.k_init, s.k_init),
+            w_descr=s.w_descr,
+            w_lap=s.w_lap,
+            w_dcomm=s.w_dcomm,
+            w_orient=orient,
+        )
+        fmap = mesh_zoomout_refine(
+            model.FM_12,
+            model.mesh1,
+            model.mesh2,
+            nit=s.n_iterations,
+            step=s.zoomout_step,
+            subsample=(y["samples"], x["samples"]),
+        )
+        k2, k1 = fmap.shape
+        return np.asarray(
+            FM_to_p2p(
+                fmap, model.mesh1.eigenvectors[:, :k1], model.mesh2.eigenvectors[queries, :k2]
+            ),
+            dtype=np.int64,
+        )
+
+
+# ----------------------------------------------------------------------------- runner
+
+
+@dataclass
+class SettingResult:
+    """Pooled result of one method on one setting."""
+
+    setting: str
+    method: str
+    pairs: int = 0
+    matches: int = 0
+    mean_error: float = float("nan")
+    auc: float = float("nan")
+    flip_rate: float | None = None
+    seconds_per_pair: float = float("nan")
+    failed: int = 0
+    note: str = ""
+    errors: list[float] = field(default_factory=list, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data.pop("errors")
+        return data
+
+
+class _PrepCache:
+    def __init__(self) -> None:
+        self._store: dict[tuple[str, str], Timed] = {}
+
+    def get(self, method: MatchMethod, shape: Shape) -> Timed:
+        key = (method.prep_key, shape.content_hash)
+        if key not in self._store:
+            start = time.perf_counter()
+            value = method.prepare(shape)
+            self._store[key] = Timed(value, time.perf_counter() - start)
+        return self._store[key]
+
+
+def evaluate_pairs(
+    setting: str,
+    pairs: Sequence[MatchPair],
+    methods: Sequence[MatchMethod],
+    notes: dict[str, str] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> list[SettingResult]:
+    """Run every method on every pair of one setting; pooled metrics per method.
+
+    ``notes`` maps a method name to a reason it was not run (a row with that note is kept).
+    """
+    cache = _PrepCache()
+    results = []
+    for method in methods:
+        result = SettingResult(setting, method.name)
+        errors, mirror_errors, seconds = [], [], []
+        for pair in pairs:
+            try:
+                px, py = cache.get(method, pair.x.shape), cache.get(method, pair.y.shape)
+                start = time.perf_counter()
+                predicted = method.match(px.value, py.value, pair.queries)
+                elapsed = time.perf_counter() - start + px.seconds + py.seconds
+            except Exception as exc:  # a baseline failing on a pair is a result, not a crash
+                result.failed += 1
+                if log is not None:
+                    log(f"{method.name} failed on {setting} {pair.name}: {exc!r}")
+                continue
+            err, mirrored = pair.errors(predicted)
+            errors.append(err)
+            seconds.append(elapsed)
+            if mirrored is not None:
+                mirror_errors.append(flips(err, mirrored))
+        _summarize(result, errors, mirror_errors, seconds, len(pairs))
+        results.append(result)
+    for name, note in (notes or {}).items():
+        results.append(SettingResult(setting, name, note=note))
+    return results
+
+
+def _summarize(result: SettingResult, errors, flip_masks, seconds, n_pairs) -> None:
+    pooled = np.concatenate(errors) if errors else np.zeros(0)
+    result.pairs = len(errors)
+    result.matches = int(pooled.size)
+    result.errors = pooled.tolist()
+    if pooled.size:
+        result.mean_error = mean_error_x100(pooled)
+        result.auc = auc_x100(pooled, auc_threshold(result.setting))
+        result.seconds_per_pair = float(np.mean(seconds))
+    if flip_masks and len(flip_masks) == len(errors):
+        result.flip_rate = float(100.0 * np.concatenate(flip_masks).mean())
+    if result.failed:
+        result.note = f"{result.failed} of {n_pairs} pairs failed"
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    if value is None or not np.isfinite(value):
+        return "—"
+    return f"{value:.{digits}f}"
+
+
+def _cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as handle:
+            for line in handle:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return f"{platform.machine()} {platform.processor() or platform.system()}"
+
+
+def machine_header(extra: dict[str, str] | None = None) -> str:
+    """One markdown line: date, machine, Python/torch, threads, plus ``extra`` items."""
+    import torch
+
+    items = {
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": _cpu_name(),
+        "cpus": str(os.cpu_count()),
+        "torch threads": str(torch.get_num_threads()),
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+    }
+    if torch.cuda.is_available():
+        items["gpu"] = torch.cuda.get_device_name()
+    items.update(extra or {})
+    return " · ".join(f"{k}: {v}" for k, v in items.items())
+
+
+def results_table(results: Sequence[SettingResult], header: str | None = None) -> str:
+    """The markdown table (one row per setting × method)."""
+    lines = [header, ""] if header else []
+    lines += [
+        "| setting | method | pairs | matches | mean error ×100 | AUC | flip % | s / pair | note |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in results:
+        label = METHOD_LABELS.get(r.method, r.method)
+        auc = f"{_fmt(r.auc, 1)} @{auc_threshold(r.setting):g}" if np.isfinite(r.auc) else "—"
+        seconds = _fmt(r.seconds_per_pair, 3 if r.seconds_per_pair < 1 else 2)
+        lines.append(
+            f"| {r.setting} | {label} | {r.pairs} | {r.matches} | {_fmt(r.mean_error)} | "
+            f"{auc} | {_fmt(r.flip_rate, 1)} | {seconds} | {r.note} |"
+        )
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- driver
+
+SHIPPED_FOR_CATEGORY = {"quadruped": "quadrupeds", "biped": "humans"}
+CATEGORY_NOUN = {"quadruped": "quadrupeds", "biped": "humans"}
+
+
+def load_matching_model(name_or_path: str, device: str = "cpu"):
+    """:meth:`MatchingModel.load` (a seam for tests)."""
+    from litege_core.matching import MatchingModel
+
+    return MatchingModel.load(name_or_path, device)
+
+
+class ModelChooser:
+    """The matching model for each shape category: the given model where its category fits
+    (a model of another category, e.g. a test model, answers every category), else the
+    shipped model of that category, else none (the reason is reported in the table)."""
+
+    def __init__(self, model, device: str = "cpu") -> None:
+        self.model = model
+        self.device = device
+        self._other: dict[str, Any] = {}
+
+    @property
+    def synthetic_category(self) -> str:
+        from litege_core.synth import CATEGORIES
+
+        return self.model.category if self.model.category in CATEGORIES else "quadruped"
+
+    def for_category(self, category: str):
+        """``(model, None)`` or ``(None, reason)``."""
+        from litege_core.errors import LiteGEError
+        from litege_core.synth import CATEGORIES
+
+        if self.model.category == category or self.model.category not in CATEGORIES:
+            return self.model, None
+        if category not in self._other:
+            try:
+                self._other[category] = load_matching_model(
+                    SHIPPED_FOR_CATEGORY[category], self.device
+                )
+            except LiteGEError:
+                self._other[category] = None
+        found = self._other[category]
+        return (
+            (found, None)
+            if found is not None
+            else (
+                None,
+                f"no {CATEGORY_NOUN[category]} matching model",
+            )
+        )
+
+
+def build_methods(model, baselines: Sequence[str], seed: int) -> list[MatchMethod]:
+    methods: list[MatchMethod] = []
+    if model is not None:
+        methods.append(LiteGEMethod(model, seed))
+        if "nn" in baselines:
+            methods.append(NearestNeighbourMethod(model, seed))
+    if "zoomout" in baselines:
+        methods.append(ZoomOutMethod())
+    return methods
+
+
+def run_matching_evaluation(
+    model,
+    *,
+    settings: Sequence[str],
+    real: Sequence[str],
+    eval_data: str,
+    n_pairs: int,
+    n_queries: int,
+    baselines: Sequence[str],
+    seed: int = 0,
+    device: str = "cpu",
+    rotate_input: bool = True,
+    workers: int = 1,
+    log: Callable[[str], None] | None = None,
+) -> list[SettingResult]:
+    """Every requested synthetic setting and real set, every method; see the module doc."""
+    from litege_core.errors import InputError, LiteGEError
+    from litege_core.evaluation import matching_data as data
+
+    unknown = [b for b in baselines if b not in ("nn", "zoomout")]
+    if unknown:
+        raise InputError(f"unknown baselines {unknown}; expected a subset of ['nn', 'zoomout']")
+    if n_pairs < 1 or n_queries < 1:
+        raise InputError("--pairs and --queries must be at least 1")
+    say = log or (lambda _message: None)
+    chooser = ModelChooser(model, device)
+    results: list[SettingResult] = []
+
+    def run_set(setting: str, pairs: list[MatchPair], category: str) -> None:
+        chosen, reason = chooser.for_category(category)
+        notes = {}
+        if chosen is None:
+            notes = {"litege": reason}
+            if "nn" in baselines:
+                notes["nn"] = f"{reason} (NN uses its alignment)"
+        methods = build_methods(chosen, baselines, seed)
+        say(f"{setting}: {len(pairs)} pairs, methods {[m.name for m in methods]}")
+        results.extend(evaluate_pairs(setting, pairs, methods, notes, log=say))
+
+    category = chooser.synthetic_category
+    pool = None
+    if settings:
+        pool = data.SyntheticPool(category, n_pairs, n_queries, seed, rotate_input, workers)
+    for setting in settings:
+        try:
+            pairs = pool.pairs(setting)
+        except MissingDependencyError as exc:
+            say(f"{setting}: skipped ({exc})")
+            results.append(SettingResult(setting, "litege", note=f"skipped: {exc}"))
+            continue
+        run_set(setting, pairs, category)
+    for name in real:
+        if name not in data.REAL_SETS:
+            raise InputError(f"unknown real set {name!r}; expected one of {data.REAL_SETS}")
+        try:
+            pairs = data.eval_data_pairs(
+                name, eval_data, n_pairs, n_queries, seed, rotate_input, workers
+            )
+        except LiteGEError as exc:
+            say(f"{name}: skipped ({exc})")
+            continue
+        if not pairs:
+            say(f"{name}: no evaluation data under {eval_data}; skipped")
+            continue
+        run_set(name, pairs, data.REAL_CATEGORY[name])
+    return results
