@@ -34,6 +34,8 @@ from service.metrics import ServiceMetrics
 from service.problems import PROBLEM_BASE_URI, problem_for
 from service.runtime import Runtime, ShapeInfo
 from service.schemas import (
+    CorrespondenceRequest,
+    CorrespondenceResponse,
     GeodesicRequest,
     GeodesicResponse,
     PathRequest,
@@ -43,6 +45,7 @@ from service.schemas import (
     ShapeInfoResponse,
 )
 from service.settings import Settings
+from service.viewer import add_viewer_routes
 
 log = logging.getLogger("litege.http")
 
@@ -295,7 +298,8 @@ def create_app(settings: Settings | None = None, runtime: Runtime | None = None)
     app = FastAPI(
         title="LiteGE",
         version=__version__,
-        description="Learned geodesic distances and paths on meshes and point clouds.",
+        description="Learned geodesic distances, paths and shape correspondence on meshes and "
+        "point clouds.",
         lifespan=lifespan,
         responses=PROBLEM_RESPONSES,
     )
@@ -307,6 +311,7 @@ def create_app(settings: Settings | None = None, runtime: Runtime | None = None)
     _add_probe_routes(app)
     _add_shape_routes(app)
     _add_query_routes(app)
+    add_viewer_routes(app, require_api_key)  # /viewer: the web viewer (service/viewer.py)
     return app
 
 
@@ -496,6 +501,29 @@ def _add_query_routes(app: FastAPI) -> None:
             n_steps=result.n_steps,
             converged=result.converged,
         )
+
+    @app.post(
+        "/correspondences",
+        tags=["queries"],
+        dependencies=auth,
+        response_model=CorrespondenceResponse,
+    )
+    async def correspondences(body: CorrespondenceRequest, runtime: RuntimeDep) -> Response:
+        """Dense correspondence: for each query point of the source shape, the matched
+        vertex/point of the target shape (learned cross-shape geodesic, coarse-to-fine
+        search). Both shapes must be registered first (``POST /shapes``)."""
+        result = await runtime.correspond(
+            body.source_shape_id, body.target_shape_id, body.queries, body.model
+        )
+        payload = {
+            "source_shape_id": result.source_shape_id,
+            "target_shape_id": result.target_shape_id,
+            "model": result.model,
+            "n_queries": result.n_queries,
+            "matches": result.matches.tolist(),
+            "distances": result.distances.tolist() if body.return_distance else None,
+        }
+        return Response(json.dumps(payload, allow_nan=False), media_type="application/json")
 
 
 def _matrix_response(request: Request, info: ShapeInfo, distances: np.ndarray) -> Response:

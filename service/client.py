@@ -6,6 +6,7 @@
         info = client.register_file("dog.obj")
         d = client.geodesic(info["shape_id"], [0, 10], "all")     # (2, N) float32
         path = client.path(info["shape_id"], 0, 4242)             # dict, points (L, 3)
+        m = client.correspondences(source_id, target_id, "all")   # m["matches"]: (N,) int64
 """
 
 from __future__ import annotations
@@ -164,6 +165,32 @@ class LiteGEClient:
             body["model"] = model
         result = self._check(self._http.post("/paths", json=body)).json()
         result["points"] = np.asarray(result["points"], dtype=np.float64)
+        return result
+
+    def correspondences(
+        self,
+        source_shape_id: str,
+        target_shape_id: str,
+        queries: ArrayLike | str = "all",
+        *,
+        return_distance: bool = False,
+        model: str | None = None,
+    ) -> dict[str, Any]:
+        """Matches of source queries (indices, ``(K, 3)`` points or ``"all"``) on the target:
+        the response dict with ``matches`` a ``(K,)`` int64 array and ``distances`` a
+        ``(K,)`` float32 array in unit-area units (``None`` unless ``return_distance``)."""
+        body: dict[str, Any] = {
+            "source_shape_id": source_shape_id,
+            "target_shape_id": target_shape_id,
+            "queries": _query(queries),
+            "return_distance": return_distance,
+        }
+        if model:
+            body["model"] = model
+        result = self._check(self._http.post("/correspondences", json=body)).json()
+        result["matches"] = np.asarray(result["matches"], dtype=np.int64)
+        if result.get("distances") is not None:
+            result["distances"] = np.asarray(result["distances"], dtype=np.float32)
         return result
 
     # ------------------------------------------------------------------ probes

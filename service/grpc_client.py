@@ -8,15 +8,19 @@
         info = client.register_file("dog.obj")                  # dict, info["shape_id"]
         d = client.geodesic(info["shape_id"], [0, 17, 42])      # (3, N) float32
         path = client.path(info["shape_id"], 0, 4242)           # path["points"]: (L, 3)
+        for answer in client.correspond(source_id, target_id, [[0, 1], "all"]):
+            answer["matches"]                                   # (K,) int64, per batch
+
 
 A failed call raises :class:`GrpcCallError` with the gRPC status code, the server's message and
-the RFC 9457 problem type URI the server sent in its trailing metadata.
+the RFC 9457 problem type URI the server sent in its trailing metadata (and, for ``Correspond``,
+the id of the batch that failed).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +33,7 @@ from service.grpc_stubs import load_stubs
 API_KEY_HEADER = "x-api-key"
 PROBLEM_TYPE_KEY = "litege-problem-type"
 RETRY_AFTER_KEY = "retry-after-ms"
+BATCH_ID_KEY = "litege-batch-id"
 DEFAULT_MAX_MESSAGE_BYTES = 65 << 20
 """The server's default upload limit (64 MiB) plus its framing headroom."""
 DEFAULT_CHUNK_BYTES = 1 << 20
@@ -43,6 +48,8 @@ class GrpcCallError(Exception):
         problem_type: RFC 9457 ``type`` URI from the ``litege-problem-type`` trailing metadata,
             ``None`` when the server sent none (e.g. a transport error or a client deadline).
         retry_after_ms: from ``retry-after-ms`` (overloaded server), else ``None``.
+        batch_id: from ``litege-batch-id`` (the ``Correspond`` batch that failed), else
+            ``None``.
     """
 
     def __init__(
@@ -51,12 +58,14 @@ class GrpcCallError(Exception):
         message: str,
         problem_type: str | None = None,
         retry_after_ms: int | None = None,
+        batch_id: int | None = None,
     ) -> None:
         super().__init__(f"{code.name}: {message}")
         self.code = code
         self.message = message
         self.problem_type = problem_type
         self.retry_after_ms = retry_after_ms
+        self.batch_id = batch_id
 
     @classmethod
     def of(cls, error: grpc.RpcError) -> GrpcCallError:
@@ -67,11 +76,13 @@ class GrpcCallError(Exception):
             dict(error.trailing_metadata() or ()) if hasattr(error, "trailing_metadata") else {}
         )
         retry = trailing.get(RETRY_AFTER_KEY)
+        batch = trailing.get(BATCH_ID_KEY)
         return cls(
             code or grpc.StatusCode.UNKNOWN,
             details or "",
             trailing.get(PROBLEM_TYPE_KEY),
             int(retry) if retry and str(retry).isdigit() else None,
+            int(batch) if batch and str(batch).isdigit() else None,
         )
 
 
@@ -323,6 +334,77 @@ class GrpcClient:
             "n_steps": int(response.n_steps),
             "converged": bool(response.converged),
         }
+
+    def correspond(
+        self,
+        source_shape_id: str,
+        target_shape_id: str,
+        batches: Iterable[ArrayLike | str],
+        model: str | None = None,
+        *,
+        return_distance: bool = False,
+        deadline_ms: int | None = None,
+        timeout_s: float | None = None,
+    ) -> Iterator[dict[str, Any]]:
+        """Stream batches of source queries through one ``Correspond`` call; yields one dict
+        per batch, in order: ``batch_id`` (the batch's position), ``n_queries``, ``matches``
+        (``(K,)`` int64 target indices), ``distances`` (``(K,)`` float32 in unit-area units,
+        ``None`` unless ``return_distance``), ``model``.
+
+        Args:
+            batches: each ``(K,)`` integer indices, ``(K, 3)`` float xyz points in the source's
+                units, or ``"all"``; consumed lazily, as gRPC's flow control allows.
+            deadline_ms: deadline of each batch, from its arrival at the server.
+            timeout_s: deadline of the whole stream (default: the client's).
+
+        Closing the returned iterator early (``break``, ``close()``) cancels the call: the
+        server computes no further batch. A failed batch raises :class:`GrpcCallError` (with
+        its ``batch_id``) after the answers of the batches before it.
+        """
+        pb2 = self.pb2
+
+        def requests() -> Iterator[Any]:
+            for position, queries in enumerate(batches):
+                request = pb2.CorrespondRequest(batch_id=position, return_distance=return_distance)
+                if position == 0:
+                    request.source_shape_id = source_shape_id
+                    request.target_shape_id = target_shape_id
+                    if model is not None:
+                        request.model = model
+                if deadline_ms is not None:
+                    request.deadline_ms = int(deadline_ms)
+                if isinstance(queries, str) and queries == "all":
+                    request.all_queries = True
+                else:
+                    what, array = _indices_or_points(queries, "queries")
+                    if what == "indices":
+                        request.query_indices.values.extend(array.tolist())
+                    else:
+                        request.query_points.xyz.extend(array.ravel().tolist())
+                yield request
+
+        call = self._stub.Correspond(
+            requests(),
+            timeout=self.timeout_s if timeout_s is None else timeout_s,
+            metadata=self._metadata,
+        )
+        try:
+            for response in call:
+                yield {
+                    "batch_id": int(response.batch_id),
+                    "source_shape_id": response.source_shape_id,
+                    "target_shape_id": response.target_shape_id,
+                    "model": response.model,
+                    "n_queries": int(response.n_queries),
+                    "matches": np.array(response.matches, dtype=np.int64),
+                    "distances": (
+                        np.array(response.distances, dtype=np.float32) if return_distance else None
+                    ),
+                }
+        except grpc.RpcError as exc:
+            raise GrpcCallError.of(exc) from None
+        finally:
+            call.cancel()  # no-op after the end of the stream; stops it when closed early
 
     # ------------------------------------------------------------------ health
 

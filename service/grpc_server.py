@@ -10,6 +10,10 @@ the settings have one), records metrics, and maps errors: a
 ``retry-after-ms``; anything else is logged and answered INTERNAL without details. When the
 client set a deadline, the remaining time goes to the runtime call as its timeout, so a call that
 cannot finish in time comes back DEADLINE_EXCEEDED instead of computing for nobody.
+
+``Correspond`` is a bidirectional stream (semantics in ``proto/litege.proto``): one batch at a
+time, answered in order; the first failing batch ends the stream with its error status, the
+same trailing metadata, and ``litege-batch-id``; a cancelled call stops before its next batch.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import math
 import time
 import weakref
 from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import dataclass
 from typing import Any
 
 import grpc
@@ -44,6 +49,7 @@ SERVICE_NAME = "litege.v1.LiteGE"
 API_KEY_HEADER = "x-api-key"
 PROBLEM_TYPE_KEY = "litege-problem-type"
 RETRY_AFTER_KEY = "retry-after-ms"
+BATCH_ID_KEY = "litege-batch-id"
 MESSAGE_HEADROOM_BYTES = 1 << 20
 """Allowance over the upload limit for a message's framing (header fields, chunk tags)."""
 DEADLINE_MARGIN_S = 0.01
@@ -109,6 +115,9 @@ class LiteGEServicer:
         self._distances_field = self.pb2.GeodesicResponse.DESCRIPTOR.fields_by_name[
             "distances"
         ].number
+        self._match_distances_field = self.pb2.CorrespondResponse.DESCRIPTOR.fields_by_name[
+            "distances"
+        ].number
 
     # ------------------------------------------------------------------ plumbing
 
@@ -164,13 +173,8 @@ class LiteGEServicer:
             self._authenticate(context)
             return await implementation(request, context)
         except LiteGEError as exc:
-            problem = problem_for(exc)
-            code = problem.grpc_status
-            trailing: list[tuple[str, str]] = [(PROBLEM_TYPE_KEY, problem.type_uri)]
-            if isinstance(exc, OverloadedError):
-                trailing.append((RETRY_AFTER_KEY, str(round(exc.retry_after_s * 1000))))
-            log.debug("%s: %s %s", name, code.name, exc)
-            await context.abort(code, str(exc), trailing_metadata=tuple(trailing))
+            code = problem_for(exc).grpc_status
+            await self._abort(name, exc, context)
         except grpc.aio.AbortError:
             raise
         except asyncio.CancelledError:
@@ -184,6 +188,21 @@ class LiteGEServicer:
             if metrics is not None:
                 metrics.in_flight.labels("grpc").dec()
                 metrics.grpc_latency.labels(name, code.name).observe(time.perf_counter() - started)
+
+    async def _abort(
+        self,
+        name: str,
+        exc: LiteGEError,
+        context: grpc.aio.ServicerContext,
+        extra: tuple[tuple[str, str], ...] = (),
+    ) -> None:
+        """End the call with the status of ``exc`` and the problem's trailing metadata."""
+        problem = problem_for(exc)
+        trailing: list[tuple[str, str]] = [(PROBLEM_TYPE_KEY, problem.type_uri), *extra]
+        if isinstance(exc, OverloadedError):
+            trailing.append((RETRY_AFTER_KEY, str(round(exc.retry_after_s * 1000))))
+        log.debug("%s: %s %s", name, problem.grpc_status.name, exc)
+        await context.abort(problem.grpc_status, str(exc), trailing_metadata=tuple(trailing))
 
     # ------------------------------------------------------------------ RPCs (gRPC names)
 
@@ -209,7 +228,89 @@ class LiteGEServicer:
         """``PathRequest`` → ``PathResponse`` with ``(L, 3)`` points."""
         return await self._guard("Path", self._path, request, context)
 
+    async def Correspond(  # noqa: N802
+        self, request_iterator: AsyncIterator[Any], context: grpc.aio.ServicerContext
+    ) -> AsyncIterator[Any]:
+        """Bidirectional stream: ``CorrespondRequest`` batches → ``CorrespondResponse``s, one
+        per batch, in order (see the module docstring and the .proto)."""
+        metrics = getattr(self.runtime, "metrics", None)
+        started = time.perf_counter()
+        code = grpc.StatusCode.OK
+        batch_id: int | None = None
+        if metrics is not None:
+            metrics.in_flight.labels("grpc").inc()
+        try:
+            self._authenticate(context)
+            pair = _Pair()
+            async for message in request_iterator:  # one batch at a time: back-pressure
+                if _cancelled(context):
+                    break
+                batch_id = int(message.batch_id)
+                pair = pair.updated(message)
+                response = await self._correspond_batch(message, pair, context)
+                yield response
+                batch_id = None
+        except LiteGEError as exc:
+            code = problem_for(exc).grpc_status
+            extra = () if batch_id is None else ((BATCH_ID_KEY, str(batch_id)),)
+            await self._abort("Correspond", exc, context, extra)
+        except grpc.aio.AbortError:
+            raise
+        except asyncio.CancelledError:
+            code = grpc.StatusCode.CANCELLED
+            raise
+        except Exception:
+            code = grpc.StatusCode.INTERNAL
+            log.exception("gRPC Correspond failed")
+            await context.abort(code, "internal error")
+        finally:
+            if code == grpc.StatusCode.OK and _cancelled(context):
+                code = grpc.StatusCode.CANCELLED  # the stream ended because the client left
+            if metrics is not None:
+                metrics.in_flight.labels("grpc").dec()
+                metrics.grpc_latency.labels("Correspond", code.name).observe(
+                    time.perf_counter() - started
+                )
+
     # ------------------------------------------------------------------ implementations
+
+    async def _correspond_batch(
+        self, message: Any, pair: _Pair, context: grpc.aio.ServicerContext
+    ) -> Any:
+        which = message.WhichOneof("queries")
+        if which == "query_indices":
+            queries: Any = np.asarray(message.query_indices.values, dtype=np.int64)
+        elif which == "query_points":
+            queries = _points(message.query_points.xyz, "query_points")
+        elif which == "all_queries" and message.all_queries:
+            queries = "all"
+        elif which is None:
+            raise RequestError(
+                f"batch {message.batch_id} has no queries: set query_indices, query_points "
+                "or all_queries"
+            )
+        else:
+            raise RequestError("all_queries = false names no queries")
+        timeout = self._timeout_s(context)
+        if message.HasField("deadline_ms") and message.deadline_ms > 0:
+            own = message.deadline_ms / 1000.0
+            timeout = own if timeout is None else min(timeout, own)
+        result = await self.runtime.correspond(
+            pair.source, pair.target, queries, model=pair.model, timeout_s=timeout
+        )
+        response = self.pb2.CorrespondResponse(
+            batch_id=message.batch_id,
+            source_shape_id=result.source_shape_id,
+            target_shape_id=result.target_shape_id,
+            model=result.model,
+            n_queries=result.n_queries,
+            matches=result.matches.tolist(),
+        )
+        if message.return_distance:
+            response.MergeFromString(
+                _packed_float_field(self._match_distances_field, result.distances)
+            )
+        return response
 
     async def _register_shape(
         self, request_iterator: AsyncIterator[Any], context: grpc.aio.ServicerContext
@@ -337,6 +438,30 @@ class LiteGEServicer:
             n_steps=result.n_steps,
             converged=result.converged,
         )
+
+
+def _cancelled(context: grpc.aio.ServicerContext) -> bool:
+    cancelled = getattr(context, "cancelled", None)
+    return bool(cancelled()) if cancelled is not None else False
+
+
+@dataclass(frozen=True)
+class _Pair:
+    """The shapes and model a ``Correspond`` stream is on (set by its first message)."""
+
+    source: str = ""
+    target: str = ""
+    model: str | None = None
+
+    def updated(self, message: Any) -> _Pair:
+        source = message.source_shape_id.strip() or self.source
+        target = message.target_shape_id.strip() or self.target
+        if not source or not target:
+            raise RequestError(
+                "the first Correspond message must name source_shape_id and target_shape_id"
+            )
+        model = _optional(message, "model") if message.HasField("model") else self.model
+        return _Pair(source, target, model)
 
 
 def _shape_id(request: Any) -> str:

@@ -60,6 +60,18 @@ class ServiceMetrics:
             ("model", "created"),
             registry=r,
         )
+        self.matching_prepared = Counter(
+            "litege_matching_prepared_total",
+            "Shapes prepared for matching (computed: not found live or in the store)",
+            ("model",),
+            registry=r,
+        )
+        self.correspond_batches = Counter(
+            "litege_correspond_batches_total",
+            "Correspondence requests and stream batches computed",
+            ("model",),
+            registry=r,
+        )
         self.model_load_seconds = Gauge(
             "litege_model_load_seconds", "Time to load a model bundle", ("model",), registry=r
         )

@@ -152,6 +152,32 @@ class ShapeRepository:
             "the cache); upload it again with POST /shapes"
         )
 
+    def shape(self, shape_id: str) -> Shape:
+        """The registered shape's own geometry (under any model), without building its state:
+        from a live state, else from the stored arrays.
+
+        Raises:
+            ShapeNotFoundError: as :meth:`get`.
+        """
+        with self._lock:
+            live = [self._live.get((name, shape_id)) for name in self.predictors]
+        state = next((s for s in live if s is not None), None)
+        if state is not None:
+            return Shape.from_arrays(
+                state.vertices, state.faces, kind=state.kind.value, limits=self.limits
+            )
+        for name in self._candidates(None):
+            keys = [self._key(name, shape_id, a) for a in ARTIFACTS]
+            (raw,) = self.store.get_many(keys[:1])
+            if raw is not None:
+                shape = self._decode_shape(shape_id, raw, keys)
+                if shape is not None:
+                    return shape
+        raise ShapeNotFoundError(
+            f"shape {shape_id!r} is not registered (unknown, deleted, or expired from the "
+            "cache); upload it again with POST /shapes"
+        )
+
     def _lookup(
         self, shape_id: str, model: str, shape_hint: Shape | None = None
     ) -> ShapeState | None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,12 +20,14 @@ from litege_core.bundle import load_shipped, shipped_bundles
 from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, LiteGEError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
+from litege_core.matching.model import MatchingModel
 from litege_core.paths import GeodesicPath
 from litege_core.predictor import Predictor
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.batcher import MicroBatcher
 from service.errors import TooManyQueriesError, UnknownModelError
+from service.matching import MatchingRepository
 from service.metrics import ServiceMetrics
 from service.repository import Registered, ShapeRepository
 from service.settings import Settings
@@ -118,6 +120,40 @@ class _PathJob:
     target: Any
 
 
+@dataclass(frozen=True)
+class _CorrespondJob:
+    source_id: str
+    target_id: str
+    model: str
+    indices: np.ndarray | None
+    points: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Correspondence:
+    """Matches of query points of a source shape on a target shape.
+
+    Attributes:
+        source_shape_id, target_shape_id: the two shapes.
+        model: the matching model that answered.
+        matches: ``(K,)`` int64 matched target vertex / point indices.
+        distances: ``(K,)`` float32 predicted cross-shape geodesic at each match, in unit-area
+            units (both shapes scaled to unit surface area), not the shapes' input units.
+        evaluations: network pair evaluations used.
+    """
+
+    source_shape_id: str
+    target_shape_id: str
+    model: str
+    matches: np.ndarray
+    distances: np.ndarray
+    evaluations: int
+
+    @property
+    def n_queries(self) -> int:
+        return int(self.matches.shape[0])
+
+
 def as_query(value: Any, what: str) -> Any:
     """A JSON/proto query (list of ints, list of xyz triples, ``"all"`` / ``None`` for
     targets) as the array the predictor takes; validation of ranges is the predictor's."""
@@ -136,6 +172,23 @@ def as_query(value: Any, what: str) -> Any:
     return array
 
 
+def as_match_queries(value: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Correspondence queries (``"all"`` / ``None``, indices, or xyz points) as
+    ``(indices, points)``: ``(None, None)`` for every source point, else one of the two."""
+    if value is None or (isinstance(value, str) and value == "all"):
+        return None, None
+    if isinstance(value, str):
+        raise ArrayShapeError("queries must be indices, xyz points or 'all'")
+    array = as_query(value, "queries")
+    if array.ndim == 1 and array.dtype.kind in "iu":
+        return array.astype(np.int64), None
+    if array.ndim == 2 and array.shape[1] == 3:
+        return None, array.astype(np.float64)
+    raise ArrayShapeError(
+        f"queries must be (K,) integer indices or (K, 3) xyz points, got shape {array.shape}"
+    )
+
+
 class Runtime:
     """Models, store, repository and batcher of one process (build with :meth:`start`)."""
 
@@ -145,6 +198,7 @@ class Runtime:
         predictors: dict[str, Predictor],
         store: ArtifactStore,
         metrics: ServiceMetrics,
+        matching_models: Mapping[str, MatchingModel] | None = None,
     ) -> None:
         self.settings = settings
         self.metrics = metrics
@@ -163,6 +217,14 @@ class Runtime:
             metrics=metrics,
             limits=self.limits,
         )
+        self.matching = MatchingRepository(
+            matching_models or {},
+            self.repository,
+            store,
+            cache_bytes=settings.state_cache_bytes,
+            ttl_s=settings.cache_ttl_s,
+            metrics=metrics,
+        )
         self.device = next(iter(predictors.values())).device
         self.batcher = MicroBatcher(
             {
@@ -171,6 +233,7 @@ class Runtime:
                 "delete": self._handle_delete,
                 "geodesic": self._handle_geodesic,
                 "path": self._handle_path,
+                "correspond": self._handle_correspond,
             },
             max_batch=settings.batch_max_size,
             max_wait_s=settings.batch_max_wait_ms / 1000.0,
@@ -183,8 +246,19 @@ class Runtime:
     # ------------------------------------------------------------------ life cycle
 
     @classmethod
-    async def start(cls, settings: Settings, store: ArtifactStore | None = None) -> Runtime:
-        """Load the models (in a worker thread), connect the store, start the batcher."""
+    async def start(
+        cls,
+        settings: Settings,
+        store: ArtifactStore | None = None,
+        matching_model: MatchingModel | None = None,
+    ) -> Runtime:
+        """Load the models (in a worker thread), connect the store, start the batcher.
+
+        ``matching_model`` replaces the one ``settings.matching_model`` names (tests inject
+        :meth:`MatchingModel.tiny_random`). A matching model named explicitly
+        (``LITEGE_MATCHING_MODEL``) must load; the default one is skipped with a warning when
+        it is not shipped, and correspondence requests then answer unknown-model.
+        """
         available = shipped_bundles()
         unknown = [m for m in settings.models if m not in available]
         if unknown:
@@ -202,7 +276,27 @@ class Runtime:
                 metrics.model_load_seconds.labels(name).set(time.perf_counter() - started)
             return predictors
 
+        def load_matching() -> dict[str, MatchingModel]:
+            if matching_model is not None:
+                return {matching_model.name: matching_model}
+            name = settings.matching_model
+            if name is None:
+                return {}
+            started = time.perf_counter()
+            try:
+                model = MatchingModel.load(name, device)
+            except LiteGEError as exc:
+                if "matching_model" in settings.model_fields_set:
+                    raise UnknownModelError(f"matching model {name!r}: {exc}") from exc
+                log.warning("correspondence is off: default matching model unavailable: %s", exc)
+                return {}
+            metrics.model_load_seconds.labels(f"{model.name}-matching").set(
+                time.perf_counter() - started
+            )
+            return {model.name: model}
+
         predictors = await asyncio.to_thread(load)
+        matching = await asyncio.to_thread(load_matching)
         if store is None:
             store = make_store(
                 settings.redis_url,
@@ -210,11 +304,16 @@ class Runtime:
                 hot_bytes=settings.hot_cache_bytes,
                 ttl_s=settings.cache_ttl_s,
             )
-        runtime = cls(settings, predictors, store, metrics)
+        runtime = cls(settings, predictors, store, metrics, matching)
         runtime.batcher.start()
         log.info(
             "runtime ready",
-            extra={"models": list(predictors), "device": str(device), "store": store.health()},
+            extra={
+                "models": list(predictors),
+                "matching_models": list(matching),
+                "device": str(device),
+                "store": store.health(),
+            },
         )
         return runtime
 
@@ -246,6 +345,10 @@ class Runtime:
                         "category": p.bundle.category,
                     }
                     for name, p in self.repository.predictors.items()
+                },
+                "matching_models": {
+                    name: {"bundle_hash": m.content_hash, "category": m.category}
+                    for name, m in self.matching.models.items()
                 },
                 "device": str(self.device),
                 "store": {
@@ -317,6 +420,31 @@ class Runtime:
         )
         return await self.batcher.submit("path", job, timeout_s=self._timeout(timeout_s))
 
+    async def correspond(
+        self,
+        source_shape_id: str,
+        target_shape_id: str,
+        queries: Any = "all",
+        model: str | None = None,
+        timeout_s: float | None = None,
+    ) -> Correspondence:
+        """Match ``queries`` of the source shape (indices, xyz points in its units, or
+        ``"all"``) on the target shape; both must be registered."""
+        name = self.matching.model_name(model)  # unknown model: fail before queueing
+        indices, points = as_match_queries(queries)
+        given = indices if indices is not None else points
+        if given is not None:
+            self._check_match_count(int(given.shape[0]))
+        job = _CorrespondJob(source_shape_id, target_shape_id, name, indices, points)
+        return await self.batcher.submit("correspond", job, timeout_s=self._timeout(timeout_s))
+
+    def _check_match_count(self, n_queries: int) -> None:
+        if n_queries > self.settings.max_queries:
+            raise TooManyQueriesError(
+                f"{n_queries} correspondence queries exceed the limit of "
+                f"{self.settings.max_queries} per request"
+            )
+
     def _timeout(self, timeout_s: float | None) -> float:
         limit = self.settings.request_timeout_s
         return limit if timeout_s is None else min(limit, max(timeout_s, 0.0))
@@ -348,7 +476,32 @@ class Runtime:
         return [_capture(lambda j=j: ShapeInfo.of(self.repository.get(*j))) for j in jobs]
 
     def _handle_delete(self, jobs: list[str]) -> list[Any]:
-        return [_capture(lambda j=j: self.repository.delete(j)) for j in jobs]
+        return [_capture(lambda j=j: self._delete(j)) for j in jobs]
+
+    def _delete(self, shape_id: str) -> bool:
+        prepared = self.matching.delete(shape_id)
+        return self.repository.delete(shape_id) or prepared
+
+    def _handle_correspond(self, jobs: list[_CorrespondJob]) -> list[Any]:
+        return [_capture(lambda j=j: self._correspond(j)) for j in jobs]
+
+    def _correspond(self, job: _CorrespondJob) -> Correspondence:
+        source = self.matching.get(job.source_id, job.model)
+        target = self.matching.get(job.target_id, job.model)
+        if job.indices is None and job.points is None:
+            self._check_match_count(source.n_points)
+        result = self.matching.models[job.model].match(
+            source, target, job.indices, query_points=job.points
+        )
+        self.metrics.correspond_batches.labels(job.model).inc()
+        return Correspondence(
+            job.source_id,
+            job.target_id,
+            job.model,
+            result.indices,
+            result.distance,
+            result.evaluations,
+        )
 
     def _handle_geodesic(self, jobs: list[_GeodesicJob]) -> list[Any]:
         results: list[Any] = [None] * len(jobs)

@@ -43,6 +43,21 @@ class PathRequest(_Request):
     target: VertexIndex | Point
 
 
+class CorrespondenceRequest(_Request):
+    """Match query points of the source shape on the target shape (both registered first
+    with ``POST /shapes``; their ids are the content hashes)."""
+
+    source_shape_id: str = Field(min_length=1, max_length=128)
+    target_shape_id: str = Field(min_length=1, max_length=128)
+    queries: Indices | Points | Literal["all"] = Field(
+        "all",
+        description="source vertex/point indices, xyz points in the source's frame and units, "
+        "or 'all' (every source vertex/point)",
+    )
+    return_distance: bool = Field(False, description="also return the distance at each match")
+    model: str | None = Field(None, description="matching model (default: the service's)")
+
+
 class ShapeInfoResponse(BaseModel):
     shape_id: str
     kind: ShapeKindName
@@ -63,6 +78,22 @@ class GeodesicResponse(BaseModel):
     cols: int
     units: Literal["input"] = "input"
     distances: list[list[float]] = Field(description="rows × cols, row-major, in input units")
+
+
+class CorrespondenceResponse(BaseModel):
+    source_shape_id: str
+    target_shape_id: str
+    model: str = Field(description="the matching model that answered")
+    n_queries: int
+    matches: list[int] = Field(
+        description="per query, the matched target vertex/point index (target's indexing)"
+    )
+    distances: list[float] | None = Field(
+        None,
+        description="per query, the predicted cross-shape geodesic distance at the match, in "
+        "unit-area units (both shapes scaled to unit surface area), NOT the shapes' input "
+        "units; null unless return_distance was true",
+    )
 
 
 class PathResponse(BaseModel):

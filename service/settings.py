@@ -23,6 +23,9 @@ class Settings(BaseSettings):
     models: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
     default_model: str = "quadrupeds"
     device: str = "auto"
+    matching_model: str | None = "quadrupeds"
+    """Matching bundle of ``POST /correspondences`` and the ``Correspond`` RPC (a shipped name
+    or a bundle directory); empty: correspondence is switched off (unknown-model answers)."""
 
     redis_url: str | None = None
     cache_ttl_s: float = Field(7 * 24 * 3600.0, gt=0)
@@ -39,7 +42,8 @@ class Settings(BaseSettings):
     max_vertices: int = Field(500_000, ge=4)
     max_faces: int = Field(1_000_000, ge=1)
     max_queries: int = Field(1_000_000, ge=1)
-    """Largest sources × targets per request (and points per path request × path count)."""
+    """Largest sources × targets per request (and points per path request × path count), and
+    most correspondence queries per request or stream batch."""
     max_path_requests: int = Field(64, ge=1)
     max_concurrency: int = Field(64, ge=1)
 
@@ -62,7 +66,7 @@ class Settings(BaseSettings):
             return tuple(part.strip() for part in value.split(",") if part.strip())
         return value
 
-    @field_validator("redis_url", "api_key", mode="before")
+    @field_validator("redis_url", "api_key", "matching_model", mode="before")
     @classmethod
     def _empty_is_none(cls, value: object) -> object:
         return None if isinstance(value, str) and not value.strip() else value

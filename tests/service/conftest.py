@@ -58,9 +58,10 @@ def service_settings(**overrides: Any) -> Settings:
 class LiveService:
     """The REST (and optionally gRPC) server of one runtime, on its own loop and thread."""
 
-    def __init__(self, settings: Settings, *, grpc: bool = False) -> None:
+    def __init__(self, settings: Settings, *, grpc: bool = False, matching: Any = None) -> None:
         self.settings = settings
         self.with_grpc = grpc
+        self.matching = matching
         self.loop = asyncio.new_event_loop()
         self.runtime: Runtime | None = None
         self.base_url = ""
@@ -83,7 +84,7 @@ class LiveService:
 
     async def _serve(self) -> None:
         try:
-            self.runtime = await Runtime.start(self.settings)
+            self.runtime = await Runtime.start(self.settings, matching_model=self.matching)
             if self.with_grpc:
                 from service.grpc_server import start_grpc_server
 
@@ -123,11 +124,12 @@ class LiveService:
 
 @pytest.fixture(scope="module")
 def live_service_factory() -> Iterator[Callable[..., LiveService]]:
-    """``factory(**settings)`` → a started :class:`LiveService`; all stopped at module end."""
+    """``factory(**settings)`` → a started :class:`LiveService`; all stopped at module end.
+    ``matching=`` injects a matching model (e.g. ``MatchingModel.tiny_random()``)."""
     started: list[LiveService] = []
 
-    def factory(*, grpc: bool = False, **overrides: Any) -> LiveService:
-        service = LiveService(service_settings(**overrides), grpc=grpc).start()
+    def factory(*, grpc: bool = False, matching: Any = None, **overrides: Any) -> LiveService:
+        service = LiveService(service_settings(**overrides), grpc=grpc, matching=matching).start()
         started.append(service)
         return service
 

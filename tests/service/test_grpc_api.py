@@ -682,7 +682,8 @@ def test_generated_stubs_are_package_relative() -> None:
     assert pb2.DESCRIPTOR.package == "litege.v1"
     assert not grpc_stubs.is_stale()
     assert (grpc_stubs.GENERATED_DIR / "litege_pb2.pyi").is_file()
-    assert "Correspond" not in pb2.DESCRIPTOR.services_by_name["LiteGE"].methods_by_name
+    correspond = pb2.DESCRIPTOR.services_by_name["LiteGE"].methods_by_name["Correspond"]
+    assert correspond.client_streaming and correspond.server_streaming
 
 
 def test_generate_records_hash_and_detects_staleness(tmp_path: Path) -> None:

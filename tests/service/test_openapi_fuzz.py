@@ -8,12 +8,18 @@ import pytest
 import schemathesis
 from schemathesis.checks import not_a_server_error
 
+from litege_core.matching.model import MatchingModel
+
 MAX_EXAMPLES = 30
 
 
 @pytest.fixture(scope="module")
 def fuzz_service(live_service_factory):
-    return live_service_factory(max_upload_bytes=256 * 1024, max_queries=20_000)
+    return live_service_factory(
+        max_upload_bytes=256 * 1024,
+        max_queries=20_000,
+        matching=MatchingModel.tiny_random(0),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +30,7 @@ def api_schema(fuzz_service):
 def test_no_server_errors(api_schema):
     """Every operation, ``MAX_EXAMPLES`` generated cases each (deterministic)."""
     operations = [result.ok() for result in api_schema.get_all_operations()]
-    assert {op.path for op in operations} >= {"/shapes", "/geodesic", "/paths"}
+    assert {op.path for op in operations} >= {"/shapes", "/geodesic", "/paths", "/correspondences"}
     for operation in operations:
 
         @hypothesis.given(case=operation.as_strategy())
