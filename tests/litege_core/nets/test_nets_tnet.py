@@ -21,7 +21,7 @@ from litege_core.nets import (
     tnet_loss,
 )
 from litege_core.nets.rotation import ANGLE_CLAMP_EPS
-from litege_core.nets.tnet import REFERENCE_CONV_WIDTHS, REFERENCE_FC_WIDTHS
+from litege_core.nets.tnet import REFERENCE_CONV_WIDTHS, REFERENCE_FC_WIDTHS, pca_frames
 
 
 def random_rotations(n: int, seed: int = 0) -> torch.Tensor:
@@ -231,7 +231,7 @@ def test_tnet_custom_widths_layout_and_config_round_trip() -> None:
     linears = [(m.in_features, m.out_features) for m in net.modules() if isinstance(m, nn.Linear)]
     assert convs == [(3, 16), (16, 32), (32, 64)]
     assert linears == [(64, 32), (32, 16), (16, 6)]
-    assert net.config() == {"conv_widths": [16, 32, 64], "fc_widths": [32, 16]}
+    assert net.config() == {"conv_widths": [16, 32, 64], "fc_widths": [32, 16], "prealign": "none"}
     assert json.loads(json.dumps(net.config())) == net.config()
     again = TNet.from_config(net.config())
     assert again.config() == net.config()
@@ -242,6 +242,7 @@ def test_tnet_default_config_is_the_reference() -> None:
     assert TNet().config() == {
         "conv_widths": list(REFERENCE_CONV_WIDTHS),
         "fc_widths": list(REFERENCE_FC_WIDTHS),
+        "prealign": "none",
     }
     assert REFERENCE_CONV_WIDTHS == (128, 512, 2048) and REFERENCE_FC_WIDTHS == (512, 128)
     assert TNet.from_config({"fc_widths": [8]}).conv_widths == REFERENCE_CONV_WIDTHS
@@ -265,6 +266,7 @@ def test_tnet_without_fc_hidden_layers() -> None:
         {"conv_widths": "64"},
         {"fc_widths": 16},
         {"widths": [8]},
+        {"prealign": "svd"},
     ],
 )
 def test_tnet_config_validation(config: dict) -> None:
@@ -275,3 +277,75 @@ def test_tnet_config_validation(config: dict) -> None:
 def test_tnet_from_config_needs_a_dict() -> None:
     with pytest.raises(InputError):
         TNet.from_config([64, 128])  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- PCA pre-alignment
+
+
+def _asymmetric_cloud(n: int = 400, seed: int = 0) -> torch.Tensor:
+    """Anisotropic, skewed along the first two principal axes (stable PCA signs)."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.tensor([3.0, 1.5, 0.5])
+    x[:, 0] += 0.4 * x[:, 0].abs() ** 1.5
+    x[:, 1] += 0.3 * x[:, 1].abs() ** 1.5
+    return x - x.mean(dim=0)
+
+
+def test_pca_frames_are_proper_and_rotation_equivariant() -> None:
+    cloud = _asymmetric_cloud()[None].expand(5, -1, -1)
+    R = random_rotations(5, seed=7)
+    frames = pca_frames(rotate_points(cloud, R))
+    eye = torch.eye(3, dtype=torch.float64).expand(5, 3, 3)
+    torch.testing.assert_close(frames.transpose(1, 2) @ frames, eye)
+    torch.testing.assert_close(torch.linalg.det(frames), torch.ones(5, dtype=torch.float64))
+    # The frame turns with the cloud: Q(X Rᵀ) = R Q(X), so (X Rᵀ) Q(X Rᵀ) = X Q(X).
+    torch.testing.assert_close(frames, R @ pca_frames(cloud))
+    # Variances along the frame axes decrease; third moments of a0, a1 are positive.
+    aligned = rotate_points(cloud, R) @ frames
+    variances = aligned.var(dim=1)
+    assert bool(
+        (variances[:, 0] > variances[:, 1]).all() and (variances[:, 1] > variances[:, 2]).all()
+    )
+    assert bool(((aligned[..., :2] ** 3).sum(dim=1) > 0).all())
+
+
+def test_prealigned_tnet_keeps_the_rotation_contract() -> None:
+    torch.manual_seed(4)
+    net = TNet((8, 16), (8,), prealign="pca").eval()
+    assert net.config()["prealign"] == "pca"
+    cloud = _asymmetric_cloud().float()[None].expand(3, -1, -1)
+    R_gt = random_rotations(3, seed=8).float()
+    rotated = rotate_points(cloud, R_gt)
+    with torch.no_grad():
+        frames = pca_frames(rotated)
+        expected = frames @ rotation_from_6d(net(rotated @ frames))
+        R_pred = net.rotation(rotated)
+        aligned, again = net.align(rotated)
+    torch.testing.assert_close(R_pred, expected)
+    torch.testing.assert_close(again, R_pred)
+    torch.testing.assert_close(aligned, rotated @ R_pred)
+    # The prediction only depends on the cloud's shape, not its orientation: rotating the
+    # input rotates R_pred with it (R_pred(X Sᵀ) = S R_pred(X)), up to float32 round-off.
+    S = random_rotations(1, seed=9).float()
+    with torch.no_grad():
+        turned = net.rotation(rotate_points(rotated, S))
+    torch.testing.assert_close(turned, S @ R_pred, atol=1e-4, rtol=0)
+
+
+def test_prealigned_tnet_learns_a_fixed_orientation_quickly() -> None:
+    """With PCA pre-alignment one rigid shape under random rotations is solved in a few steps."""
+    torch.manual_seed(5)
+    net = TNet((16, 32), (16,), prealign="pca").train()
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+    cloud = _asymmetric_cloud(200).float()
+    losses = []
+    for step in range(40):
+        R_gt = random_rotations(8, seed=100 + step).float()
+        canonical = cloud[None].expand(8, -1, -1)
+        rotated = rotate_points(canonical, R_gt)
+        loss = tnet_loss(net.rotation(rotated), R_gt, canonical, rotated)
+        optimizer.zero_grad()
+        loss.total.backward()
+        optimizer.step()
+        losses.append(float(loss.angle.detach()))
+    assert sum(losses[-5:]) / 5 < 0.3 < losses[0]

@@ -1,0 +1,903 @@
+"""Training of the T-Net (shape orientation for matching, reference-spec §1.6) on procedural shapes.
+
+``litege train tnet --config configs/tnet-quadrupeds.toml [--out DIR]`` runs
+:func:`run_tnet_training`:
+
+1. **Shapes.** Shape ``k`` of a split is ``generate_shape(category, families[k % n], offset + k)``
+   with the offsets of :data:`~litege_core.datasets.spec.SPLIT_SEED_OFFSETS` (train 0…,
+   val 1,000,000…), generated once and kept in memory. Each is brought into the canonical frame:
+   the template orientation, centred on the mean of 8000 area-weighted samples and scaled to unit
+   area (:func:`~litege_core.canonical.canonicalize_unit_area` with the identity rotation).
+2. **Batches.** Every step draws ``batch_size`` shapes, one point count ``n`` per batch
+   (log-uniform in ``[min_points, max_points]``: 500-point clouds up to the 2000 points
+   :func:`predict_rotation` feeds) and, per item, ``n`` fresh area-weighted samples. Items are
+   augmented so one network serves every input kind: with ``broken_probability`` a fraction of
+   the faces is removed before sampling (broken meshes), with ``noise_probability`` Gaussian noise
+   is added (σ uniform up to ``noise_sigma``, unit-area units), each cloud is re-centred on its own
+   mean and rescaled by a log-uniform factor in ``[scale_min, scale_max]`` (the Poisson-spacing
+   scale of point clouds and broken meshes is not exactly the unit-area scale: with the paper's
+   constants and our sampler a 40 %-broken mesh comes out about 1.33× larger). A uniform rotation
+   ``R_gt`` (``scipy Rotation.random``) per item gives ``pc_rot = pc_canon @ R_gtᵀ``; the loss is
+   :func:`~litege_core.nets.tnet_loss` (angle + λ·point, λ = 2). Step ``t`` draws everything from
+   ``default_rng([seed, 1, t])``, so a run is a pure function of its config.
+3. **Network.** :class:`~litege_core.nets.TNet` with the ``[network]`` widths and pre-alignment:
+   ``prealign = "pca"`` makes the network regress only the residual rotation of the PCA-aligned
+   cloud (same :meth:`~litege_core.nets.TNet.rotation` contract), which is what makes a CPU
+   budget of about a thousand steps enough; ``"none"`` is the reference T-Net.
+4. **Optimization.** Adam, learning rate cosine from ``lr`` to ``eta_min`` over all steps; every
+   ``val_every`` steps the mean angle on a FIXED validation set (each val shape as a 2000-sample
+   mesh, a 500-point cloud and a 40 %-broken mesh, fixed rotations and samples) is measured; the
+   best weights by that mean are kept and written to ``RUN/tnet.safetensors``.
+5. **Report** (``RUN/report.json``) with the best weights: the alignment-error distribution on
+   the training shapes (one random rotation each, ``default_rng(20)`` as the reference's
+   ``np.random.seed(20)``; the indices above 0.66 rad are the rejection filter of spec §1.6),
+   on the val shapes as meshes, as 500-point clouds and as broken meshes, the last two scaled as
+   at inference (:func:`~litege_core.canonical.canonicalize_poisson` with the §1.4 settings).
+
+The weights file holds the :func:`~litege_core.nets.state_to_tensors` tensors and, in its
+safetensors metadata, ``format = "litege-tnet"``, the network ``config`` and a ``training``
+summary; :func:`load_tnet` reads it back, :func:`predict_rotation` applies it to one cloud.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+import tomllib
+import typing
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+from scipy.spatial.transform import Rotation
+
+from litege_core.canonical import (
+    POISSON_500_CLOUD,
+    POISSON_BROKEN_MESH,
+    PoissonScaleSetting,
+    canonicalize_poisson,
+    canonicalize_unit_area,
+)
+from litege_core.datasets.spec import SPLIT_SEED_OFFSETS
+from litege_core.errors import ArtifactError, InputError
+from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
+from litege_core.nets.tnet import POINT_LOSS_WEIGHT, PREALIGN_MODES
+from litege_core.sampling import as_points, poisson_disk_subsample, sample_surface
+from litege_core.train.config import _check, _typed
+from litege_core.variants import broken_mesh
+
+LOG = logging.getLogger("litege.train.tnet")
+
+TNET_FORMAT = "litege-tnet"
+"""``format`` entry of the safetensors metadata of a T-Net weights file."""
+
+PREDICT_MAX_POINTS = 2000
+""":func:`predict_rotation` feeds at most this many points (the authors' training count)."""
+
+FAILURE_THRESHOLD = 0.66
+"""Angular error (rad) above which a training shape is rejected (spec §1.6)."""
+
+_VAL_MODES = ("mesh", "cloud500", "broken")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class TNetDataConfig:
+    """Which procedural shapes: ``n_train`` train-split and ``n_val`` val-split shapes."""
+
+    category: str = "quadruped"
+    n_train: int = 300
+    n_val: int = 40
+    cache_dir: str = ""
+    """When set, the canonical shapes of a split are stored there (``.npz``, keyed by category,
+    split, count and generator version) and reused by later runs (generation ≈ 0.5 s/shape)."""
+
+    def __post_init__(self) -> None:
+        _check(bool(self.category), "data.category is required")
+        _check(self.n_train >= 1 and self.n_val >= 1, "data.n_train and data.n_val must be ≥ 1")
+
+
+@dataclass(frozen=True)
+class TNetAugmentConfig:
+    """Per-batch point counts and per-item corruptions (see the module docstring)."""
+
+    min_points: int = 500
+    max_points: int = 2000
+    broken_probability: float = 0.25
+    broken_min: float = 0.3
+    broken_max: float = 0.5
+    noise_probability: float = 0.3
+    noise_sigma: float = 0.01
+    scale_min: float = 0.85
+    scale_max: float = 1.4
+    axis_scale: float = 0.0
+    """Per-item stretch of each canonical axis by a log-uniform factor in ``[1/(1+a), 1+a]``
+    (before rotation): more body shapes than the generated ones (0: off)."""
+
+    def __post_init__(self) -> None:
+        _check(8 <= self.min_points <= self.max_points, "need 8 ≤ min_points ≤ max_points")
+        for name in ("broken_probability", "noise_probability"):
+            _check(0.0 <= getattr(self, name) <= 1.0, f"augment.{name} must lie in [0, 1]")
+        _check(0.0 <= self.broken_min <= self.broken_max < 0.95, "need 0 ≤ broken_min ≤ max < 0.95")
+        _check(self.noise_sigma >= 0.0, "augment.noise_sigma must be ≥ 0")
+        _check(0.0 < self.scale_min <= self.scale_max, "need 0 < scale_min ≤ scale_max")
+        _check(0.0 <= self.axis_scale < 1.0, "augment.axis_scale must lie in [0, 1)")
+
+
+@dataclass(frozen=True)
+class TNetNetworkConfig:
+    """:class:`~litege_core.nets.TNet` widths (reference: (128, 512, 2048), (512, 128)) and
+    pre-alignment (``"none"``: the reference; ``"pca"``: residual in the principal-axis frame)."""
+
+    conv_widths: tuple[int, ...] = (64, 128, 256)
+    fc_widths: tuple[int, ...] = (256, 128)
+    prealign: str = "none"
+
+    def __post_init__(self) -> None:
+        _check(self.prealign in PREALIGN_MODES, f"network.prealign ∈ {list(PREALIGN_MODES)}")
+        _check(len(self.conv_widths) >= 1, "network.conv_widths needs at least one layer")
+        for name in ("conv_widths", "fc_widths"):
+            _check(all(w >= 1 for w in getattr(self, name)), f"network.{name} must be positive")
+
+
+@dataclass(frozen=True)
+class TNetOptimConfig:
+    """Batches, Adam + cosine schedule, validation cadence, seed and device.
+
+    Attributes:
+        batch_size: clouds per step (≥ 2: BatchNorm in the FC head).
+        steps: optimizer steps of the whole run.
+        lr, eta_min: cosine schedule from ``lr`` to ``eta_min`` over ``steps``.
+        point_weight: λ of the point term of the loss (2 in the reference).
+        val_every: validate (and maybe checkpoint) every this many steps, and at the end.
+        val_points: samples of the validation meshes and broken meshes.
+        log_every: a training log line every this many steps.
+        seed: network initialization, batches, validation set.
+        device: ``"auto"``, ``"cpu"``, ``"cuda"``…; threads: torch CPU threads (0: default).
+    """
+
+    batch_size: int = 32
+    steps: int = 2000
+    lr: float = 1e-3
+    eta_min: float = 1e-5
+    point_weight: float = POINT_LOSS_WEIGHT
+    val_every: int = 100
+    val_points: int = 2000
+    log_every: int = 25
+    seed: int = 0
+    device: str = "cpu"
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        _check(self.batch_size >= 2, "train.batch_size must be ≥ 2 (BatchNorm in the FC head)")
+        _check(self.steps >= 1, "train.steps must be ≥ 1")
+        _check(0.0 < self.eta_min <= self.lr, "need 0 < eta_min ≤ lr")
+        _check(self.point_weight >= 0.0, "train.point_weight must be ≥ 0")
+        _check(self.val_every >= 1 and self.log_every >= 1, "val_every and log_every ≥ 1")
+        _check(self.val_points >= 8, "train.val_points must be ≥ 8")
+        _check(self.threads >= 0, "train.threads must be ≥ 0")
+
+
+@dataclass(frozen=True)
+class TNetReportConfig:
+    """The final alignment-error report (see the module docstring)."""
+
+    rotation_seed: int = 20
+    samples: int = 2000
+    broken_fraction: float = 0.4
+    failure_threshold: float = FAILURE_THRESHOLD
+
+    def __post_init__(self) -> None:
+        _check(self.samples >= 8, "report.samples must be ≥ 8")
+        _check(0.0 <= self.broken_fraction < 0.95, "report.broken_fraction must lie in [0, 0.95)")
+        _check(self.failure_threshold > 0.0, "report.failure_threshold must be positive")
+
+
+@dataclass(frozen=True)
+class TNetOutputConfig:
+    """``dir`` receives ``tnet.safetensors``, ``report.json`` and ``train.log``."""
+
+    dir: str = "out/tnet"
+
+    def __post_init__(self) -> None:
+        _check(bool(self.dir), "output.dir is required")
+
+
+@dataclass(frozen=True)
+class TNetTrainConfig:
+    """The whole T-Net training configuration (TOML tables of the same names)."""
+
+    data: TNetDataConfig = field(default_factory=TNetDataConfig)
+    augment: TNetAugmentConfig = field(default_factory=TNetAugmentConfig)
+    network: TNetNetworkConfig = field(default_factory=TNetNetworkConfig)
+    train: TNetOptimConfig = field(default_factory=TNetOptimConfig)
+    report: TNetReportConfig = field(default_factory=TNetReportConfig)
+    output: TNetOutputConfig = field(default_factory=TNetOutputConfig)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TNetTrainConfig:
+        """Build from nested dicts (a parsed TOML document); strict about keys and types."""
+        if not isinstance(data, dict):
+            raise InputError("a T-Net training config must be a table")
+        hints = typing.get_type_hints(cls)
+        unknown = sorted(set(data) - set(hints))
+        if unknown:
+            raise InputError(f"unknown config tables {unknown}; expected {sorted(hints)}")
+        return cls(**{name: _section(hints[name], name, data[name]) for name in data})
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe nested dict (tuples as lists); ``from_dict(to_dict())`` is equal."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    def replace(self, **sections: dict[str, Any]) -> TNetTrainConfig:
+        """A copy with some keys changed: ``replace(train={"steps": 10})``."""
+        data = self.to_dict()
+        for name, values in sections.items():
+            if name not in data:
+                raise InputError(f"unknown config table {name!r}")
+            data[name] = {**data[name], **values}
+        return TNetTrainConfig.from_dict(data)
+
+    def content_hash(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.output.dir)
+
+
+def _section(cls: type, name: str, values: Any) -> Any:
+    if not isinstance(values, dict):
+        raise InputError(f"[{name}] must be a table, got {type(values).__name__}")
+    hints = typing.get_type_hints(cls)
+    unknown = sorted(set(values) - set(hints))
+    if unknown:
+        raise InputError(f"unknown keys in [{name}]: {unknown}; expected {sorted(hints)}")
+    checked = {}
+    for key, value in values.items():
+        if hints[key] == tuple[int, ...]:
+            ok = isinstance(value, list | tuple) and all(
+                isinstance(v, int) and not isinstance(v, bool) for v in value
+            )
+            if not ok:
+                raise InputError(f"{name}.{key} must be an array of integers, got {value!r}")
+            checked[key] = tuple(value)
+        else:
+            checked[key] = _typed(f"{name}.{key}", hints[key], value)
+    return cls(**checked)
+
+
+def load_tnet_config(path: str | Path) -> TNetTrainConfig:
+    """Read a TOML T-Net training config (``configs/tnet-*.toml``)."""
+    source = Path(path)
+    try:
+        data = tomllib.loads(source.read_text())
+    except FileNotFoundError as exc:
+        raise InputError(f"config file {source} does not exist") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read config file {source}: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source} is not valid TOML: {exc}") from exc
+    return TNetTrainConfig.from_dict(data)
+
+
+# --------------------------------------------------------------------------- shapes
+
+
+class ShapeSet(NamedTuple):
+    """Meshes in the canonical frame (template orientation, centred, unit area).
+
+    ``vertices[i]`` is ``(V_i, 3)`` float64, ``faces[i]`` ``(F_i, 3)`` int64 (procedural shapes
+    of a category share one array), ``keys[i]`` the ``(family, seed)`` it came from."""
+
+    vertices: list[NDArray]
+    faces: list[NDArray]
+    keys: list[tuple[str, int]]
+
+    def __len__(self) -> int:
+        return len(self.vertices)
+
+
+def canonical_shape_set(
+    meshes: Sequence[tuple[ArrayLike, ArrayLike]], keys: Sequence[tuple[str, int]] | None = None
+) -> ShapeSet:
+    """Meshes in the template orientation → centred, unit-area copies (identity rotation)."""
+    vertices, faces = [], []
+    for index, (verts, tris) in enumerate(meshes):
+        verts = np.asarray(verts, dtype=np.float64)
+        tris = np.asarray(tris, dtype=np.int64)
+        transform = canonicalize_unit_area(verts, tris, seed=index)
+        vertices.append(transform.apply(verts))
+        faces.append(tris)
+    if keys is None:
+        keys = [("", index) for index in range(len(vertices))]
+    return ShapeSet(vertices, faces, list(keys))
+
+
+def generate_shape_set(
+    category: str, split: str, n_shapes: int, cache_dir: str | Path | None = None
+) -> ShapeSet:
+    """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical.
+
+    With ``cache_dir`` the set is kept in
+    ``<cache_dir>/tnet-shapes-<category>-<split>-<n>-<generator version>.npz``: the largest
+    cached set of the split is reused (sliced, or extended by generating the missing shapes).
+    """
+    from litege_core.synth import GENERATOR_VERSION, families, generate_shape
+
+    names = families(category)
+    keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
+    cached: list[NDArray] = []
+    faces: NDArray | None = None
+    if cache_dir:
+        prefix, suffix = f"tnet-shapes-{category}-{split}-", f"-{GENERATOR_VERSION}.npz"
+        sizes = [
+            int(path.name[len(prefix) : -len(suffix)])
+            for path in Path(cache_dir).glob(f"{prefix}*{suffix}")
+            if path.name[len(prefix) : -len(suffix)].isdigit()
+        ]
+        if sizes:
+            with np.load(Path(cache_dir) / f"{prefix}{max(sizes)}{suffix}") as data:
+                cached, faces = list(data["vertices"][:n_shapes]), data["faces"]
+    meshes = []
+    for family, seed in keys[len(cached) :]:
+        shape = generate_shape(category, family, seed)
+        meshes.append((shape.vertices, shape.faces))
+    fresh = canonical_shape_set(meshes, keys[len(cached) :])
+    if faces is None:
+        faces = fresh.faces[0] if fresh.faces else np.zeros((0, 3), dtype=np.int64)
+    shared = all(np.array_equal(f, faces) for f in fresh.faces)
+    if not shared:  # pragma: no cover - procedural shapes share their template's faces
+        return ShapeSet(cached + fresh.vertices, [faces] * len(cached) + fresh.faces, keys)
+    shapes = ShapeSet(cached + fresh.vertices, [faces] * n_shapes, keys)
+    if cache_dir and fresh.vertices:
+        cache = Path(cache_dir) / f"{prefix}{n_shapes}{suffix}"
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        temporary = cache.with_name(f"{cache.stem}.tmp-{os.getpid()}.npz")
+        np.savez(temporary, vertices=np.stack(shapes.vertices), faces=faces)
+        os.replace(temporary, cache)
+    return shapes
+
+
+# --------------------------------------------------------------------------- batches
+
+
+class TNetBatch(NamedTuple):
+    """``canonical (B, N, 3)``, ``rotated = canonical @ R_gtᵀ`` and ``R_gt (B, 3, 3)``."""
+
+    canonical: torch.Tensor
+    rotated: torch.Tensor
+    R_gt: torch.Tensor
+
+
+def _item_cloud(
+    vertices: NDArray,
+    faces: NDArray,
+    n_points: int,
+    augment: TNetAugmentConfig,
+    rng: np.random.Generator,
+) -> NDArray:
+    """One augmented, centred, rescaled cloud in the canonical orientation."""
+    if rng.random() < augment.broken_probability:
+        fraction = rng.uniform(augment.broken_min, augment.broken_max)
+        faces = faces[broken_mesh(faces, fraction, rng)]
+    points = sample_surface(vertices, faces, n_points, rng).points
+    if rng.random() < augment.noise_probability:
+        points = points + rng.normal(0.0, rng.uniform(0.0, augment.noise_sigma), points.shape)
+    points = points - points.mean(axis=0)
+    scale = math.exp(rng.uniform(math.log(augment.scale_min), math.log(augment.scale_max)))
+    if augment.axis_scale > 0.0:
+        bound = math.log1p(augment.axis_scale)
+        return points * (scale * np.exp(rng.uniform(-bound, bound, 3)))
+    return points * scale
+
+
+def _make_batch(canonical: NDArray, rotations: NDArray) -> TNetBatch:
+    canon = torch.as_tensor(canonical, dtype=torch.float32)
+    R_gt = torch.as_tensor(rotations, dtype=torch.float32)
+    rotated = torch.as_tensor(np.einsum("bnj,bij->bni", canonical, rotations), dtype=torch.float32)
+    return TNetBatch(canon, rotated, R_gt)
+
+
+def sample_batch(
+    shapes: ShapeSet, config: TNetTrainConfig, step: int, batch_size: int | None = None
+) -> TNetBatch:
+    """The training batch of (0-based) ``step``; a pure function of ``(seed, step)``."""
+    augment = config.augment
+    rng = np.random.default_rng([config.train.seed, 1, step])
+    batch = config.train.batch_size if batch_size is None else batch_size
+    low, high = math.log(augment.min_points), math.log(augment.max_points)
+    n_points = round(math.exp(rng.uniform(low, high)))
+    n_points = min(max(n_points, augment.min_points), augment.max_points)
+    index = rng.integers(len(shapes), size=batch)
+    rotations = Rotation.random(batch, random_state=rng).as_matrix()
+    clouds = np.stack(
+        [_item_cloud(shapes.vertices[i], shapes.faces[i], n_points, augment, rng) for i in index]
+    )
+    return _make_batch(clouds, rotations)
+
+
+class ValidationSet(NamedTuple):
+    """Fixed validation batches, one per input kind (``mesh``, ``cloud500``, ``broken``)."""
+
+    batches: dict[str, TNetBatch]
+
+    @property
+    def n_items(self) -> int:
+        return sum(b.R_gt.shape[0] for b in self.batches.values())
+
+
+def validation_set(shapes: ShapeSet, config: TNetTrainConfig) -> ValidationSet:
+    """Each val shape as a ``val_points``-sample mesh, a 500-point cloud and a 40 %-broken
+    mesh, each with its own fixed rotation; seeded by ``train.seed`` only."""
+    n_points = config.train.val_points
+    batches = {}
+    for mode_index, mode in enumerate(_VAL_MODES):
+        rng = np.random.default_rng([config.train.seed, 2, mode_index])
+        clouds = []
+        for verts, tris in zip(shapes.vertices, shapes.faces, strict=True):
+            count = n_points
+            if mode == "broken":
+                tris = tris[broken_mesh(tris, 0.4, rng)]
+            elif mode == "cloud500":
+                count = 500
+            points = sample_surface(verts, tris, count, rng).points
+            clouds.append(points - points.mean(axis=0))
+        rotations = Rotation.random(len(shapes), random_state=rng).as_matrix()
+        batches[mode] = _make_batch(np.stack(clouds), rotations)
+    return ValidationSet(batches)
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def _device_of(net: torch.nn.Module) -> torch.device:
+    return next(net.parameters()).device
+
+
+@torch.no_grad()
+def batch_angles(net: TNet, rotated: torch.Tensor, R_gt: torch.Tensor, chunk: int = 64) -> NDArray:
+    """Angles (rad, float64 numpy) between the eval-mode prediction and ``R_gt``."""
+    was_training = net.training
+    net.eval()
+    device = _device_of(net)
+    try:
+        out = []
+        for start in range(0, rotated.shape[0], chunk):
+            R_pred = net.rotation(rotated[start : start + chunk].to(device))
+            gt = R_gt[start : start + chunk].to(device, R_pred.dtype)
+            out.append(rotation_angle(R_pred.double(), gt.double(), eps=0.0).cpu().numpy())
+    finally:
+        net.train(was_training)
+    return np.concatenate(out)
+
+
+def validate(net: TNet, val: ValidationSet) -> dict[str, float]:
+    """Mean angle per input kind and over all items (``mean``)."""
+    angles = {mode: batch_angles(net, b.rotated, b.R_gt) for mode, b in val.batches.items()}
+    result = {mode: float(a.mean()) for mode, a in angles.items()}
+    result["mean"] = float(np.concatenate(list(angles.values())).mean())
+    return result
+
+
+def angle_statistics(angles: ArrayLike, threshold: float = FAILURE_THRESHOLD) -> dict[str, Any]:
+    """``n``, mean / std / median / p90 / p95 / max (rad) and the indices above ``threshold``."""
+    values = np.asarray(angles, dtype=np.float64)
+    failures = np.flatnonzero(values > threshold)
+    return {
+        "n": int(values.size),
+        "mean": float(values.mean()),
+        "std": float(values.std()),
+        "median": float(np.median(values)),
+        "p90": float(np.quantile(values, 0.9)),
+        "p95": float(np.quantile(values, 0.95)),
+        "max": float(values.max()),
+        "threshold": float(threshold),
+        "n_failures": int(failures.size),
+        "failures": [int(i) for i in failures],
+        "failure_angles": [float(values[i]) for i in failures],
+    }
+
+
+def _poisson_cloud(points: NDArray, setting: PoissonScaleSetting, seed: int) -> NDArray:
+    """Centre and Poisson-scale a cloud as at inference (the subset itself when
+    ``subset_is_cloud``: its own spacing, all of its points)."""
+    n_poisson = points.shape[0] if setting.subset_is_cloud else setting.n_poisson
+    transform = canonicalize_poisson(points, n_poisson, setting.target_mean_nn, seed)
+    return transform.apply(points)
+
+
+def _report_angles(
+    net: TNet, shapes: ShapeSet, report: TNetReportConfig, salt: int, mode: str
+) -> NDArray:
+    """Angles of one input kind for every shape, with the reference rotations.
+
+    The rotation of shape ``i`` is the ``i``-th of ``Rotation.random(len, default_rng(seed))``;
+    ``mesh``: ``report.samples`` area-weighted samples of the unit-area mesh; ``cloud500``:
+    500 samples of the rotated mesh scaled by Poisson spacing (§1.4, K=50); ``broken``:
+    ``broken_fraction`` of the faces removed, ``n_cloud`` samples of the rest, their Poisson
+    subset of about 7000 points is the cloud (§1.4), :func:`predict_rotation` keeps 2000.
+    """
+    rotations = Rotation.random(
+        len(shapes), random_state=np.random.default_rng(report.rotation_seed)
+    ).as_matrix()
+    angles = np.empty(len(shapes))
+    for i, (verts, tris) in enumerate(zip(shapes.vertices, shapes.faces, strict=True)):
+        rng = np.random.default_rng([report.rotation_seed, salt, i])
+        R_gt = rotations[i]
+        rotated_verts = verts @ R_gt.T
+        if mode == "mesh":
+            cloud = sample_surface(rotated_verts, tris, report.samples, rng).points
+        elif mode == "cloud500":
+            cloud = sample_surface(rotated_verts, tris, POISSON_500_CLOUD.n_cloud, rng).points
+            cloud = _poisson_cloud(cloud, POISSON_500_CLOUD, int(rng.integers(2**31)))
+        else:
+            kept = tris[broken_mesh(tris, report.broken_fraction, rng)]
+            dense = sample_surface(rotated_verts, kept, POISSON_BROKEN_MESH.n_cloud, rng).points
+            subset = dense[poisson_disk_subsample(dense, POISSON_BROKEN_MESH.n_poisson, rng)]
+            cloud = _poisson_cloud(subset, POISSON_BROKEN_MESH, 0)
+        R_pred = predict_rotation(net, cloud)
+        angles[i] = float(
+            rotation_angle(torch.as_tensor(R_pred), torch.as_tensor(R_gt), eps=0.0).item()
+        )
+    return angles
+
+
+def alignment_report(
+    net: TNet, train_shapes: ShapeSet, val_shapes: ShapeSet, report: TNetReportConfig
+) -> dict[str, Any]:
+    """The alignment-error distributions of the module docstring (step 5)."""
+    result: dict[str, Any] = {
+        "units": "rad",
+        "rotation_seed": report.rotation_seed,
+        "samples": report.samples,
+        "broken_fraction": report.broken_fraction,
+    }
+    threshold = report.failure_threshold
+    train = angle_statistics(_report_angles(net, train_shapes, report, 0, "mesh"), threshold)
+    train["failed_keys"] = [list(train_shapes.keys[i]) for i in train["failures"]]
+    result["train"] = train
+    for name, mode, salt in (
+        ("val", "mesh", 1),
+        ("val_cloud500", "cloud500", 2),
+        ("val_broken", "broken", 3),
+    ):
+        result[name] = angle_statistics(
+            _report_angles(net, val_shapes, report, salt, mode), threshold
+        )
+    result["failed_train_indices"] = train["failures"]
+    return result
+
+
+# --------------------------------------------------------------------------- weights
+
+
+def save_tnet(net: TNet, path: str | Path, training: dict[str, Any] | None = None) -> None:
+    """Weights (:func:`state_to_tensors`) + config in the metadata, written atomically."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    temporary = target.with_name(f"{target.name}.tmp-{os.getpid()}")
+    metadata = {
+        "format": TNET_FORMAT,
+        "config": json.dumps(net.config(), sort_keys=True),
+        "training": json.dumps(training or {}, sort_keys=True),
+    }
+    try:
+        save_file(state_to_tensors(net), str(temporary), metadata=metadata)
+        os.replace(temporary, target)
+    finally:
+        if temporary.exists():
+            temporary.unlink()
+
+
+def read_tnet_metadata(path: str | Path) -> dict[str, Any]:
+    """``{"config": …, "training": …}`` of a weights file written by :func:`save_tnet`."""
+    return _read(path)[1]
+
+
+def _read(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    try:
+        with safe_open(str(path), framework="pt") as handle:
+            metadata = handle.metadata() or {}
+            tensors = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
+    except (OSError, SafetensorError, ValueError) as exc:
+        raise ArtifactError(f"cannot read T-Net weights {path}: {exc}") from exc
+    if metadata.get("format") != TNET_FORMAT or "config" not in metadata:
+        raise ArtifactError(f"{path} is not a LiteGE T-Net weights file")
+    try:
+        info = {
+            "config": json.loads(metadata["config"]),
+            "training": json.loads(metadata.get("training", "{}")),
+        }
+    except ValueError as exc:
+        raise ArtifactError(f"{path}: T-Net metadata is not valid JSON: {exc}") from exc
+    return tensors, info
+
+
+def load_tnet(path: str | Path, device: str | torch.device = "cpu") -> TNet:
+    """The T-Net of a weights file, on ``device``, in eval mode (ArtifactError if damaged)."""
+    tensors, info = _read(path)
+    try:
+        net = TNet.from_config(info["config"])
+    except InputError as exc:
+        raise ArtifactError(f"{path}: bad T-Net config: {exc}") from exc
+    load_state(net, tensors)
+    return net.to(device).eval()
+
+
+@torch.no_grad()
+def predict_rotation(net: TNet, points: ArrayLike) -> NDArray:
+    """``R_pred`` ``(3, 3)`` float64 for one cloud; align it with ``points @ R_pred``.
+
+    ``points`` ``(N, 3)`` must be scale-normalized (unit-area mesh samples or a Poisson-scaled
+    cloud, spec §1.3–§1.4). Clouds of more than :data:`PREDICT_MAX_POINTS` points are subsampled
+    deterministically (``default_rng(0)``, without replacement); the subset is centred on its
+    own mean (as in training: a translation does not change the rotation). Runs in eval mode.
+    """
+    cloud = as_points(points)
+    if cloud.shape[0] > PREDICT_MAX_POINTS:
+        keep = np.random.default_rng(0).choice(cloud.shape[0], PREDICT_MAX_POINTS, replace=False)
+        cloud = cloud[np.sort(keep)]
+    cloud = cloud - cloud.mean(axis=0)
+    reference = net.fc[-1].weight
+    was_training = net.training
+    net.eval()
+    try:
+        tensor = torch.as_tensor(cloud, dtype=reference.dtype, device=reference.device)
+        R_pred = net.rotation(tensor[None])[0]
+    finally:
+        net.train(was_training)
+    return R_pred.double().cpu().numpy()
+
+
+# --------------------------------------------------------------------------- training
+
+
+def cosine_lr(step: int, config: TNetOptimConfig) -> float:
+    """``η_min + (η_0 − η_min)(1 + cos(π·step/steps))/2``."""
+    fraction = min(max(step / config.steps, 0.0), 1.0)
+    return config.eta_min + (config.lr - config.eta_min) * 0.5 * (1 + math.cos(math.pi * fraction))
+
+
+def train_step(
+    net: TNet, optimizer: torch.optim.Optimizer, batch: TNetBatch, point_weight: float
+) -> dict[str, float]:
+    """One Adam step on ``batch`` (network in training mode); the loss terms as floats."""
+    device = _device_of(net)
+    canonical, rotated, R_gt = (t.to(device) for t in batch)
+    loss = tnet_loss(net.rotation(rotated), R_gt, canonical, rotated, point_weight)
+    optimizer.zero_grad(set_to_none=True)
+    loss.total.backward()
+    optimizer.step()
+    return {
+        name: float(value.detach())
+        for name, value in zip(("loss", "angle", "point"), loss, strict=True)
+    }
+
+
+@dataclass
+class TNetRunResult:
+    """A finished run: the best network (eval mode) and what was measured."""
+
+    net: TNet
+    best_val: dict[str, float]
+    best_step: int
+    history: list[dict[str, Any]]
+    seconds: float
+    steps_per_second: float
+    report: dict[str, Any] | None = None
+
+
+def _resolve_device(name: str) -> torch.device:
+    from litege_core.device import resolve_device
+
+    return resolve_device(name)
+
+
+def train_tnet(
+    config: TNetTrainConfig,
+    *,
+    train_shapes: ShapeSet | None = None,
+    val_shapes: ShapeSet | None = None,
+    weights_path: str | Path | None = None,
+    make_report: bool = True,
+) -> TNetRunResult:
+    """Train per ``config``; shapes are generated when not given (tests pass small ones).
+
+    The best weights by validation mean angle are written to ``weights_path`` (when given)
+    each time they improve; the returned network holds them, in eval mode.
+    """
+    opt = config.train
+    if opt.threads > 0:
+        torch.set_num_threads(opt.threads)
+    device = _resolve_device(opt.device)
+    started = time.perf_counter()
+    if train_shapes is None:
+        train_shapes = generate_shape_set(
+            config.data.category, "train", config.data.n_train, config.data.cache_dir
+        )
+        LOG.info(
+            "generated %d train shapes in %.1f s", len(train_shapes), time.perf_counter() - started
+        )
+    if val_shapes is None:
+        mark = time.perf_counter()
+        val_shapes = generate_shape_set(
+            config.data.category, "val", config.data.n_val, config.data.cache_dir
+        )
+        LOG.info("generated %d val shapes in %.1f s", len(val_shapes), time.perf_counter() - mark)
+    val = validation_set(val_shapes, config)
+
+    torch.manual_seed(opt.seed)
+    network = config.network
+    net = TNet(network.conv_widths, network.fc_widths, network.prealign).to(device)
+    optimizer = torch.optim.Adam(net.parameters(), lr=opt.lr)
+    n_params = sum(p.numel() for p in net.parameters())
+    LOG.info(
+        "T-Net %s (%d parameters) on %s, %d steps × %d clouds of %d..%d points",
+        net.config(), n_params, device, opt.steps, opt.batch_size,
+        config.augment.min_points, config.augment.max_points,
+    )  # fmt: skip
+
+    best_val: dict[str, float] = {"mean": math.inf}
+    best_state: dict[str, torch.Tensor] = state_to_tensors(net)
+    best_step = 0
+    history: list[dict[str, Any]] = []
+    window: list[dict[str, float]] = []
+    train_seconds = 0.0
+    for step in range(opt.steps):
+        tick = time.perf_counter()
+        for group in optimizer.param_groups:
+            group["lr"] = cosine_lr(step, opt)
+        net.train()
+        batch = sample_batch(train_shapes, config, step)
+        window.append(train_step(net, optimizer, batch, opt.point_weight))
+        train_seconds += time.perf_counter() - tick
+        done = step + 1
+        if done % opt.log_every == 0 or done == opt.steps:
+            means = {k: float(np.mean([w[k] for w in window])) for k in window[0]}
+            LOG.info(
+                "step %d/%d lr %.2e loss %.4f angle %.4f point %.4f (N=%d, %.2f steps/s)",
+                done, opt.steps, optimizer.param_groups[0]["lr"], means["loss"], means["angle"],
+                means["point"], batch.canonical.shape[1], done / train_seconds,
+            )  # fmt: skip
+            window = []
+        if done % opt.val_every == 0 or done == opt.steps:
+            scores = validate(net, val)
+            improved = scores["mean"] < best_val["mean"]
+            history.append({"step": done, "val": scores, "improved": improved})
+            if improved:
+                best_val, best_step = scores, done
+                best_state = state_to_tensors(net)
+                if weights_path is not None:
+                    save_tnet(net, weights_path, _training_summary(config, best_step, best_val))
+            LOG.info(
+                "val step %d: mean %.4f (mesh %.4f, cloud500 %.4f, broken %.4f)%s",
+                done, scores["mean"], scores["mesh"], scores["cloud500"], scores["broken"],
+                " *best*" if improved else "",
+            )  # fmt: skip
+    load_state(net, best_state)
+    net.eval()
+    result = TNetRunResult(
+        net=net,
+        best_val=best_val,
+        best_step=best_step,
+        history=history,
+        seconds=time.perf_counter() - started,
+        steps_per_second=opt.steps / train_seconds if train_seconds > 0 else 0.0,
+    )
+    if make_report:
+        mark = time.perf_counter()
+        result.report = alignment_report(net, train_shapes, val_shapes, config.report)
+        LOG.info("alignment report in %.1f s", time.perf_counter() - mark)
+    return result
+
+
+def _training_summary(config: TNetTrainConfig, best_step: int, best_val: dict) -> dict[str, Any]:
+    return {
+        "best_step": best_step,
+        "best_val": best_val,
+        "config": config.to_dict(),
+        "config_hash": config.content_hash(),
+    }
+
+
+def run_tnet_training(
+    config: TNetTrainConfig,
+    out: str | Path | None = None,
+    *,
+    train_shapes: ShapeSet | None = None,
+    val_shapes: ShapeSet | None = None,
+) -> dict[str, Any]:
+    """A whole run into ``RUN`` (``out`` or ``output.dir``): ``tnet.safetensors``,
+    ``report.json``, ``train.log``. Returns the report. Shapes are generated per ``[data]``
+    unless given."""
+    if out is not None:
+        config = config.replace(output={"dir": str(out)})
+    run_dir = config.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(run_dir / "train.log", mode="w")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
+    LOG.addHandler(handler)
+    if LOG.level == logging.NOTSET or LOG.level > logging.INFO:
+        LOG.setLevel(logging.INFO)
+    try:
+        LOG.info("config %s", json.dumps(config.to_dict(), sort_keys=True))
+        weights = run_dir / "tnet.safetensors"
+        result = train_tnet(
+            config, train_shapes=train_shapes, val_shapes=val_shapes, weights_path=weights
+        )
+        summary = _training_summary(config, result.best_step, result.best_val)
+        summary.update(
+            seconds=round(result.seconds, 1),
+            steps_per_second=round(result.steps_per_second, 3),
+            threads=torch.get_num_threads(),
+        )
+        save_tnet(result.net, weights, summary)
+        report = {
+            "weights": str(weights),
+            "network": result.net.config(),
+            "training": summary,
+            "history": result.history,
+            "alignment": result.report,
+        }
+        (run_dir / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+        alignment = result.report or {}
+        for name in ("train", "val", "val_cloud500", "val_broken"):
+            stats = alignment.get(name, {})
+            LOG.info(
+                "%s: mean %.4f std %.4f median %.4f max %.4f failures>%.2f %d/%d",
+                name, stats["mean"], stats["std"], stats["median"], stats["max"],
+                stats["threshold"], stats["n_failures"], stats["n"],
+            )  # fmt: skip
+        return report
+    finally:
+        LOG.removeHandler(handler)
+        handler.close()
+
+
+__all__ = [
+    "FAILURE_THRESHOLD",
+    "PREDICT_MAX_POINTS",
+    "TNET_FORMAT",
+    "ShapeSet",
+    "TNetAugmentConfig",
+    "TNetBatch",
+    "TNetDataConfig",
+    "TNetNetworkConfig",
+    "TNetOptimConfig",
+    "TNetOutputConfig",
+    "TNetReportConfig",
+    "TNetRunResult",
+    "TNetTrainConfig",
+    "ValidationSet",
+    "alignment_report",
+    "angle_statistics",
+    "batch_angles",
+    "canonical_shape_set",
+    "cosine_lr",
+    "generate_shape_set",
+    "load_tnet",
+    "load_tnet_config",
+    "predict_rotation",
+    "read_tnet_metadata",
+    "run_tnet_training",
+    "sample_batch",
+    "save_tnet",
+    "train_step",
+    "train_tnet",
+    "validate",
+    "validation_set",
+]

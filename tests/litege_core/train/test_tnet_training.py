@@ -1,0 +1,370 @@
+"""T-Net training: config, batches, loop, determinism, weights file, report, CLI."""
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import litege_core.train.tnet as tnet_module
+from litege_core.errors import ArtifactError, InputError
+from litege_core.nets import TNet, state_to_tensors
+from litege_core.sampling import sample_surface
+from litege_core.train import add_train_parser
+from litege_core.train.tnet import (
+    PREDICT_MAX_POINTS,
+    TNetTrainConfig,
+    alignment_report,
+    angle_statistics,
+    canonical_shape_set,
+    cosine_lr,
+    generate_shape_set,
+    load_tnet,
+    load_tnet_config,
+    predict_rotation,
+    read_tnet_metadata,
+    run_tnet_training,
+    sample_batch,
+    save_tnet,
+    train_step,
+    train_tnet,
+    validation_set,
+)
+from litege_core.validate import triangle_areas
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _toy_mesh(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """An asymmetric blob: a stretched, bent icosphere (no rotational symmetry)."""
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    v = np.asarray(sphere.vertices) * [2.0, 1.0, 0.5]
+    rng = np.random.default_rng(seed)
+    v[:, 1] += 0.3 * v[:, 0] ** 2 + 0.2 * np.clip(v[:, 0], 0, None) * rng.uniform(0.8, 1.2)
+    return v * rng.uniform(0.5, 2.0), np.asarray(sphere.faces)
+
+
+@pytest.fixture(scope="module")
+def toy_shapes():
+    train = canonical_shape_set([_toy_mesh(s) for s in range(4)])
+    val = canonical_shape_set([_toy_mesh(100 + s) for s in range(2)])
+    return train, val
+
+
+TINY = {
+    "data": {"n_train": 4, "n_val": 2},
+    "augment": {"min_points": 32, "max_points": 64},
+    "network": {"conv_widths": [8, 16], "fc_widths": [8]},
+    "train": {"batch_size": 4, "steps": 6, "val_every": 3, "val_points": 48, "log_every": 2},
+    "report": {"samples": 64},
+}
+
+
+def tiny_config(tmp_path: Path, **overrides) -> TNetTrainConfig:
+    config = TNetTrainConfig.from_dict({**TINY, "output": {"dir": str(tmp_path / "run")}})
+    return config.replace(**overrides) if overrides else config
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_shipped_config_loads_and_round_trips() -> None:
+    config = load_tnet_config(REPO / "configs" / "tnet-quadrupeds.toml")
+    assert config.data.category == "quadruped"
+    assert config.network.conv_widths == (64, 128, 256) and config.network.prealign == "pca"
+    assert config.train.lr == 1e-3 and config.train.eta_min == 1e-5
+    assert config.report.rotation_seed == 20 and config.report.failure_threshold == 0.66
+    again = TNetTrainConfig.from_dict(config.to_dict())
+    assert again == config and again.content_hash() == config.content_hash()
+    assert config.replace(train={"steps": 5}).train.steps == 5
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"nope": {}},
+        {"train": {"stepz": 3}},
+        {"train": {"steps": "10"}},
+        {"train": {"steps": 0}},
+        {"train": {"batch_size": 1}},
+        {"train": {"lr": 1e-5, "eta_min": 1e-3}},
+        {"train": {"val_every": True}},
+        {"augment": {"min_points": 600, "max_points": 500}},
+        {"augment": {"broken_probability": 1.5}},
+        {"augment": {"scale_min": 0.0}},
+        {"augment": {"axis_scale": 1.0}},
+        {"network": {"conv_widths": [64, "128"]}},
+        {"network": {"conv_widths": []}},
+        {"network": {"fc_widths": [0]}},
+        {"network": {"conv_widths": 64}},
+        {"network": {"prealign": "svd"}},
+        {"data": {"n_train": 0}},
+        {"report": {"broken_fraction": 1.0}},
+        {"output": {"dir": ""}},
+        {"data": []},
+    ],
+)
+def test_config_validation_errors(data: dict) -> None:
+    with pytest.raises(InputError):
+        TNetTrainConfig.from_dict(data)
+
+
+def test_config_file_errors(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="does not exist"):
+        load_tnet_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[train\nsteps = 3\n")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_tnet_config(bad)
+    with pytest.raises(InputError):
+        TNetTrainConfig().replace(nope={"x": 1})
+
+
+def test_cosine_schedule_endpoints() -> None:
+    opt = TNetTrainConfig().train
+    assert cosine_lr(0, opt) == pytest.approx(opt.lr)
+    assert cosine_lr(opt.steps, opt) == pytest.approx(opt.eta_min)
+    assert cosine_lr(opt.steps // 2, opt) == pytest.approx((opt.lr + opt.eta_min) / 2)
+
+
+# --------------------------------------------------------------------------- shapes / batches
+
+
+def test_canonical_shapes_are_centred_unit_area(toy_shapes) -> None:
+    train, _ = toy_shapes
+    for v, f in zip(train.vertices, train.faces, strict=True):
+        assert triangle_areas(v, f).sum() == pytest.approx(1.0)
+        assert np.abs(v.mean(axis=0)).max() < 0.2  # centred on surface samples, not vertices
+
+
+def test_generated_shapes_follow_the_dataset_convention_and_cache(tmp_path) -> None:
+    first = generate_shape_set("quadruped", "val", 1, cache_dir=tmp_path)
+    shapes = generate_shape_set("quadruped", "val", 2, cache_dir=tmp_path)  # extends the cache
+    assert shapes.keys == [("cat", 1_000_000), ("dog", 1_000_001)]
+    assert triangle_areas(shapes.vertices[1], shapes.faces[1]).sum() == pytest.approx(1.0)
+    np.testing.assert_array_equal(shapes.vertices[0], first.vertices[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"tnet-shapes-quadruped-val-{n}-synth-template-v1.npz" for n in (1, 2)
+    ]
+    again = generate_shape_set("quadruped", "val", 2, cache_dir=tmp_path)  # read back
+    sliced = generate_shape_set("quadruped", "val", 1, cache_dir=tmp_path)
+    for cached in (again, sliced):
+        assert cached.keys == shapes.keys[: len(cached)]
+        for a, b in zip(cached.vertices, shapes.vertices, strict=False):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(cached.faces[0], shapes.faces[0])
+
+
+def test_batches_are_rotated_canonical_clouds_and_seeded(toy_shapes, tmp_path) -> None:
+    train, _ = toy_shapes
+    config = tiny_config(tmp_path)
+    batch = sample_batch(train, config, step=3)
+    B, N, _ = batch.canonical.shape
+    assert B == 4 and 32 <= N <= 64 and batch.R_gt.shape == (4, 3, 3)
+    torch.testing.assert_close(batch.rotated, batch.canonical @ batch.R_gt.transpose(1, 2))
+    torch.testing.assert_close(
+        batch.R_gt.transpose(1, 2) @ batch.R_gt, torch.eye(3).expand(4, 3, 3), atol=1e-5, rtol=0
+    )
+    assert batch.canonical.mean(dim=1).abs().max() < 1e-5  # each cloud centred
+    again = sample_batch(train, config, step=3)
+    assert all(torch.equal(a, b) for a, b in zip(batch, again, strict=True))
+    other = sample_batch(train, config, step=4)
+    assert not torch.equal(batch.R_gt, other.R_gt)
+    stretched = sample_batch(train, config.replace(augment={"axis_scale": 0.5}), step=3)
+    assert torch.equal(stretched.R_gt, batch.R_gt)  # same draws before the stretch
+    assert not torch.equal(stretched.canonical, batch.canonical)
+    torch.testing.assert_close(
+        stretched.rotated, stretched.canonical @ stretched.R_gt.transpose(1, 2)
+    )
+
+
+def test_validation_set_is_fixed(toy_shapes, tmp_path) -> None:
+    _, val = toy_shapes
+    config = tiny_config(tmp_path)
+    first, second = validation_set(val, config), validation_set(val, config)
+    assert set(first.batches) == {"mesh", "cloud500", "broken"} and first.n_items == 6
+    assert first.batches["cloud500"].canonical.shape[1] == 500
+    for mode, batch in first.batches.items():
+        assert all(torch.equal(a, b) for a, b in zip(batch, second.batches[mode], strict=True))
+
+
+# --------------------------------------------------------------------------- training
+
+
+def test_loss_decreases_on_a_fixed_batch(toy_shapes, tmp_path) -> None:
+    train, _ = toy_shapes
+    config = tiny_config(tmp_path, train={"batch_size": 8})
+    torch.manual_seed(0)
+    net = TNet((16, 32), (16,)).train()
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+    batch = sample_batch(train, config, step=0)
+    losses = [train_step(net, optimizer, batch, 2.0)["loss"] for _ in range(60)]
+    assert all(math.isfinite(x) for x in losses)
+    assert np.mean(losses[-5:]) < 0.5 * losses[0]
+
+
+def test_training_is_deterministic(toy_shapes, tmp_path) -> None:
+    train, val = toy_shapes
+    config = tiny_config(tmp_path)
+    first = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    second = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    a, b = state_to_tensors(first.net), state_to_tensors(second.net)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert first.best_val == second.best_val and first.best_step == second.best_step
+    other = train_tnet(
+        config.replace(train={"seed": 1}), train_shapes=train, val_shapes=val, make_report=False
+    )
+    c = state_to_tensors(other.net)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+    assert [h["step"] for h in first.history] == [3, 6]
+    assert not first.net.training
+
+
+def test_run_writes_weights_report_and_log(toy_shapes, tmp_path) -> None:
+    train, val = toy_shapes
+    config = tiny_config(tmp_path)
+    report = run_tnet_training(config, train_shapes=train, val_shapes=val)
+    run = tmp_path / "run"
+    assert {p.name for p in run.iterdir()} == {"tnet.safetensors", "report.json", "train.log"}
+    on_disk = json.loads((run / "report.json").read_text())
+    assert on_disk == json.loads(json.dumps(report))
+    assert on_disk["network"] == {"conv_widths": [8, 16], "fc_widths": [8], "prealign": "none"}
+    assert on_disk["training"]["best_step"] in (3, 6)
+    alignment = on_disk["alignment"]
+    assert alignment["failed_train_indices"] == alignment["train"]["failures"]
+    for name, n in (("train", 4), ("val", 2), ("val_cloud500", 2), ("val_broken", 2)):
+        stats = alignment[name]
+        keys = {"n", "mean", "std", "median", "max", "n_failures", "failures", "threshold"}
+        assert keys <= set(stats) and stats["n"] == n
+        assert 0.0 <= stats["median"] <= stats["max"] <= math.pi
+        assert stats["n_failures"] == len(stats["failures"])
+    assert len(alignment["train"]["failed_keys"]) == alignment["train"]["n_failures"]
+    log = (run / "train.log").read_text()
+    assert "val step 6" in log and "val_broken: mean" in log
+
+    net = load_tnet(run / "tnet.safetensors")
+    assert not net.training and net.config() == on_disk["network"]
+    meta = read_tnet_metadata(run / "tnet.safetensors")
+    assert meta["training"]["config"]["train"]["steps"] == 6
+    assert meta["training"]["best_val"] == on_disk["training"]["best_val"]
+
+
+def test_checkpoint_round_trip(tmp_path) -> None:
+    torch.manual_seed(0)
+    net = TNet((8, 16), (8,), prealign="pca").train()
+    net(torch.randn(4, 30, 3))  # BatchNorm statistics move
+    net.eval()
+    path = tmp_path / "w" / "tnet.safetensors"
+    save_tnet(net, path, {"note": "x"})
+    loaded = load_tnet(path, "cpu")
+    expected, got = state_to_tensors(net), state_to_tensors(loaded)
+    assert set(expected) == set(got) and all(torch.equal(expected[k], got[k]) for k in expected)
+    cloud = torch.randn(2, 40, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(cloud), net(cloud), rtol=0, atol=0)
+    assert read_tnet_metadata(path)["training"] == {"note": "x"}
+    assert loaded.prealign == "pca"
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.rotation(cloud), net.rotation(cloud), rtol=0, atol=0)
+
+
+def test_load_tnet_refuses_foreign_files(tmp_path) -> None:
+    from safetensors.torch import save_file
+
+    foreign = tmp_path / "foreign.safetensors"
+    save_file({"x": torch.zeros(2)}, str(foreign))
+    with pytest.raises(ArtifactError):
+        load_tnet(foreign)
+    garbage = tmp_path / "garbage.safetensors"
+    garbage.write_bytes(b"not a safetensors file")
+    with pytest.raises(ArtifactError):
+        load_tnet(garbage)
+
+
+# --------------------------------------------------------------------------- inference helpers
+
+
+def test_predict_rotation(toy_shapes) -> None:
+    torch.manual_seed(0)
+    net = TNet((8, 16), (8,)).train()
+    train, _ = toy_shapes
+    rng = np.random.default_rng(0)
+    cloud = sample_surface(train.vertices[0], train.faces[0], 3000, rng).points
+    R = predict_rotation(net, cloud)
+    assert R.shape == (3, 3) and R.dtype == np.float64
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-5)
+    assert net.training  # mode restored
+    np.testing.assert_array_equal(predict_rotation(net, cloud), R)  # deterministic subsample
+    np.testing.assert_allclose(
+        predict_rotation(net, cloud + np.array([0.3, -1.0, 2.0])), R, atol=1e-5
+    )
+    # Equal to the eval-mode network on the documented subset, centred.
+    keep = np.sort(np.random.default_rng(0).choice(3000, PREDICT_MAX_POINTS, replace=False))
+    subset = cloud[keep] - cloud[keep].mean(axis=0)
+    net.eval()
+    with torch.no_grad():
+        direct = net.rotation(torch.as_tensor(subset, dtype=torch.float32)[None])[0]
+    np.testing.assert_allclose(R, direct.double().numpy(), atol=1e-6)
+    small = cloud[:500]
+    assert predict_rotation(net, small).shape == (3, 3)
+
+
+def test_angle_statistics_and_failures() -> None:
+    stats = angle_statistics([0.1, 0.7, 0.2, 2.0], threshold=0.66)
+    assert stats["n"] == 4 and stats["failures"] == [1, 3] and stats["n_failures"] == 2
+    assert stats["max"] == 2.0 and stats["median"] == pytest.approx(0.45)
+    assert stats["mean"] == pytest.approx(0.75)
+
+
+def test_report_against_a_ground_truth_oracle(toy_shapes, monkeypatch) -> None:
+    """With a predictor that returns the reference rotations the report sees zero error, and
+    the clouds it feeds are the rotated shapes (their spread matches ``verts @ R_gtᵀ``)."""
+    train, val = toy_shapes
+    settings = TNetTrainConfig().report
+    rots = {
+        n: Rotation.random(
+            n, random_state=np.random.default_rng(settings.rotation_seed)
+        ).as_matrix()
+        for n in (4, 2)
+    }
+    # Call order of alignment_report: train (mesh), then val as mesh, cloud500, broken.
+    expected = [(train, i, rots[4][i]) for i in range(4)]
+    expected += [(val, i, rots[2][i]) for _ in range(3) for i in range(2)]
+    calls = iter(expected)
+
+    def oracle(net, cloud):
+        shapes, i, R = next(calls)
+        # Aligning the cloud with R brings it to the canonical orientation: same principal
+        # axes as the canonical mesh vertices (up to sign), so the axis cosines are ~1.
+        aligned = (cloud - cloud.mean(axis=0)) @ R
+        axes = np.linalg.eigh(np.cov(aligned.T))[1]
+        verts = shapes.vertices[i]
+        ref = np.linalg.eigh(np.cov((verts - verts.mean(axis=0)).T))[1]
+        assert np.abs(np.abs(np.sum(axes * ref, axis=0)) - 1.0).max() < 0.1
+        return R
+
+    monkeypatch.setattr(tnet_module, "predict_rotation", oracle)
+    report = alignment_report(TNet((8,), ()), train, val, settings)
+    for name in ("train", "val", "val_cloud500", "val_broken"):
+        assert report[name]["max"] < 1e-6 and report[name]["failures"] == []
+    assert next(calls, None) is None
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def test_parser_registers_train_tnet_and_keeps_geodesic() -> None:
+    parser = argparse.ArgumentParser(prog="litege")
+    add_train_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["train", "tnet", "--config", "c.toml", "--out", "o"])
+    assert (args.config, args.out, args.train_command) == ("c.toml", "o", "tnet")
+    assert callable(args.handler)
+    args = parser.parse_args(["train", "geodesic", "--config", "g.toml"])
+    assert args.train_command == "geodesic" and callable(args.handler)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["train", "tnet"])
