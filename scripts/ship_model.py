@@ -166,6 +166,7 @@ def _copy_bundle(source: Path, target: Path) -> None:
     for item in source.iterdir():
         if item.is_file():
             shutil.copy2(item, target / item.name)
+            (target / item.name).chmod(0o644)  # safetensors writes 0600; the service user reads
 
 
 def ship_geodesic(args: argparse.Namespace) -> Path:
@@ -189,9 +190,9 @@ def main() -> None:
     kind = json.loads((Path(args.bundle) / MANIFEST).read_text()).get("kind", "geodesic")
     target = ship_matching(args) if kind == "matching" else ship_geodesic(args)
     total = sum(f.stat().st_size for f in SHIPPED_DIR.rglob("*") if f.is_file())
-    print(f"shipped {target.name} → {target}; all shipped bundles: {total / 1e6:.1f} MB")
+    print(f"shipped {target.name} → {target}; all shipped bundles: {total / 2**20:.1f} MiB")
     if total > BUDGET_BYTES:
-        raise SystemExit(f"shipped bundles exceed the 30 MB budget ({total / 1e6:.1f} MB)")
+        raise SystemExit(f"shipped bundles exceed the 30 MiB budget ({total / 2**20:.1f} MiB)")
 
 
 if __name__ == "__main__":

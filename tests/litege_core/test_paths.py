@@ -1,9 +1,10 @@
 """Geodesic paths (gradient descent of the learned distance + projection) and the exact
 surface projection they rely on, checked against trimesh's closest point (slow reference).
-
-Measured on the fitted sphere net below (16 pairs, geodesic angle < 1.8 rad): polyline length
-/ predicted distance within 0.99–1.08, polyline length / true great-circle distance within
-1.00–1.03. The tests allow 0.12 and 0.05.
+Measured on the fitted sphere net below (16 pairs, geodesic angle < 1.8 rad, 800 fit steps,
+Intel Xeon, 2026-11-22): polyline length / predicted distance within 0.96–1.11, polyline
+length / true great-circle distance within 1.00–1.02. The tests allow 0.12 and 0.05. With 400
+fit steps the net was marginal on some CPUs (their float32 kernels differ, and training
+amplifies the difference), hence 800.
 """
 
 import numpy as np
@@ -30,6 +31,7 @@ from litege_core.variants import random_rotation
 
 RADIUS = 2.0
 K = 3
+STEPS = 800  # fit steps of the sphere net (see the module docstring)
 
 
 def _sphere(subdivisions: int = 3) -> Shape:
@@ -60,7 +62,7 @@ def basis():
 
 
 def _fit_sphere_net(basis) -> GeodesicNet:
-    """A tiny net fitted (~3 s) to great-circle distances of pairs closer than 2 rad."""
+    """A tiny net fitted (~6 s) to great-circle distances of pairs closer than 2 rad."""
     sphere = _sphere()
     samples = shape_samples(sphere, 2000, 0)
     transform = canonicalize_bbox(samples)
@@ -74,11 +76,11 @@ def _fit_sphere_net(basis) -> GeodesicNet:
         net = GeodesicNet(width=32, descriptor_dim=K)
         net.fit_coord_normalization(canonical.numpy())
         optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, 400, 1e-4)
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, STEPS, 1e-4)
         generator = torch.Generator().manual_seed(0)
         desc = descriptor[None].expand(1024, -1)
         n = canonical.shape[0]
-        for _ in range(400):
+        for _ in range(STEPS):
             i = torch.randint(n, (4096,), generator=generator)
             j = torch.randint(n, (4096,), generator=generator)
             angle = torch.arccos((unit[i] * unit[j]).sum(1).clamp(-1.0, 1.0))
