@@ -188,10 +188,16 @@ def load_bundle(path: str | os.PathLike, device: str | torch.device = "cpu") -> 
 
 
 def shipped_bundles() -> list[str]:
-    """Names of the bundles shipped inside the package."""
+    """Names of the geodesic bundles shipped inside the package (matching bundles, kind
+    ``"matching"``, are listed by :func:`litege_core.matching.shipped_matching_bundles`)."""
     if not SHIPPED_DIR.is_dir():
         return []
-    return sorted(p.name for p in SHIPPED_DIR.iterdir() if (p / MANIFEST).exists())
+    return sorted(
+        p.name
+        for p in SHIPPED_DIR.iterdir()
+        if (p / MANIFEST).exists()
+        and json.loads((p / MANIFEST).read_text()).get("kind", "geodesic") == "geodesic"
+    )
 
 
 def load_shipped(name: str = DEFAULT_MODEL, device: str | torch.device = "cpu") -> ModelBundle:
