@@ -8,7 +8,8 @@ Sub-commands:
     litege data build ...     build (or resume) a ground-truth geodesic dataset
     litege data verify DIR    check a dataset's shard hashes and arrays
     litege train geodesic     train a geodesic model from a TOML config
-    litege geodesic / path    predicted distances / geodesic paths with a model bundle
+    litege train tnet         train the T-Net (shape orientation for matching)
+    litege train matching     train the matching network and export a matching bundle
     litege eval geodesic      evaluate a model against the classical baselines
     litege eval matching      evaluate a matching model against NN and ZoomOut baselines
     litege render FILE        PNG heatmap of predicted distances (isolines, path), offscreen
