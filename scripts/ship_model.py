@@ -40,7 +40,7 @@ def model_card(manifest: dict, evaluation: str | None) -> str:
         f"# Model card: `{manifest['name']}` (LiteGE geodesic regression, v{manifest['version']})",
         "",
         f"- **Category**: {manifest['category']}; content hash `{manifest['content_hash'][:16]}`;"
-        f" trained at commit `{training.get('commit', 'unknown')}` on {manifest['created']}.",
+        f" created {manifest['created']}, shipped at commit `{training.get('commit', 'unknown')}`.",
         f"- **Intended use**: geodesic distances and paths on {manifest['category']} meshes and "
         "point clouds (300–8K points), any rotation, translation and scale. The out-of-"
         "distribution score (PCA residual z-score) flags shapes unlike the training family.",
@@ -90,7 +90,7 @@ def matching_model_card(manifest: dict, evaluation: str | None, tnet_report: dic
         f"v{manifest['version']})",
         "",
         f"- **Category**: {manifest['category']}; content hash `{manifest['content_hash'][:16]}`;"
-        f" trained at commit `{training.get('commit', 'unknown')}` on {manifest['created']}.",
+        f" created {manifest['created']}, shipped at commit `{training.get('commit', 'unknown')}`.",
         f"- **Intended use**: dense correspondence between {manifest['category']} shapes of "
         "different species and poses (meshes, broken meshes, point clouds of 500–8K points), "
         "any rotation, translation and scale: each query point of X gets the point of Y that "
@@ -119,7 +119,7 @@ def matching_model_card(manifest: dict, evaluation: str | None, tnet_report: dic
     if tnet_report:
         lines += [
             "",
-            "## T-Net alignment error (rad)",
+            "## T-Net alignment error (rad) of the bundle's own T-Net (`scripts/tnet_report.py`)",
             "",
             "```json",
             json.dumps(tnet_report, indent=1, sort_keys=True),

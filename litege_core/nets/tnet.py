@@ -69,6 +69,26 @@ PREALIGN_MODES: tuple[str, ...] = ("none", "pca")
 _CONFIG_KEYS = frozenset({"conv_widths", "fc_widths", "prealign"})
 
 
+def _cube_rotations() -> torch.Tensor:
+    mats = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = torch.zeros(3, 3, dtype=torch.float64)
+            for row, (col, sign) in enumerate(zip(perm, signs, strict=True)):
+                m[row, col] = sign
+            if torch.linalg.det(m) > 0:
+                mats.append(m)
+    return torch.stack(mats)
+
+
+CUBE_ROTATIONS: torch.Tensor = _cube_rotations()
+"""The 24 proper signed permutation matrices ``(24, 3, 3)`` float64 (rotations of the cube).
+
+Training with ``frames = pca_frames(x) @ CUBE_ROTATIONS[k]`` (random ``k``) shows a
+pre-aligned T-Net every axis order and sign of the PCA frame equally often, so it must read
+the orientation from the shape instead of learning the most frequent PCA state."""
+
+
 @torch.no_grad()
 def pca_frames(points: torch.Tensor) -> torch.Tensor:
     """Principal-axis frames ``Q`` ``(B, 3, 3)`` of clouds ``(B, N, 3)`` (no gradient).
@@ -216,16 +236,26 @@ class TNet(nn.Module):
             raise EmptyShapeError(f"points has shape {tuple(points.shape)}: no clouds or points")
         return points
 
-    def rotation(self, points: torch.Tensor) -> torch.Tensor:
+    def rotation(self, points: torch.Tensor, frames: torch.Tensor | None = None) -> torch.Tensor:
         """``(B, N, 3)`` rotated clouds → ``(B, 3, 3)`` estimated ``R_gt``.
 
         With ``prealign="pca"``: ``Q @ rotation_from_6d(self(points @ Q))``, ``Q`` =
-        :func:`pca_frames` (the gradient flows through the network output only).
+        :func:`pca_frames` (the gradient flows through the network output only). ``frames``
+        replaces ``Q`` by other proper frames ``(B, 3, 3)`` (training: turned PCA frames, see
+        :data:`CUBE_ROTATIONS`); not allowed without pre-alignment.
         """
         if self.prealign == "none":
+            if frames is not None:
+                raise InputError("frames are only used with prealign='pca'")
             return rotation_from_6d(self(points))
         points = self._checked(points)
-        frames = pca_frames(points)
+        if frames is None:
+            frames = pca_frames(points)
+        elif tuple(frames.shape) != (points.shape[0], 3, 3):
+            raise ArrayShapeError(
+                f"frames must have shape ({points.shape[0]}, 3, 3), got {tuple(frames.shape)}"
+            )
+        frames = frames.to(points.dtype)
         return frames @ rotation_from_6d(self(points @ frames))
 
     def align(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -296,6 +326,7 @@ def tnet_loss(
 
 
 __all__ = [
+    "CUBE_ROTATIONS",
     "POINT_LOSS_WEIGHT",
     "PREALIGN_MODES",
     "REFERENCE_CONV_WIDTHS",

@@ -72,7 +72,7 @@ from litege_core.canonical import (
 from litege_core.datasets.spec import SPLIT_SEED_OFFSETS
 from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
-from litege_core.nets.tnet import POINT_LOSS_WEIGHT, PREALIGN_MODES
+from litege_core.nets.tnet import CUBE_ROTATIONS, POINT_LOSS_WEIGHT, PREALIGN_MODES, pca_frames
 from litege_core.sampling import as_points, poisson_disk_subsample, sample_surface
 from litege_core.train.config import _check, _typed
 from litege_core.variants import broken_mesh
@@ -123,6 +123,9 @@ class TNetAugmentConfig:
     noise_sigma: float = 0.01
     scale_min: float = 0.85
     scale_max: float = 1.4
+    frame_turns: bool = False
+    """Pre-aligned networks: turn each item's PCA frame by a random one of the 24
+    :data:`~litege_core.nets.tnet.CUBE_ROTATIONS` (every PCA axis order / sign equally often)."""
     axis_scale: float = 0.0
     """Per-item stretch of each canonical axis by a log-uniform factor in ``[1/(1+a), 1+a]``
     (before rotation): more body shapes than the generated ones (0: off)."""
@@ -376,11 +379,13 @@ def generate_shape_set(
 
 
 class TNetBatch(NamedTuple):
-    """``canonical (B, N, 3)``, ``rotated = canonical @ R_gtᵀ`` and ``R_gt (B, 3, 3)``."""
+    """``canonical (B, N, 3)``, ``rotated = canonical @ R_gtᵀ``, ``R_gt (B, 3, 3)`` and, for
+    pre-aligned networks, ``frame_turns (B, 3, 3)`` (identity unless ``augment.frame_turns``)."""
 
     canonical: torch.Tensor
     rotated: torch.Tensor
     R_gt: torch.Tensor
+    frame_turns: torch.Tensor | None = None
 
 
 def _item_cloud(
@@ -427,7 +432,11 @@ def sample_batch(
     clouds = np.stack(
         [_item_cloud(shapes.vertices[i], shapes.faces[i], n_points, augment, rng) for i in index]
     )
-    return _make_batch(clouds, rotations)
+    batch_out = _make_batch(clouds, rotations)
+    if augment.frame_turns:
+        turns = CUBE_ROTATIONS[rng.integers(len(CUBE_ROTATIONS), size=batch)].float()
+        batch_out = batch_out._replace(frame_turns=turns)
+    return batch_out
 
 
 class ValidationSet(NamedTuple):
@@ -677,8 +686,11 @@ def train_step(
 ) -> dict[str, float]:
     """One Adam step on ``batch`` (network in training mode); the loss terms as floats."""
     device = _device_of(net)
-    canonical, rotated, R_gt = (t.to(device) for t in batch)
-    loss = tnet_loss(net.rotation(rotated), R_gt, canonical, rotated, point_weight)
+    canonical, rotated, R_gt = (t.to(device) for t in batch[:3])
+    frames = None
+    if batch.frame_turns is not None and net.prealign != "none":
+        frames = pca_frames(rotated) @ batch.frame_turns.to(device, rotated.dtype)
+    loss = tnet_loss(net.rotation(rotated, frames), R_gt, canonical, rotated, point_weight)
     optimizer.zero_grad(set_to_none=True)
     loss.total.backward()
     optimizer.step()

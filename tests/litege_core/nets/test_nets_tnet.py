@@ -21,7 +21,12 @@ from litege_core.nets import (
     tnet_loss,
 )
 from litege_core.nets.rotation import ANGLE_CLAMP_EPS
-from litege_core.nets.tnet import REFERENCE_CONV_WIDTHS, REFERENCE_FC_WIDTHS, pca_frames
+from litege_core.nets.tnet import (
+    CUBE_ROTATIONS,
+    REFERENCE_CONV_WIDTHS,
+    REFERENCE_FC_WIDTHS,
+    pca_frames,
+)
 
 
 def random_rotations(n: int, seed: int = 0) -> torch.Tensor:
@@ -349,3 +354,30 @@ def test_prealigned_tnet_learns_a_fixed_orientation_quickly() -> None:
         optimizer.step()
         losses.append(float(loss.angle.detach()))
     assert sum(losses[-5:]) / 5 < 0.3 < losses[0]
+
+
+def test_cube_rotations_are_the_24_proper_signed_permutations() -> None:
+    assert CUBE_ROTATIONS.shape == (24, 3, 3)
+    eye = torch.eye(3, dtype=torch.float64)
+    torch.testing.assert_close(
+        CUBE_ROTATIONS.transpose(1, 2) @ CUBE_ROTATIONS, eye.expand(24, 3, 3)
+    )
+    torch.testing.assert_close(
+        torch.linalg.det(CUBE_ROTATIONS), torch.ones(24, dtype=torch.float64)
+    )
+    assert len({tuple(m.flatten().tolist()) for m in CUBE_ROTATIONS}) == 24
+
+
+def test_rotation_with_explicit_frames() -> None:
+    torch.manual_seed(6)
+    net = TNet((8, 16), (8,), prealign="pca").eval()
+    cloud = _asymmetric_cloud().float()[None].expand(2, -1, -1)
+    frames = pca_frames(cloud) @ CUBE_ROTATIONS[[3, 17]].float()
+    with torch.no_grad():
+        R = net.rotation(cloud, frames)
+        expected = frames @ rotation_from_6d(net(cloud @ frames))
+    torch.testing.assert_close(R, expected)
+    with pytest.raises(ArrayShapeError):
+        net.rotation(cloud, frames[:1])
+    with pytest.raises(InputError):
+        TNet((8,), ()).rotation(cloud, frames)

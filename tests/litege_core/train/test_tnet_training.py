@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 import litege_core.train.tnet as tnet_module
 from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, state_to_tensors
+from litege_core.nets.tnet import CUBE_ROTATIONS
 from litege_core.sampling import sample_surface
 from litege_core.train import add_train_parser
 from litege_core.train.tnet import (
@@ -171,8 +172,9 @@ def test_batches_are_rotated_canonical_clouds_and_seeded(toy_shapes, tmp_path) -
         batch.R_gt.transpose(1, 2) @ batch.R_gt, torch.eye(3).expand(4, 3, 3), atol=1e-5, rtol=0
     )
     assert batch.canonical.mean(dim=1).abs().max() < 1e-5  # each cloud centred
+    assert batch.frame_turns is None
     again = sample_batch(train, config, step=3)
-    assert all(torch.equal(a, b) for a, b in zip(batch, again, strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(batch[:3], again[:3], strict=True))
     other = sample_batch(train, config, step=4)
     assert not torch.equal(batch.R_gt, other.R_gt)
     stretched = sample_batch(train, config.replace(augment={"axis_scale": 0.5}), step=3)
@@ -190,7 +192,9 @@ def test_validation_set_is_fixed(toy_shapes, tmp_path) -> None:
     assert set(first.batches) == {"mesh", "cloud500", "broken"} and first.n_items == 6
     assert first.batches["cloud500"].canonical.shape[1] == 500
     for mode, batch in first.batches.items():
-        assert all(torch.equal(a, b) for a, b in zip(batch, second.batches[mode], strict=True))
+        assert all(
+            torch.equal(a, b) for a, b in zip(batch[:3], second.batches[mode][:3], strict=True)
+        )
 
 
 # --------------------------------------------------------------------------- training
@@ -368,3 +372,18 @@ def test_parser_registers_train_tnet_and_keeps_geodesic() -> None:
     assert args.train_command == "geodesic" and callable(args.handler)
     with pytest.raises(SystemExit):
         parser.parse_args(["train", "tnet"])
+
+
+def test_frame_turns_are_drawn_per_item_and_used_in_training(toy_shapes, tmp_path) -> None:
+    train, val = toy_shapes
+    config = tiny_config(
+        tmp_path, augment={"frame_turns": True}, network={"prealign": "pca"}, train={"steps": 4}
+    )
+    batch = sample_batch(train, config, step=0)
+    turns = batch.frame_turns
+    assert turns is not None and turns.shape == (4, 3, 3)
+    assert all(bool((CUBE_ROTATIONS.float() == t).all(dim=(1, 2)).any()) for t in turns)
+    again = sample_batch(train, config, step=0)
+    assert torch.equal(again.frame_turns, turns)
+    result = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    assert result.net.prealign == "pca" and math.isfinite(result.best_val["mean"])
