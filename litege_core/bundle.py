@@ -104,22 +104,7 @@ def save_bundle(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     basis.save(directory / BASIS_FILE)
-    # Only parameters are narrowed: buffers (BatchNorm running statistics, coordinate
-    # normalization) keep float32, since a running variance can exceed float16's range.
-    parameters = {name for name, _ in network.named_parameters()}
-    tensors = {
-        key: value.to(weights_dtype) if key in parameters and value.is_floating_point() else value
-        for key, value in state_to_tensors(network).items()
-    }
-    bad = [
-        key
-        for key, value in tensors.items()
-        if value.is_floating_point() and not torch.isfinite(value).all()
-    ]
-    if bad:
-        raise InputError(f"weights are not finite in {weights_dtype} (e.g. {bad[0]})")
-    save_file(tensors, str(directory / NETWORK_FILE))
-    files = {f: file_sha256(directory / f) for f in (BASIS_FILE, NETWORK_FILE)}
+    save_file(narrowed_state(network, weights_dtype), str(directory / NETWORK_FILE))
     core = {
         "format_version": FORMAT_VERSION,
         "name": name,
@@ -127,12 +112,45 @@ def save_bundle(
         "category": category,
         "pipeline": pipeline.__dict__,
         "network": network.config(),
-        "descriptor": {
-            "n_components": basis.n_components,
-            "n_voxels": basis.n_voxels,
-            "basis_hash": basis.content_hash,
-        },
+        "descriptor": descriptor_summary(basis),
     }
+    return write_manifest(directory, core, [BASIS_FILE, NETWORK_FILE], training, metrics)
+
+
+def narrowed_state(module: torch.nn.Module, dtype: torch.dtype) -> dict[str, torch.Tensor]:
+    """State tensors with floating *parameters* cast to ``dtype``. Buffers (BatchNorm running
+    statistics, coordinate normalization) keep float32: a running variance can exceed
+    float16's range. Non-finite values after the cast are an :class:`InputError`."""
+    parameters = {name for name, _ in module.named_parameters()}
+    tensors = {
+        key: value.to(dtype) if key in parameters and value.is_floating_point() else value
+        for key, value in state_to_tensors(module).items()
+    }
+    for key, value in tensors.items():
+        if value.is_floating_point() and not torch.isfinite(value).all():
+            raise InputError(f"weights are not finite in {dtype} (e.g. {key})")
+    return tensors
+
+
+def descriptor_summary(basis: UdfPcaBasis) -> dict[str, Any]:
+    """The manifest's ``descriptor`` entry: what a network must be paired with."""
+    return {
+        "n_components": basis.n_components,
+        "n_voxels": basis.n_voxels,
+        "basis_hash": basis.content_hash,
+    }
+
+
+def write_manifest(
+    directory: Path,
+    core: dict[str, Any],
+    filenames: list[str],
+    training: dict[str, Any] | None,
+    metrics: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """Hash ``filenames`` of ``directory`` and write ``manifest.json`` (``core`` + file hashes,
+    training summary, metrics, creation time, content hash); returns the manifest."""
+    files = {f: file_sha256(directory / f) for f in filenames}
     manifest = {
         **core,
         "files": files,
@@ -145,6 +163,26 @@ def save_bundle(
     return manifest
 
 
+def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[str, Any]:
+    """``manifest.json`` of a bundle directory, after checking every listed file's hash.
+
+    Raises:
+        ArtifactError: no or invalid manifest, a missing file or a hash mismatch.
+    """
+    try:
+        manifest = json.loads((directory / MANIFEST).read_text())
+    except FileNotFoundError as exc:
+        raise ArtifactError(f"no {what} at {directory} ({MANIFEST} missing)") from exc
+    except json.JSONDecodeError as exc:
+        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
+    for filename, expected in manifest.get("files", {}).items():
+        if not (directory / filename).exists():
+            raise ArtifactError(f"bundle {directory.name} lacks {filename}")
+        if file_sha256(directory / filename) != expected:
+            raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")
+    return manifest
+
+
 def load_bundle(path: str | os.PathLike, device: str | torch.device = "cpu") -> ModelBundle:
     """Load and verify a bundle directory.
 
@@ -152,19 +190,9 @@ def load_bundle(path: str | os.PathLike, device: str | torch.device = "cpu") -> 
         ArtifactError: missing or damaged files, hash mismatch, or inconsistent pieces.
     """
     directory = Path(path)
-    try:
-        manifest = json.loads((directory / MANIFEST).read_text())
-    except FileNotFoundError as exc:
-        raise ArtifactError(f"no model bundle at {directory} ({MANIFEST} missing)") from exc
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
+    manifest = read_verified_manifest(directory)
     if manifest.get("format_version") != FORMAT_VERSION:
         raise ArtifactError(f"bundle format {manifest.get('format_version')} is not supported")
-    for filename, expected in manifest.get("files", {}).items():
-        if not (directory / filename).exists():
-            raise ArtifactError(f"bundle {directory.name} lacks {filename}")
-        if file_sha256(directory / filename) != expected:
-            raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")
     basis = UdfPcaBasis.load(directory / BASIS_FILE)
     if basis.content_hash != manifest["descriptor"]["basis_hash"]:
         raise ArtifactError("bundle basis differs from the one it was trained with")

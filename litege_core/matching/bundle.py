@@ -15,22 +15,25 @@ Shipped matching bundles live in ``litege_core/models/NAME-matching/``.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from litege_core.bundle import SHIPPED_DIR, _content_hash
-from litege_core.datasets.storage import file_sha256, write_json_atomic
+from litege_core.bundle import (
+    SHIPPED_DIR,
+    descriptor_summary,
+    narrowed_state,
+    read_verified_manifest,
+    write_manifest,
+)
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import ArtifactError, InputError
 from litege_core.matching.cache import DEFAULT_NEIGHBOURS, DEFAULT_TIER_SIZES
 from litege_core.matching.frame import MatchingPipeline
-from litege_core.nets import GeodesicNet, TNet, load_state, state_to_tensors
+from litege_core.nets import GeodesicNet, TNet, load_state
 
 FORMAT_VERSION = 1
 KIND = "matching"
@@ -89,19 +92,6 @@ class MatchingBundle:
         return next(self.networks[0].parameters()).device
 
 
-def _narrowed(module: torch.nn.Module, dtype: torch.dtype) -> dict[str, torch.Tensor]:
-    """State tensors with floating *parameters* in ``dtype`` (buffers keep float32)."""
-    parameters = {name for name, _ in module.named_parameters()}
-    tensors = {
-        key: value.to(dtype) if key in parameters and value.is_floating_point() else value
-        for key, value in state_to_tensors(module).items()
-    }
-    for key, value in tensors.items():
-        if value.is_floating_point() and not torch.isfinite(value).all():
-            raise InputError(f"weights are not finite in {dtype} (e.g. {key})")
-    return tensors
-
-
 def save_matching_bundle(
     directory: str | os.PathLike,
     *,
@@ -133,11 +123,10 @@ def save_matching_bundle(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     basis.save(directory / BASIS_FILE)
-    save_file(_narrowed(tnet, weights_dtype), str(directory / TNET_FILE))
+    save_file(narrowed_state(tnet, weights_dtype), str(directory / TNET_FILE))
     for k, net in enumerate(networks):
-        save_file(_narrowed(net, weights_dtype), str(directory / network_file(k)))
+        save_file(narrowed_state(net, weights_dtype), str(directory / network_file(k)))
     names = [BASIS_FILE, TNET_FILE, *(network_file(k) for k in range(len(networks)))]
-    files = {f: file_sha256(directory / f) for f in names}
     core = {
         "format_version": FORMAT_VERSION,
         "kind": KIND,
@@ -148,22 +137,9 @@ def save_matching_bundle(
         "search": asdict(search),
         "tnet": tnet.config(),
         "networks": [net.config() for net in networks],
-        "descriptor": {
-            "n_components": basis.n_components,
-            "n_voxels": basis.n_voxels,
-            "basis_hash": basis.content_hash,
-        },
+        "descriptor": descriptor_summary(basis),
     }
-    manifest = {
-        **core,
-        "files": files,
-        "training": training or {},
-        "metrics": metrics or {},
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-        "content_hash": _content_hash(files, core),
-    }
-    write_json_atomic(directory / MANIFEST, manifest)
-    return manifest
+    return write_manifest(directory, core, names, training, metrics)
 
 
 def _load_state_file(module: torch.nn.Module, path: Path) -> None:
@@ -186,19 +162,9 @@ def load_matching_bundle(
         ArtifactError: missing or damaged files, hash mismatch, or inconsistent pieces.
     """
     directory = Path(path)
-    try:
-        manifest = json.loads((directory / MANIFEST).read_text())
-    except FileNotFoundError as exc:
-        raise ArtifactError(f"no matching bundle at {directory} ({MANIFEST} missing)") from exc
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
+    manifest = read_verified_manifest(directory, "matching bundle")
     if manifest.get("kind") != KIND or manifest.get("format_version") != FORMAT_VERSION:
         raise ArtifactError(f"{directory} is not a matching bundle of format {FORMAT_VERSION}")
-    for filename, expected in manifest.get("files", {}).items():
-        if not (directory / filename).exists():
-            raise ArtifactError(f"bundle {directory.name} lacks {filename}")
-        if file_sha256(directory / filename) != expected:
-            raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")
     basis = UdfPcaBasis.load(directory / BASIS_FILE)
     if basis.content_hash != manifest["descriptor"]["basis_hash"]:
         raise ArtifactError("bundle basis differs from the one it was trained with")

@@ -5,13 +5,19 @@ from __future__ import annotations
 
 import functools
 import hashlib
+from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
 from litege_core.descriptor import VoxelGrid, fit_basis
-from litege_core.matching.bundle import KIND, MatchingBundle, SearchSettings
+from litege_core.matching.bundle import (
+    KIND,
+    MatchingBundle,
+    SearchSettings,
+    save_matching_bundle,
+)
 from litege_core.matching.frame import MatchingPipeline
 from litege_core.nets import GeodesicNet, TNet
 
@@ -50,3 +56,18 @@ def tiny_matching_bundle(seed: int = 0) -> MatchingBundle:
     digest = hashlib.sha256(f"tiny-matching-{seed}-{basis.content_hash}".encode()).hexdigest()
     manifest = {"kind": KIND, "name": "tiny", "category": "test", "content_hash": digest}
     return MatchingBundle("tiny", basis, tnet, (net,), pipeline, search, manifest)
+
+
+def save_tiny_matching_bundle(directory: str | Path, seed: int = 0, name: str = "tiny") -> dict:
+    """Write :func:`tiny_matching_bundle` as a bundle directory; returns its manifest."""
+    bundle = tiny_matching_bundle(seed)
+    return save_matching_bundle(
+        directory,
+        name=name,
+        category="test",
+        basis=bundle.basis,
+        tnet=bundle.tnet,
+        networks=list(bundle.networks),
+        pipeline=bundle.pipeline,
+        search=bundle.search,
+    )

@@ -10,24 +10,15 @@ import trimesh
 
 from litege_core.cli import main
 from litege_core.io import load_shape
-from litege_core.matching import MatchingModel, save_matching_bundle
+from litege_core.matching import MatchingModel
+from litege_core.matching.testing import save_tiny_matching_bundle
 from litege_core.synth import families, generate_shape
 
 
 @pytest.fixture(scope="module")
 def bundle_dir(tmp_path_factory):
-    bundle = MatchingModel.tiny_random(0).bundle
     directory = tmp_path_factory.mktemp("match") / "tiny-matching"
-    save_matching_bundle(
-        directory,
-        name="tiny",
-        category="test",
-        basis=bundle.basis,
-        tnet=bundle.tnet,
-        networks=list(bundle.networks),
-        pipeline=bundle.pipeline,
-        search=bundle.search,
-    )
+    save_tiny_matching_bundle(directory)
     return directory
 
 

@@ -297,19 +297,9 @@ def test_openapi_documents_the_operation(service):
 def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, tmp_path):
     """``LITEGE_MATCHING_MODEL`` may name a bundle directory; an explicit name that does not
     load stops the start-up (the unset default is only skipped)."""
-    from litege_core.matching.bundle import save_matching_bundle
+    from litege_core.matching.testing import save_tiny_matching_bundle
 
-    tiny = MatchingModel.tiny_random(SEED).bundle
-    manifest = save_matching_bundle(
-        tmp_path / "bundle",
-        name="dir-model",
-        category="test",
-        basis=tiny.basis,
-        tnet=tiny.tnet,
-        networks=tiny.networks,
-        pipeline=tiny.pipeline,
-        search=tiny.search,
-    )
+    manifest = save_tiny_matching_bundle(tmp_path / "bundle", SEED, name="dir-model")
     service = live_service_factory(matching_model=str(tmp_path / "bundle"))
     with LiteGEClient(service.base_url) as client:
         ready = client.ready()

@@ -253,21 +253,10 @@ def test_tosca_pairs_are_same_class_with_valid_truth():
 
 @pytest.fixture(scope="module")
 def tiny_bundle_dir(tmp_path_factory):
-    from litege_core.matching import save_matching_bundle
-    from litege_core.matching.testing import tiny_matching_bundle
+    from litege_core.matching.testing import save_tiny_matching_bundle
 
-    bundle = tiny_matching_bundle(0)
     directory = tmp_path_factory.mktemp("tiny-matching")
-    save_matching_bundle(
-        directory,
-        name="tiny",
-        category="test",
-        basis=bundle.basis,
-        tnet=bundle.tnet,
-        networks=list(bundle.networks),
-        pipeline=bundle.pipeline,
-        search=bundle.search,
-    )
+    save_tiny_matching_bundle(directory)
     return directory
 
 

@@ -14,7 +14,7 @@ from PIL import Image
 from litege_core.bundle import save_bundle
 from litege_core.cli import main
 from litege_core.descriptor import VoxelGrid, fit_basis
-from litege_core.matching import MatchingModel, save_matching_bundle
+from litege_core.matching.testing import save_tiny_matching_bundle
 from litege_core.nets import GeodesicNet
 from litege_core.synth import generate_shape
 
@@ -44,18 +44,8 @@ def geodesic_bundle(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def matching_bundle(tmp_path_factory):
-    bundle = MatchingModel.tiny_random(0).bundle
     directory = tmp_path_factory.mktemp("render-match") / "tiny-matching"
-    save_matching_bundle(
-        directory,
-        name="tiny",
-        category="test",
-        basis=bundle.basis,
-        tnet=bundle.tnet,
-        networks=list(bundle.networks),
-        pipeline=bundle.pipeline,
-        search=bundle.search,
-    )
+    save_tiny_matching_bundle(directory)
     return directory
 
 
