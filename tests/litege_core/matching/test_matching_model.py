@@ -198,3 +198,24 @@ def test_features_are_memoized_per_shape(model, prepared):
     first = model.features(x)
     assert model.features(x)[0].data_ptr() == first[0].data_ptr()
     assert isinstance(first[0], torch.Tensor) and first[0].shape[0] == x.n_points
+
+
+def test_an_ensemble_averages_the_distances_of_its_networks(model, shapes):
+    import dataclasses
+
+    from litege_core.nets import GeodesicNet
+
+    torch.manual_seed(7)
+    first = model.bundle.networks[0]
+    second = GeodesicNet(first.width, first.descriptor_dim).eval()
+    second.set_coord_normalization([0.0, 0.0, 0.0], [0.2, 0.2, 0.2])
+    alone = [
+        MatchingModel(dataclasses.replace(model.bundle, networks=(net,))) for net in (first, second)
+    ]
+    both = MatchingModel(dataclasses.replace(model.bundle, networks=(first, second)))
+    queries, candidates = np.arange(0, 300, 7), np.arange(0, 3000, 11)
+    tables = []
+    for m in [*alone, both]:
+        x, y = m.prepare_many(list(shapes))
+        tables.append(m.cross_distances(x, y, queries, candidates))
+    np.testing.assert_allclose(tables[2], (tables[0] + tables[1]) / 2, rtol=1e-5, atol=1e-7)
