@@ -42,6 +42,7 @@ from litege_core.matching.bundle import SearchSettings, save_matching_bundle
 from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import MatchingPipeline, align_shapes
 from litege_core.matching.search import coarse_to_fine_search
+from litege_core.metrics import auc
 from litege_core.nets import GeodesicNet, TNet
 from litege_core.predictor import FoldedGeodesicNet
 from litege_core.shape import Shape
@@ -274,16 +275,10 @@ def validation_metrics(
     matching = torch.cat(errors)
     return {
         "match_error_x100": float(matching.mean()) * 100.0,
-        "match_auc": float(_auc(matching.cpu().numpy(), 0.2)),
+        "match_auc": auc(matching.cpu().numpy(), 0.2),
         "l1": float(err.mean()) / target_scale,
         "masked_l1": float(err[local].mean()) / target_scale if local.any() else math.nan,
     }
-
-
-def _auc(errors: np.ndarray, threshold: float) -> float:
-    grid = np.linspace(0.0, threshold, 40)
-    recall = (errors[None, :] <= grid[:, None]).mean(axis=1)
-    return float(np.trapezoid(recall, grid) / threshold * 100.0)
 
 
 # --------------------------------------------------------------------------- training
