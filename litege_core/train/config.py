@@ -245,16 +245,9 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         """Build from nested dicts (a parsed TOML document); strict about keys and types."""
-        if not isinstance(data, dict):
-            raise InputError("a training config must be a table")
-        hints = typing.get_type_hints(cls)
-        unknown = sorted(set(data) - set(hints))
-        if unknown:
-            raise InputError(f"unknown config tables {unknown}; expected {sorted(hints)}")
-        if "data" not in data:
+        if isinstance(data, dict) and "data" not in data:
             raise InputError("the config needs a [data] table with the dataset directory")
-        sections = {name: _section(hints[name], name, data.get(name, {})) for name in data}
-        return cls(**sections)
+        return cls(**parse_tables(cls, data, "a training config"))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON/TOML-safe nested dict; ``from_dict(to_dict())`` gives an equal config."""
@@ -286,16 +279,53 @@ class TrainConfig:
         return Path(self.output.dir)
 
 
-def _section(cls: type, name: str, values: Any) -> Any:
-    """One table → its dataclass, checking key names and value types."""
+def parse_tables(config_cls: type, data: Any, what: str) -> dict[str, Any]:
+    """A parsed TOML document → ``{table name: table dataclass}`` for the tables present,
+    strict about table names, key names and value types (the fields of ``config_cls`` are
+    the table dataclasses)."""
+    if not isinstance(data, dict):
+        raise InputError(f"{what} must be a table")
+    hints = typing.get_type_hints(config_cls)
+    unknown = sorted(set(data) - set(hints))
+    if unknown:
+        raise InputError(f"unknown config tables {unknown}; expected {sorted(hints)}")
+    return {name: parse_table(hints[name], name, values) for name, values in data.items()}
+
+
+def parse_table(cls: type, name: str, values: Any) -> Any:
+    """One table → its dataclass, checking key names and value types (``bool``, ``int``,
+    ``float``, ``str`` and ``tuple[int, ...]`` fields)."""
     if not isinstance(values, dict):
         raise InputError(f"[{name}] must be a table, got {type(values).__name__}")
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(values) - set(hints))
     if unknown:
         raise InputError(f"unknown keys in [{name}]: {unknown}; expected {sorted(hints)}")
-    checked = {key: _typed(f"{name}.{key}", hints[key], value) for key, value in values.items()}
+    checked = {}
+    for key, value in values.items():
+        if hints[key] == tuple[int, ...]:
+            ok = isinstance(value, list | tuple) and all(
+                isinstance(v, int) and not isinstance(v, bool) for v in value
+            )
+            if not ok:
+                raise InputError(f"{name}.{key} must be an array of integers, got {value!r}")
+            checked[key] = tuple(value)
+        else:
+            checked[key] = _typed(f"{name}.{key}", hints[key], value)
     return cls(**checked)
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A TOML config file as nested dicts; every failure is an :class:`InputError`."""
+    source = Path(path)
+    try:
+        return tomllib.loads(source.read_text())
+    except FileNotFoundError as exc:
+        raise InputError(f"config file {source} does not exist") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read config file {source}: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source} is not valid TOML: {exc}") from exc
 
 
 def _typed(key: str, kind: type, value: Any) -> Any:
@@ -319,16 +349,7 @@ def _typed(key: str, kind: type, value: Any) -> Any:
 
 def load_config(path: str | Path) -> TrainConfig:
     """Read a TOML training config (see the module docstring)."""
-    source = Path(path)
-    try:
-        data = tomllib.loads(source.read_text())
-    except FileNotFoundError as exc:
-        raise InputError(f"config file {source} does not exist") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read config file {source}: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{source} is not valid TOML: {exc}") from exc
-    return TrainConfig.from_dict(data)
+    return TrainConfig.from_dict(read_toml(path))
 
 
 __all__ = [
@@ -340,4 +361,7 @@ __all__ = [
     "OutputConfig",
     "TrainConfig",
     "load_config",
+    "parse_table",
+    "parse_tables",
+    "read_toml",
 ]

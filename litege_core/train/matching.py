@@ -25,7 +25,6 @@ import logging
 import math
 import platform
 import time
-import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -46,7 +45,7 @@ from litege_core.metrics import auc
 from litege_core.nets import GeodesicNet, TNet
 from litege_core.predictor import FoldedGeodesicNet
 from litege_core.shape import Shape
-from litege_core.train.config import AugmentConfig
+from litege_core.train.config import AugmentConfig, parse_tables, read_toml
 from litege_core.train.data import dataset_fingerprint, load_split_arrays
 from litege_core.train.matching_data import (
     REJECT_ANGLE,
@@ -131,20 +130,7 @@ class MatchingTrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> MatchingTrainConfig:
-        unknown = set(data) - {f.name for f in fields(cls)}
-        if unknown:
-            raise InputError(f"unknown config tables {sorted(unknown)}")
-        tables = {}
-        for f in fields(cls):
-            table_cls = type(getattr(cls(), f.name))
-            values = data.get(f.name, {})
-            if not isinstance(values, dict):
-                raise InputError(f"[{f.name}] must be a table")
-            try:
-                tables[f.name] = table_cls(**values)
-            except TypeError as exc:
-                raise InputError(f"[{f.name}]: {exc}") from exc
-        config = cls(**tables)
+        config = cls(**parse_tables(cls, data, "a matching training config"))
         config.check()
         return config
 
@@ -176,14 +162,8 @@ class MatchingTrainConfig:
 
 
 def load_matching_config(path: str | Path) -> MatchingTrainConfig:
-    source = Path(path)
-    try:
-        data = tomllib.loads(source.read_text())
-    except FileNotFoundError as exc:
-        raise InputError(f"config file {source} does not exist") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{source} is not valid TOML: {exc}") from exc
-    return MatchingTrainConfig.from_dict(data)
+    """Read a TOML matching training config (``configs/matching-*.toml``)."""
+    return MatchingTrainConfig.from_dict(read_toml(path))
 
 
 # --------------------------------------------------------------------------- preparation

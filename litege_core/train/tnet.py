@@ -48,8 +48,6 @@ import logging
 import math
 import os
 import time
-import tomllib
-import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,7 +72,7 @@ from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
 from litege_core.nets.tnet import CUBE_ROTATIONS, POINT_LOSS_WEIGHT, PREALIGN_MODES, pca_frames
 from litege_core.sampling import as_points, poisson_disk_subsample, sample_surface
-from litege_core.train.config import _check, _typed
+from litege_core.train.config import _check, parse_tables, read_toml
 from litege_core.variants import broken_mesh
 
 LOG = logging.getLogger("litege.train.tnet")
@@ -233,13 +231,7 @@ class TNetTrainConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TNetTrainConfig:
         """Build from nested dicts (a parsed TOML document); strict about keys and types."""
-        if not isinstance(data, dict):
-            raise InputError("a T-Net training config must be a table")
-        hints = typing.get_type_hints(cls)
-        unknown = sorted(set(data) - set(hints))
-        if unknown:
-            raise InputError(f"unknown config tables {unknown}; expected {sorted(hints)}")
-        return cls(**{name: _section(hints[name], name, data[name]) for name in data})
+        return cls(**parse_tables(cls, data, "a T-Net training config"))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe nested dict (tuples as lists); ``from_dict(to_dict())`` is equal."""
@@ -262,39 +254,9 @@ class TNetTrainConfig:
         return Path(self.output.dir)
 
 
-def _section(cls: type, name: str, values: Any) -> Any:
-    if not isinstance(values, dict):
-        raise InputError(f"[{name}] must be a table, got {type(values).__name__}")
-    hints = typing.get_type_hints(cls)
-    unknown = sorted(set(values) - set(hints))
-    if unknown:
-        raise InputError(f"unknown keys in [{name}]: {unknown}; expected {sorted(hints)}")
-    checked = {}
-    for key, value in values.items():
-        if hints[key] == tuple[int, ...]:
-            ok = isinstance(value, list | tuple) and all(
-                isinstance(v, int) and not isinstance(v, bool) for v in value
-            )
-            if not ok:
-                raise InputError(f"{name}.{key} must be an array of integers, got {value!r}")
-            checked[key] = tuple(value)
-        else:
-            checked[key] = _typed(f"{name}.{key}", hints[key], value)
-    return cls(**checked)
-
-
 def load_tnet_config(path: str | Path) -> TNetTrainConfig:
     """Read a TOML T-Net training config (``configs/tnet-*.toml``)."""
-    source = Path(path)
-    try:
-        data = tomllib.loads(source.read_text())
-    except FileNotFoundError as exc:
-        raise InputError(f"config file {source} does not exist") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read config file {source}: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{source} is not valid TOML: {exc}") from exc
-    return TNetTrainConfig.from_dict(data)
+    return TNetTrainConfig.from_dict(read_toml(path))
 
 
 # --------------------------------------------------------------------------- shapes
