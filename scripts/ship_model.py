@@ -146,19 +146,6 @@ def matching_model_card(manifest: dict, evaluation: str | None, tnet_report: dic
     return "\n".join(lines) + "\n"
 
 
-def ship_matching(args: argparse.Namespace) -> Path:
-    bundle = load_matching_bundle(args.bundle)  # verifies hashes before anything is copied
-    target = SHIPPED_DIR / f"{bundle.name}{SUFFIX}"
-    _copy_bundle(Path(args.bundle), target)
-    manifest = json.loads((target / MANIFEST).read_text())
-    manifest["training"].setdefault("commit", git_commit())
-    evaluation = Path(args.eval).read_text() if args.eval else None
-    report = json.loads(Path(args.tnet_report).read_text()) if args.tnet_report else None
-    (target / "MODEL_CARD.md").write_text(matching_model_card(manifest, evaluation, report))
-    load_matching_bundle(target)
-    return target
-
-
 def _copy_bundle(source: Path, target: Path) -> None:
     if target.exists():
         shutil.rmtree(target)
@@ -169,15 +156,23 @@ def _copy_bundle(source: Path, target: Path) -> None:
             (target / item.name).chmod(0o644)  # safetensors writes 0600; the service user reads
 
 
-def ship_geodesic(args: argparse.Namespace) -> Path:
-    bundle = load_bundle(args.bundle)  # verifies hashes before anything is copied
-    target = SHIPPED_DIR / bundle.name
+def ship(args: argparse.Namespace) -> Path:
+    """Verify, copy and document one bundle; returns the shipped directory."""
+    kind = json.loads((Path(args.bundle) / MANIFEST).read_text()).get("kind", "geodesic")
+    load = load_matching_bundle if kind == "matching" else load_bundle
+    bundle = load(args.bundle)  # verifies hashes before anything is copied
+    target = SHIPPED_DIR / (f"{bundle.name}{SUFFIX}" if kind == "matching" else bundle.name)
     _copy_bundle(Path(args.bundle), target)
     manifest = json.loads((target / MANIFEST).read_text())
     manifest["training"].setdefault("commit", git_commit())
     evaluation = Path(args.eval).read_text() if args.eval else None
-    (target / "MODEL_CARD.md").write_text(model_card(manifest, evaluation))
-    load_bundle(target)
+    if kind == "matching":
+        report = json.loads(Path(args.tnet_report).read_text()) if args.tnet_report else None
+        card = matching_model_card(manifest, evaluation, report)
+    else:
+        card = model_card(manifest, evaluation)
+    (target / "MODEL_CARD.md").write_text(card)
+    load(target)
     return target
 
 
@@ -187,8 +182,7 @@ def main() -> None:
     parser.add_argument("--eval", default=None, help="markdown evaluation table to embed")
     parser.add_argument("--tnet-report", default=None, help="T-Net report.json (matching)")
     args = parser.parse_args()
-    kind = json.loads((Path(args.bundle) / MANIFEST).read_text()).get("kind", "geodesic")
-    target = ship_matching(args) if kind == "matching" else ship_geodesic(args)
+    target = ship(args)
     total = sum(f.stat().st_size for f in SHIPPED_DIR.rglob("*") if f.is_file())
     print(f"shipped {target.name} → {target}; all shipped bundles: {total / 2**20:.1f} MiB")
     if total > BUDGET_BYTES:
