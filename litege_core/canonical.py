@@ -469,13 +469,19 @@ def canonicalize(
             shape.vertices, shape.faces, n_center_samples, seed, rotation
         )
     else:
-        transform = _canonicalize_shape_poisson(shape, poisson, seed, rotation)
+        transform = poisson_frame(shape, poisson, seed, rotation)[0]
     return transform, transform.apply(shape.vertices)
 
 
-def _canonicalize_shape_poisson(
-    shape: Shape, setting: PoissonScaleSetting, seed: int, rotation: ArrayLike | None
-) -> Transform:
+def poisson_frame(
+    shape: Shape, setting: PoissonScaleSetting, seed: int, rotation: ArrayLike | None = None
+) -> tuple[Transform, NDArray]:
+    """Poisson-spacing canonicalization of a shape (spec §1.4) and the cloud it used.
+
+    Returns:
+        ``(transform, cloud)``: the cloud (input units) is the point cloud itself, ``n_cloud``
+        surface samples of a mesh, or their Poisson subset when ``setting.subset_is_cloud``.
+    """
     rng = np.random.default_rng(seed)
     cloud = shape.vertices
     if shape.faces is not None:
@@ -484,7 +490,8 @@ def _canonicalize_shape_poisson(
     if setting.subset_is_cloud:  # the subset is the cloud: its spacing is used as is
         cloud = cloud[poisson_disk_subsample(cloud, n_poisson, rng)]
         n_poisson = cloud.shape[0]
-    return canonicalize_poisson(cloud, n_poisson, setting.target_mean_nn, rng, rotation)
+    transform = canonicalize_poisson(cloud, n_poisson, setting.target_mean_nn, rng, rotation)
+    return transform, cloud
 
 
 __all__ = [
@@ -503,5 +510,6 @@ __all__ = [
     "canonicalize_poisson",
     "canonicalize_unit_area",
     "pca_alignment",
+    "poisson_frame",
     "poisson_spacing_unit_area",
 ]

@@ -24,12 +24,12 @@ from numpy.typing import NDArray
 from litege_core.canonical import (
     PoissonScaleSetting,
     Transform,
-    canonicalize_poisson,
     canonicalize_unit_area,
+    poisson_frame,
 )
 from litege_core.errors import InputError
 from litege_core.nets import TNet
-from litege_core.sampling import poisson_disk_subsample, sample_surface
+from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
 
 Scaling = Literal["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"]
@@ -114,23 +114,14 @@ def scale_frame(
         ``(transform, cloud)``: the unrotated unit-area transform and the ``(P, 3)`` point
         cloud (input units) the T-Net and the descriptor are computed from.
     """
-    rng = np.random.default_rng(seed)
     if scaling == "unit_area":
+        rng = np.random.default_rng(seed)
         transform = canonicalize_unit_area(
             shape.vertices, shape.faces, pipeline.n_center_samples, rng
         )
         cloud = sample_surface(shape.vertices, shape.faces, pipeline.n_descriptor_samples, rng)
         return transform, cloud.points
-    setting = pipeline.poisson_setting(scaling)
-    cloud = np.asarray(shape.vertices)
-    if shape.faces is not None:
-        cloud = sample_surface(shape.vertices, shape.faces, setting.n_cloud, rng).points
-    n_poisson = setting.n_poisson
-    if setting.subset_is_cloud:
-        cloud = cloud[poisson_disk_subsample(cloud, n_poisson, rng)]
-        n_poisson = cloud.shape[0]
-    transform = canonicalize_poisson(cloud, n_poisson, setting.target_mean_nn, rng)
-    return transform, cloud
+    return poisson_frame(shape, pipeline.poisson_setting(scaling), seed)
 
 
 def subsample(points: NDArray, n_max: int, seed: int) -> NDArray:
