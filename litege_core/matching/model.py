@@ -43,6 +43,7 @@ from litege_core.matching.bundle import (
 from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import MatchingPipeline, align_shapes
 from litege_core.matching.search import (
+    ScoreFn,
     coarse_to_fine_search,
     exhaustive_search,
     max_evaluations,
@@ -364,20 +365,8 @@ class MatchingModel:
 
     # ------------------------------------------------------------------ matching
 
-    def _score_fn(self, query: list[torch.Tensor], target: list[torch.Tensor]):
-        folded = self._folded
-        scale = 1.0 / len(folded)
-
-        def score(rows: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
-            m, c = cand.shape
-            total = None
-            for f, q, t in zip(folded, query, target, strict=True):
-                diff = q.index_select(0, rows)[:, None, :] - t[cand]
-                out = f.head(diff.reshape(m * c, -1), inplace=True).reshape(m, c)
-                total = out if total is None else total + out
-            return total * scale
-
-        return score
+    def _score_fn(self, query: list[torch.Tensor], target: list[torch.Tensor]) -> ScoreFn:
+        return ensemble_score_fn(self._folded, query, target)
 
     @torch.no_grad()
     def match(
@@ -447,6 +436,31 @@ class MatchingModel:
         cand = torch.from_numpy(cols).to(self.device).expand(rows.shape[0], cols.size)
         out = self._score_fn(query, self.features(target))(rows, cand)
         return out.cpu().numpy() / self.pipeline.target_scale
+
+
+def ensemble_score_fn(
+    networks: list[FoldedGeodesicNet], query: list[torch.Tensor], target: list[torch.Tensor]
+) -> ScoreFn:
+    """The search's score: network outputs on head-feature differences, averaged over the
+    networks.
+
+    Args:
+        networks: folded networks (one, or an ensemble).
+        query: per network ``(Q, 2n)`` head features of the query points of X.
+        target: per network ``(P, 2n)`` head features of the points of Y.
+    """
+    scale = 1.0 / len(networks)
+
+    def score(rows: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+        m, c = cand.shape
+        total = None
+        for net, q, t in zip(networks, query, target, strict=True):
+            diff = q.index_select(0, rows)[:, None, :] - t[cand]
+            out = net.head(diff.reshape(m * c, -1), inplace=True).reshape(m, c)
+            total = out if total is None else total + out
+        return total * scale
+
+    return score
 
 
 def check_indices(values: ArrayLike, n_points: int, what: str) -> NDArray:

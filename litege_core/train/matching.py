@@ -40,6 +40,7 @@ from litege_core.errors import InputError
 from litege_core.matching.bundle import SearchSettings, save_matching_bundle
 from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import MatchingPipeline, align_shapes
+from litege_core.matching.model import ensemble_score_fn
 from litege_core.matching.search import coarse_to_fine_search
 from litege_core.metrics import auc
 from litege_core.nets import GeodesicNet, TNet
@@ -244,12 +245,7 @@ def validation_metrics(
         rows = tables.sources[sa]
         fx = folded.features(folded.embed(tables.vertices[a][rows], bias[a]))
         fy = folded.features(folded.embed(tables.vertices[b], bias[b]))
-
-        def score(q: torch.Tensor, cand: torch.Tensor, fx=fx, fy=fy) -> torch.Tensor:
-            m, c = cand.shape
-            diff = fx[q][:, None, :] - fy[cand]
-            return folded.head(diff.reshape(m * c, -1), inplace=True).reshape(m, c)
-
+        score = ensemble_score_fn([folded], [fx], [fy])
         found, _ = coarse_to_fine_search(caches[b], score, rows.shape[0], beams=1)
         errors.append(tables.distances[sb, torch.arange(rows.shape[0]), found])
     matching = torch.cat(errors)
