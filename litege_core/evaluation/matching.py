@@ -48,6 +48,8 @@ from scipy.spatial import cKDTree
 
 from litege_core.errors import MissingDependencyError
 from litege_core.evaluation.matching_data import MatchPair
+from litege_core.matching.frame import boundary_edge_fraction
+from litege_core.metrics import auc
 from litege_core.shape import Shape
 
 N_THRESHOLDS = 40
@@ -76,11 +78,7 @@ def auc_x100(errors: ArrayLike, threshold: float, n_thresholds: int = N_THRESHOL
     """Area under the recall curve ``P(error ≤ t)``, ``t ∈ linspace(0, T, n)``, trapezoid rule,
     divided by ``T``, ×100 (100 = every error is 0)."""
     errors = np.asarray(errors, dtype=np.float64).reshape(-1)
-    if not errors.size:
-        return float("nan")
-    thresholds = np.linspace(0.0, threshold, n_thresholds)
-    recall = (errors[None, :] <= thresholds[:, None]).mean(axis=1)
-    return float(100.0 * np.trapezoid(recall, thresholds) / threshold)
+    return auc(errors, threshold, n_thresholds) if errors.size else float("nan")
 
 
 def flips(
@@ -178,13 +176,6 @@ class ZoomOutSettings:
         return (self.n_eigen - self.k_init) // self.zoomout_step
 
 
-def boundary_edge_fraction(faces: NDArray) -> float:
-    """Fraction of a mesh's edges that border one triangle only (0 for a closed mesh)."""
-    edges = np.sort(np.asarray(faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return float((counts == 1).mean())
-
-
 def _import_pyfm():
     try:
         from pyFM.functional import FunctionalMapping
@@ -218,7 +209,9 @@ class ZoomOutMethod(MatchMethod):
             None if shape.faces is None else np.asarray(shape.faces),
             normalize=shape.is_mesh,
         )
-        robust = not shape.is_mesh or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
+        robust = (
+            not shape.is_mesh or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
+        )
         mesh.process(k=s.n_eigen, robust=robust)
         if not shape.is_mesh:  # unit area as the point-cloud Laplacian's mass measures it
             mesh.scale(1.0 / np.sqrt(float(mesh.A.sum())))
