@@ -14,3 +14,8 @@ def frozen(array: ArrayLike, dtype: np.dtype | type | None = None) -> NDArray:
     out = np.array(array, dtype=dtype, copy=True, order="C")
     out.setflags(write=False)
     return out
+
+
+__all__ = [
+    "frozen",
+]

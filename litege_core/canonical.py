@@ -19,7 +19,6 @@ Three pipelines, which must not be mixed (each model and PCA basis belongs to on
 
 from __future__ import annotations
 
-import enum
 import math
 import sys
 from collections.abc import Mapping, Sequence
@@ -317,7 +316,8 @@ def canonicalize_unit_area(
         raise ArrayShapeError(f"n_center_samples must be positive, got {n_center_samples}")
     center = sample_surface(verts, tris, n_center_samples, seed).points.mean(axis=0)
     area = float(triangle_areas(verts, tris).sum())
-    return Transform(np.eye(3) if rotation is None else rotation, center, 1.0 / math.sqrt(area))
+    turn = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    return Transform(turn, center, 1.0 / math.sqrt(area))
 
 
 @dataclass(frozen=True)
@@ -377,9 +377,8 @@ def canonicalize_poisson(
     spacing = mean_nearest_neighbour_distance(subset)
     if not spacing > 0.0:
         raise DegenerateShapeError("the Poisson-disk subset has zero nearest-neighbour spacing")
-    return Transform(
-        np.eye(3) if rotation is None else rotation, pts.mean(axis=0), target_mean_nn / spacing
-    )
+    turn = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    return Transform(turn, pts.mean(axis=0), target_mean_nn / spacing)
 
 
 def poisson_spacing_unit_area(
@@ -423,10 +422,8 @@ def calibrate_poisson_target(
 # --------------------------------------------------------------------------- dispatcher
 
 
-class CanonicalizationMethod(ParsableEnum):
+class CanonicalizationMethod(ParsableEnum, noun="canonicalization"):
     """The three canonicalization pipelines of spec §1."""
-
-    _noun = enum.nonmember("canonicalization")
 
     BBOX = "bbox"
     UNIT_AREA = "unit_area"

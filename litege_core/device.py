@@ -22,3 +22,8 @@ def resolve_device(spec: str | torch.device = "auto") -> torch.device:
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError(f"device {spec!r} requested but CUDA is not available")
     return device
+
+
+__all__ = [
+    "resolve_device",
+]

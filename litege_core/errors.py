@@ -20,7 +20,9 @@ gRPC status mapping.
     │   ├── NonTriangularFacesError    polygons that are not triangles
     │   ├── DegenerateShapeError       zero total area, all points coincident, ...
     │   ├── ShapeTooLargeError         more vertices/faces/bytes than the configured bound
-    │   └── IndexOutOfRangeError       query indices outside the shape
+    │   ├── IndexOutOfRangeError       query indices outside the shape
+    │   └── MethodNotApplicableError   the chosen geodesic method cannot serve this shape
+    │       └── MethodSizeLimitError   the shape exceeds the method's configured size bound
     ├── ArtifactError                  corrupt or inconsistent saved artifact (basis, bundle)
     ├── ComputationError               a numerical routine failed on valid input
     └── MissingDependencyError         an optional extra is not installed
@@ -93,6 +95,19 @@ class IndexOutOfRangeError(InputError):
     code = "index-out-of-range"
 
 
+class MethodNotApplicableError(InputError):
+    """The requested geodesic method cannot answer for this shape (e.g. exact on a cloud)."""
+
+    code = "method-not-applicable"
+
+
+class MethodSizeLimitError(MethodNotApplicableError):
+    """The shape is valid but larger than the configured bound of the requested method
+    (e.g. exact geodesics above ``max_exact_vertices``); another method may serve it."""
+
+    code = "method-size-limit"
+
+
 class ArtifactError(LiteGEError):
     code = "artifact-error"
 
@@ -116,6 +131,8 @@ __all__ = [
     "IndexOutOfRangeError",
     "InputError",
     "LiteGEError",
+    "MethodNotApplicableError",
+    "MethodSizeLimitError",
     "MissingDependencyError",
     "NonFiniteError",
     "NonTriangularFacesError",

@@ -131,3 +131,14 @@ def matching_report(errors: ArrayLike, max_threshold: float) -> MatchingReport:
         auc_max_threshold=float(max_threshold),
         n_matches=int(values.size),
     )
+
+
+__all__ = [
+    "AUC_THRESHOLDS",
+    "GeodesicErrorReport",
+    "MatchingReport",
+    "auc",
+    "geodesic_error",
+    "matching_errors",
+    "matching_report",
+]

@@ -1,8 +1,8 @@
 """Projection of points onto a shape: exact closest point on a triangle mesh, nearest point of a
 point cloud.
 
-Used to put user-supplied query points on the surface (:mod:`litege_core.predictor`) and to keep
-the geodesic path tracer on the shape after every gradient step (:mod:`litege_core.paths`).
+Used to put user-supplied query points on the surface (:mod:`litege_core.query`) and to keep
+the geodesic path tracer on the shape after every gradient step (:mod:`litege_core.learned.paths`).
 
 * :func:`closest_point_on_triangles` is the vectorised closest point of a point to a triangle
   (Ericson, *Real-Time Collision Detection* §5.1.5: Voronoi regions of the corners, the edges
@@ -30,7 +30,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from litege_core.arrays import frozen
-from litege_core.errors import ArrayShapeError, EmptyShapeError, NonFiniteError
+from litege_core.errors import EmptyShapeError
+from litege_core.query import check_points
 
 DEFAULT_CANDIDATES = 16
 """Triangles tried first per query (nearest centroids); the certificate widens it if needed."""
@@ -40,25 +41,12 @@ DEFAULT_NORMAL_NEIGHBOURS = 10
 
 
 def as_query_points(points: ArrayLike, name: str = "points") -> NDArray:
-    """Validate ``(Q, 3)`` query points (a single ``(3,)`` point becomes ``(1, 3)``).
-
-    Raises:
-        ArrayShapeError: not numeric, not ``(Q, 3)``, or empty.
-        NonFiniteError: NaN or infinite coordinates.
-    """
-    try:
-        array = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ArrayShapeError(f"{name} must be a numeric (Q, 3) array: {exc}") from exc
+    """Validate ``(Q, 3)`` query points (a single ``(3,)`` point becomes ``(1, 3)``); the rule
+    of :func:`litege_core.query.check_points`."""
+    array = np.asarray(points) if not isinstance(points, np.ndarray) else points
     if array.ndim == 1 and array.shape[0] == 3:
         array = array[None]
-    if array.ndim != 2 or array.shape[1] != 3:
-        raise ArrayShapeError(f"{name} must have shape (Q, 3), got {array.shape}")
-    if array.shape[0] == 0:
-        raise ArrayShapeError(f"{name} is empty; pass at least one point")
-    if not np.isfinite(array).all():
-        raise NonFiniteError(f"{name} has NaN or infinite coordinates")
-    return array
+    return check_points(array, name)
 
 
 def closest_point_on_triangles(
@@ -324,13 +312,40 @@ class CloudProjector:
 
 Projector = MeshProjector | CloudProjector
 
+
+@dataclass(frozen=True)
+class SnappedPoints:
+    """Query points put on a shape by :func:`snap`.
+
+    Attributes:
+        points: ``(Q, 3)`` float64 points on the surface, in the projector's frame.
+        indices: ``(Q,)`` int64 cloud point of each (clouds), ``None`` on meshes, where the
+            snapped points are new surface points.
+    """
+
+    points: NDArray
+    indices: NDArray | None
+
+
+def snap(projector: Projector, points: ArrayLike) -> SnappedPoints:
+    """The one rule that puts xyz query points on a shape: the exact closest point on a
+    mesh's triangles, the nearest point of a cloud. ``points (Q, 3)`` are in the projector's
+    frame (any similarity transform of the shape's own frame gives the same answer)."""
+    if isinstance(projector, CloudProjector):
+        _, index = projector.nearest(points)
+        return SnappedPoints(projector.points[index], index)
+    return SnappedPoints(projector.project(points).points, None)
+
+
 __all__ = [
     "DEFAULT_CANDIDATES",
     "DEFAULT_NORMAL_NEIGHBOURS",
     "CloudProjector",
     "MeshProjector",
     "Projector",
+    "SnappedPoints",
     "SurfaceProjection",
     "as_query_points",
     "closest_point_on_triangles",
+    "snap",
 ]

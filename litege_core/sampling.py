@@ -322,3 +322,14 @@ def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
     pts = as_points(points, min_points=2)
     distances, _ = cKDTree(pts).query(pts, k=2)
     return float(distances[:, 1].mean())
+
+
+__all__ = [
+    "POISSON_COUNT_REL_TOL",
+    "SurfaceSamples",
+    "as_points",
+    "farthest_point_sampling",
+    "mean_nearest_neighbour_distance",
+    "poisson_disk_subsample",
+    "sample_surface",
+]

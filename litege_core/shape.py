@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import enum
 import hashlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -18,11 +17,8 @@ from litege_core.validate import DEFAULT_LIMITS, ShapeLimits, triangle_areas, va
 HASH_VERSION = b"litege-shape-v1"
 
 
-class ShapeKind(ParsableEnum):
+class ShapeKind(ParsableEnum, noun="shape kind", error=ArrayShapeError):
     """What the vertices are: a triangle mesh or a bare point cloud."""
-
-    _noun = enum.nonmember("shape kind")
-    _error = enum.nonmember(ArrayShapeError)
 
     MESH = "mesh"
     POINT_CLOUD = "point_cloud"
@@ -123,3 +119,10 @@ class Shape:
 
     def __hash__(self) -> int:
         return hash(self.content_hash)
+
+
+__all__ = [
+    "HASH_VERSION",
+    "Shape",
+    "ShapeKind",
+]

@@ -38,6 +38,8 @@ class ShapeLimits:
     max_vertices: int = 250_000
     max_faces: int = 500_000
     max_file_bytes: int = 64 * 1024 * 1024
+    max_scene_nodes: int = 10_000
+    """Nodes of a scene file (GLB), and node instances once its scene graph is expanded."""
 
 
 DEFAULT_LIMITS = ShapeLimits()

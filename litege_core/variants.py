@@ -191,3 +191,19 @@ def cut_by_planes(
     projection = points @ direction
     low, high = np.quantile(projection, [fraction_removed / 2.0, 1.0 - fraction_removed / 2.0])
     return (projection >= low) & (projection <= high)
+
+
+__all__ = [
+    "MeshVariant",
+    "PointVariant",
+    "SurfaceLocation",
+    "add_noise",
+    "anisotropic_remesh",
+    "broken_mesh",
+    "cut_by_planes",
+    "isotropic_remesh",
+    "locate_on_mesh",
+    "point_cloud",
+    "random_rotation",
+    "rotate",
+]

@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from litege_core.canonical import canonicalize_bbox
-from litege_core.describe import describe_shape, shape_samples
 from litege_core.descriptor import UdfPcaBasis
+from litege_core.learned import describe_shape, shape_samples
 from litege_core.shape import Shape
 from litege_core.synth import generate_shape
 from litege_core.variants import isotropic_remesh, point_cloud

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from litege_core.geodesics import ExactGeodesicEngine, insert_surface_points, make_engine
+from litege_core.engines import ExactGeodesicEngine, insert_surface_points, make_engine
 from litege_core.io import load_shape
 from litege_core.sampling import sample_surface
 from litege_core.shape import Shape

@@ -26,6 +26,20 @@ What is timed (median over ``--runs`` runs after two warm-up runs; ``time.perf_c
 * ``path``: one path between two far-apart vertices (steps reported).
 
 Prints a markdown table with the machine, the date and the versions.
+
+``--accuracy`` instead measures the speed options of issue 17 against accuracy, side by side
+in one run (BENCHMARKS.md section ``predictor-accuracy``): the shipped ``quadrupeds`` model in
+the default configuration (float32 head, full descriptor) and with a reduced-precision head
+(``precision`` bfloat16 / int8), bfloat16 point features, a truncated head (``head_rank``)
+and sparser descriptor lattices (``descriptor_lattice`` bcc / stride2). Accuracy: mean error
+(ground truth rescaled to mean 100, ``litege eval geodesic`` convention) on ``--shapes``
+held-out procedural quadrupeds (generated, exact MMP rows from ``--sources`` sources) and, when
+``../shared/eval-data`` exists, 8 TOSCA animals (research-only data, read in place), as meshes
+and as 2000-point clouds. Speed: median CPU ms over ``--runs`` interleaved rounds of one pair,
+a distance field (2000-point cloud) and a 1K × 1K matrix (5K mesh), preprocessing included.
+A configuration may become a default only if no error rises by more than 0.2::
+
+    python scripts/bench_predictor.py --accuracy [--shapes 10] [--sources 16] [--runs 5]
 """
 
 from __future__ import annotations
@@ -43,11 +57,9 @@ import numpy as np
 import torch
 
 from litege_core import __version__
-from litege_core.bundle import PipelineConfig, load_bundle, save_bundle
-from litege_core.describe import describe_shape
 from litege_core.descriptor import UdfPcaBasis, VoxelGrid
+from litege_core.learned import PipelineConfig, Predictor, describe_shape, load_bundle, save_bundle
 from litege_core.nets import GeodesicNet
-from litege_core.predictor import Predictor
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh
@@ -106,6 +118,131 @@ def cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
+ACCURACY_CONFIGS: dict[str, dict] = {
+    "float32 (default)": {},
+    "bfloat16 head": {"precision": "bfloat16"},
+    "int8 head": {"precision": "int8"},
+    "head rank 200": {"folded": {"head_rank": 200}},
+    "head rank 100": {"folded": {"head_rank": 100}},
+    "bfloat16 head + features": {
+        "folded": {"precision": "bfloat16", "embed_precision": "bfloat16"}
+    },
+    "lattice bcc": {"lattice": "bcc"},
+    "lattice stride2": {"lattice": "stride2"},
+    "bfloat16 head + lattice stride2": {"precision": "bfloat16", "lattice": "stride2"},
+}
+TOSCA_NAMES = ("cat0", "cat1", "dog0", "dog1", "horse0", "horse5", "wolf0", "wolf1")
+
+
+def _configured(bundle, config: dict) -> Predictor:
+    from litege_core.nets import FoldedGeodesicNet
+
+    predictor = Predictor(
+        bundle,
+        precision=config.get("precision", "float32"),
+        descriptor_lattice=config.get("lattice", "full"),
+    )
+    if "folded" in config:
+        predictor.folded = FoldedGeodesicNet(
+            predictor.network, predictor.device, **config["folded"]
+        )
+    return predictor
+
+
+def accuracy_table(args: argparse.Namespace) -> None:
+    """The ``--accuracy`` report (see the module docstring)."""
+    from litege_core.evaluation.geodesic import (
+        generated_eval_shapes,
+        make_input,
+        real_eval_shapes,
+    )
+    from litege_core.learned import load_shipped
+    from litege_core.metrics import geodesic_error
+    from litege_core.variants import point_cloud
+
+    bundle = load_shipped("quadrupeds")
+    groups = {
+        "synthetic": generated_eval_shapes(
+            "quadruped", args.shapes, args.sources, cache_dir=args.cache
+        )
+    }
+    tosca = Path(__file__).resolve().parents[1].parent / "shared" / "eval-data" / "tosca_5k"
+    if tosca.is_dir():
+        paths = [tosca / f"{name}.off" for name in TOSCA_NAMES if (tosca / f"{name}.off").exists()]
+        groups["TOSCA"] = real_eval_shapes(paths, "TOSCA", args.sources, cache_dir=args.cache)
+    settings = ("mesh", "cloud_2000")
+    inputs = {
+        (g, st): [make_input(shape, st, i) for i, shape in enumerate(shapes)]
+        for g, shapes in groups.items()
+        for st in settings
+    }
+    predictors = {name: _configured(bundle, config) for name, config in ACCURACY_CONFIGS.items()}
+    errors: dict[str, dict[tuple[str, str], float]] = {}
+    for name, predictor in predictors.items():
+        errors[name] = {}
+        for key, items in inputs.items():
+            predicted, truth = [], []
+            for item in items:
+                state = predictor.register(item.shape)
+                predicted.append(
+                    predictor.distances(state, item.source_index).astype(np.float64).ravel()
+                )
+                truth.append(item.gt.ravel())
+            pred, gt = np.concatenate(predicted), np.concatenate(truth)
+            keep = gt > 0
+            errors[name][key] = geodesic_error(pred[keep], gt[keep]).mean
+
+    dog = generate_shape("quadruped", "dog", 2_000_000)
+    cloud = Shape.from_arrays(point_cloud(dog.vertices, dog.faces, 2000, 0).points)
+    remeshed = isotropic_remesh(dog.vertices, dog.faces, 5000)
+    mesh = Shape.from_arrays(remeshed.vertices, remeshed.faces)
+    rng = np.random.default_rng(0)
+    src = rng.choice(mesh.n_points, 1000, replace=False)
+    dst = rng.choice(mesh.n_points, 1000, replace=False)
+    work = {
+        "pair": lambda p: p.distances(p.register(cloud), [0], [1]),
+        "field": lambda p: p.distance_field(p.register(cloud), 0),
+        "matrix": lambda p: p.distances(p.register(mesh), src, dst),
+    }
+    cpu: dict[tuple[str, str], list[float]] = {}
+    for round_ in range(args.runs + 1):
+        for name, predictor in predictors.items():
+            for w, fn in work.items():
+                start = time.process_time()
+                fn(predictor)
+                if round_:
+                    cpu.setdefault((name, w), []).append(1000.0 * (time.process_time() - start))
+
+    keys = list(inputs)
+    base = errors["float32 (default)"]
+    print("### Speed options vs accuracy: shipped `quadrupeds` model (issue 17)\n")
+    real = f", 8 TOSCA animals ({len(groups.get('TOSCA', []))} read)" if "TOSCA" in groups else ""
+    print(
+        f"- date {date.today()}; {cpu_name()}, {os.cpu_count()} logical CPUs (shared), torch "
+        f"{torch.__version__} with 1 thread; command `python scripts/bench_predictor.py "
+        f"--accuracy --shapes {args.shapes} --sources {args.sources} --runs {args.runs}`"
+    )
+    print(
+        f"- accuracy: mean error (GT mean 100) on {args.shapes} held-out procedural quadrupeds"
+        f"{real}; {args.sources} exact source rows each; as meshes and as 2000-point clouds"
+    )
+    print(
+        "- speed: median process CPU ms over "
+        f"{args.runs} interleaved rounds, preprocessing included: 1 pair and a distance field "
+        f"on a 2000-point cloud, 1K × 1K on a {mesh.n_points}-vertex mesh; "
+        f"bfloat16 runs on AMX / AVX512-BF16 here: {Predictor(bundle, precision='auto').precision}"
+    )
+    print("- Δ: the largest rise of a mean error over the float32 default (criterion ≤ +0.2)\n")
+    header = " | ".join(f"{g} {st}" for g, st in keys)
+    print(f"| configuration | {header} | Δ | 1 pair ms | field ms | 1K × 1K ms |")
+    print("|---|" + "---:|" * (len(keys) + 4))
+    for name in predictors:
+        delta = max(errors[name][k] - base[k] for k in keys)
+        cells = " | ".join(f"{errors[name][k]:.3f}" for k in keys)
+        times = " | ".join(f"{statistics.median(cpu[(name, w)]):.1f}" for w in work)
+        print(f"| {name} | {cells} | {delta:+.3f} | {times} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bundle", nargs="?", help="model bundle directory")
@@ -117,7 +254,17 @@ def main() -> None:
     parser.add_argument("--batch-runs", type=int, default=20, help="runs of the 64-shape rows")
     parser.add_argument("--threads", type=int, default=None, help="torch threads")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--accuracy", action="store_true", help="speed options vs accuracy")
+    parser.add_argument("--shapes", type=int, default=10, help="--accuracy: procedural shapes")
+    parser.add_argument("--sources", type=int, default=16, help="--accuracy: exact rows per shape")
+    parser.add_argument(
+        "--cache", default=None, help="--accuracy: exact-row cache (keep out of git)"
+    )
     args = parser.parse_args()
+    if args.accuracy:
+        torch.set_num_threads(args.threads or 1)
+        accuracy_table(args)
+        return
 
     if args.make_synthetic:
         make_synthetic_bundle(Path(args.make_synthetic), args.voxels, args.components, args.width)

@@ -41,8 +41,7 @@ import torch
 import trimesh
 
 from litege_core import __version__
-from litege_core.bundle import load_shipped
-from litege_core.predictor import Predictor
+from litege_core.learned import Predictor, load_shipped
 from litege_core.shape import Shape
 from litege_core.synth import generate_shape
 

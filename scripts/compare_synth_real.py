@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from litege_core.geodesics import compute_distances
+from litege_core.engines import compute_distances
 from litege_core.io import load_shape
 from litege_core.sampling import farthest_point_sampling
 from litege_core.shape import Shape

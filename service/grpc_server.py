@@ -3,13 +3,20 @@
 and server reflection.
 
 Every LiteGE RPC goes through one wrapper that checks the API key (metadata ``x-api-key``, when
-the settings have one), records metrics, and maps errors: a
-:class:`~litege_core.errors.LiteGEError` aborts with the status code of
+the settings have one), takes a slot of the concurrency limit shared with REST
+(:class:`service.runtime.Admission`: RESOURCE_EXHAUSTED when full), records metrics, and maps
+errors: a :class:`~litege_core.errors.LiteGEError` aborts with the status code of
 :func:`service.problems.problem_for` and its message, with trailing metadata
-``litege-problem-type`` (the RFC 9457 type URI) and, for an overloaded service,
-``retry-after-ms``; anything else is logged and answered INTERNAL without details. When the
-client set a deadline, the remaining time goes to the runtime call as its timeout, so a call that
-cannot finish in time comes back DEADLINE_EXCEEDED instead of computing for nobody.
+``litege-problem-type`` (the RFC 9457 type URI) and, for a retry-later problem (overload, out
+of memory), ``retry-after-ms``; an out-of-memory error is such a problem; anything else is
+logged and answered INTERNAL without details. When the client set a deadline, the remaining
+time goes to the runtime call as its timeout, so a call that cannot finish in time comes back
+DEADLINE_EXCEEDED instead of computing for nobody.
+
+Messages become plain numbers here (proto fields → numpy arrays, flattened xyz → ``(K, 3)``);
+what they mean is decided by the runtime with :func:`litege_core.query.parse_query`, the rule
+REST uses too. Uploads are read within ``LITEGE_BODY_READ_TIMEOUT_S`` before a slot is taken,
+and parsed in a worker thread, never on the event loop.
 
 ``Correspond`` is a bidirectional stream (semantics in ``proto/litege.proto``): one batch at a
 time, answered in order; the first failing batch ends the stream with its error status, the
@@ -24,7 +31,7 @@ import logging
 import math
 import time
 import weakref
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,15 +40,19 @@ import numpy as np
 from grpc_reflection.v1alpha import reflection
 
 from litege_core.errors import ArrayShapeError, LiteGEError
+from litege_core.shape import Shape
 from service.errors import (
     AuthenticationError,
-    OverloadedError,
+    OutOfMemoryError,
     PayloadTooLargeError,
     RequestError,
+    RequestTimeoutError,
+    RetryLaterError,
     ShapeNotFoundError,
 )
 from service.grpc_stubs import load_stubs
 from service.problems import problem_for
+from service.runtime import Runtime, ShapeInfo, is_out_of_memory
 
 log = logging.getLogger("litege.grpc")
 
@@ -54,8 +65,8 @@ MESSAGE_HEADROOM_BYTES = 1 << 20
 """Allowance over the upload limit for a message's framing (header fields, chunk tags)."""
 DEADLINE_MARGIN_S = 0.01
 """Time kept back from the client's deadline to send the DEADLINE_EXCEEDED status itself."""
-THREAD_PARSE_BYTES = 256 << 10
-"""Uploads at least this large are parsed in a worker thread, off the event loop."""
+INLINE_VALUES = 4096
+"""Repeated fields up to this many values become arrays on the event loop; longer in a thread."""
 
 _health_servicers: weakref.WeakKeyDictionary[grpc.aio.Server, Any] = weakref.WeakKeyDictionary()
 
@@ -68,22 +79,28 @@ def _optional(message: Any, field: str) -> str | None:
     return (getattr(message, field) or None) if message.HasField(field) else None
 
 
-def _points(values: Any, what: str) -> np.ndarray:
-    """Flattened ``repeated double`` xyz → ``(K, 3)`` float64."""
-    flat = np.asarray(values, dtype=np.float64)
+def _unflatten(flat: np.ndarray, what: str) -> np.ndarray:
+    """The wire's flattened ``x0, y0, z0, x1, ...`` as ``(K, 3)`` rows (framing only)."""
     if flat.size % 3:
         raise ArrayShapeError(f"{what} must hold x, y, z triples; got {flat.size} numbers")
     return flat.reshape(-1, 3)
 
 
-def _query_point(message: Any, what: str) -> np.ndarray:
-    """A ``QueryPoint`` → a 0-d int64 index or a ``(3,)`` float64 point."""
+async def _array(values: Sequence[Any], dtype: Any) -> np.ndarray:
+    """A repeated proto field as a numpy array (in a worker thread when long)."""
+    if len(values) <= INLINE_VALUES:
+        return np.asarray(values, dtype=dtype)
+    return await asyncio.to_thread(np.asarray, values, dtype)
+
+
+def _query_point(message: Any) -> int | list[float] | None:
+    """A ``QueryPoint`` as plain values: an index, ``[x, y, z]``, or ``None`` when unset."""
     which = message.WhichOneof("point")
     if which == "index":
-        return np.asarray(message.index, dtype=np.int64)
+        return int(message.index)
     if which == "xyz":
-        return np.array([message.xyz.x, message.xyz.y, message.xyz.z], dtype=np.float64)
-    raise RequestError(f"{what} is required: an index or an xyz point")
+        return [float(message.xyz.x), float(message.xyz.y), float(message.xyz.z)]
+    return None
 
 
 def _varint(value: int) -> bytes:
@@ -107,7 +124,7 @@ def _packed_float_field(number: int, values: np.ndarray) -> bytes:
 class LiteGEServicer:
     """The ``litege.v1.LiteGE`` service over a runtime (see the module docstring)."""
 
-    def __init__(self, runtime: Any) -> None:
+    def __init__(self, runtime: Runtime) -> None:
         self.runtime = runtime
         self.settings = runtime.settings
         self.pb2, self.pb2_grpc = load_stubs()
@@ -115,9 +132,9 @@ class LiteGEServicer:
         self._distances_field = self.pb2.GeodesicResponse.DESCRIPTOR.fields_by_name[
             "distances"
         ].number
-        self._match_distances_field = self.pb2.CorrespondResponse.DESCRIPTOR.fields_by_name[
-            "distances"
-        ].number
+        match_fields = self.pb2.CorrespondResponse.DESCRIPTOR.fields_by_name
+        self._match_distances_field = match_fields["distances"].number
+        self._match_unit_area_field = match_fields["distances_unit_area"].number
 
     # ------------------------------------------------------------------ plumbing
 
@@ -139,7 +156,7 @@ class LiteGEServicer:
             return None
         return max(0.0, remaining - DEADLINE_MARGIN_S)
 
-    def _info(self, info: Any) -> Any:
+    def _info(self, info: ShapeInfo) -> Any:
         """``service.runtime.ShapeInfo`` → ``litege.v1.ShapeInfo``."""
         message = self.pb2.ShapeInfo(
             shape_id=info.shape_id,
@@ -154,6 +171,8 @@ class LiteGEServicer:
         )
         if info.out_of_distribution is not None:
             message.out_of_distribution = bool(info.out_of_distribution)
+        if info.model_scores is not None:
+            message.model_scores.update(info.model_scores)
         return message
 
     async def _guard(
@@ -162,32 +181,47 @@ class LiteGEServicer:
         implementation: Callable[[Any, grpc.aio.ServicerContext], Awaitable[Any]],
         request: Any,
         context: grpc.aio.ServicerContext,
+        *,
+        slot: bool = True,
     ) -> Any:
-        """Authentication, metrics and error mapping around one RPC implementation."""
-        metrics = getattr(self.runtime, "metrics", None)
+        """Authentication, a concurrency slot (unless the implementation takes its own),
+        metrics and error mapping around one RPC implementation."""
+        metrics = self.runtime.metrics
         started = time.perf_counter()
         code = grpc.StatusCode.OK
-        if metrics is not None:
-            metrics.in_flight.labels("grpc").inc()
+        metrics.in_flight.labels("grpc").inc()
         try:
             self._authenticate(context)
-            return await implementation(request, context)
-        except LiteGEError as exc:
-            code = problem_for(exc).grpc_status
-            await self._abort(name, exc, context)
+            if not slot:
+                return await implementation(request, context)
+            with self.runtime.admission.slot():
+                return await implementation(request, context)
         except grpc.aio.AbortError:
             raise
         except asyncio.CancelledError:
             code = grpc.StatusCode.CANCELLED
             raise
-        except Exception:
-            code = grpc.StatusCode.INTERNAL
-            log.exception("gRPC %s failed", name)
-            await context.abort(code, "internal error")
+        except Exception as exc:
+            code = _status_of(exc)
+            await self._fail(name, exc, context)
         finally:
-            if metrics is not None:
-                metrics.in_flight.labels("grpc").dec()
-                metrics.grpc_latency.labels(name, code.name).observe(time.perf_counter() - started)
+            metrics.in_flight.labels("grpc").dec()
+            metrics.grpc_latency.labels(name, code.name).observe(time.perf_counter() - started)
+
+    async def _fail(
+        self,
+        name: str,
+        exc: Exception,
+        context: grpc.aio.ServicerContext,
+        extra: tuple[tuple[str, str], ...] = (),
+    ) -> None:
+        """End the call for ``exc`` (see :func:`_problem_of`); unexpected errors are logged
+        and answered INTERNAL without details."""
+        problem = _problem_of(exc)
+        if problem is not None:
+            await self._abort(name, problem, context, extra)
+        log.error("gRPC %s failed", name, exc_info=exc)
+        await context.abort(grpc.StatusCode.INTERNAL, "internal error")
 
     async def _abort(
         self,
@@ -199,9 +233,14 @@ class LiteGEServicer:
         """End the call with the status of ``exc`` and the problem's trailing metadata."""
         problem = problem_for(exc)
         trailing: list[tuple[str, str]] = [(PROBLEM_TYPE_KEY, problem.type_uri), *extra]
-        if isinstance(exc, OverloadedError):
+        if isinstance(exc, RetryLaterError):
             trailing.append((RETRY_AFTER_KEY, str(round(exc.retry_after_s * 1000))))
-        log.debug("%s: %s %s", name, problem.grpc_status.name, exc)
+        if problem.grpc_status == grpc.StatusCode.INTERNAL:
+            log.error("gRPC %s failed: %s", name, exc, exc_info=exc)
+        elif problem.http_status >= 500:
+            log.warning("gRPC %s: %s (%s)", name, problem.code, exc)
+        else:
+            log.debug("%s: %s %s", name, problem.grpc_status.name, exc)
         await context.abort(problem.grpc_status, str(exc), trailing_metadata=tuple(trailing))
 
     # ------------------------------------------------------------------ RPCs (gRPC names)
@@ -210,7 +249,9 @@ class LiteGEServicer:
         self, request_iterator: AsyncIterator[Any], context: grpc.aio.ServicerContext
     ) -> Any:
         """Client stream: a ``ShapeHeader``, then chunks → ``ShapeInfo``."""
-        return await self._guard("RegisterShape", self._register_shape, request_iterator, context)
+        return await self._guard(
+            "RegisterShape", self._register_shape, request_iterator, context, slot=False
+        )
 
     async def GetShape(self, request: Any, context: grpc.aio.ServicerContext) -> Any:  # noqa: N802
         """``ShapeRef`` → ``ShapeInfo``."""
@@ -232,13 +273,13 @@ class LiteGEServicer:
         self, request_iterator: AsyncIterator[Any], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[Any]:
         """Bidirectional stream: ``CorrespondRequest`` batches → ``CorrespondResponse``s, one
-        per batch, in order (see the module docstring and the .proto)."""
-        metrics = getattr(self.runtime, "metrics", None)
+        per batch, in order (see the module docstring and the .proto). Each batch holds a
+        concurrency slot while it computes (not while the stream waits for the client)."""
+        metrics = self.runtime.metrics
         started = time.perf_counter()
         code = grpc.StatusCode.OK
         batch_id: int | None = None
-        if metrics is not None:
-            metrics.in_flight.labels("grpc").inc()
+        metrics.in_flight.labels("grpc").inc()
         try:
             self._authenticate(context)
             pair = _Pair()
@@ -247,30 +288,26 @@ class LiteGEServicer:
                     break
                 batch_id = int(message.batch_id)
                 pair = pair.updated(message)
-                response = await self._correspond_batch(message, pair, context)
+                with self.runtime.admission.slot():
+                    response = await self._correspond_batch(message, pair, context)
                 yield response
                 batch_id = None
-        except LiteGEError as exc:
-            code = problem_for(exc).grpc_status
-            extra = () if batch_id is None else ((BATCH_ID_KEY, str(batch_id)),)
-            await self._abort("Correspond", exc, context, extra)
         except grpc.aio.AbortError:
             raise
         except asyncio.CancelledError:
             code = grpc.StatusCode.CANCELLED
             raise
-        except Exception:
-            code = grpc.StatusCode.INTERNAL
-            log.exception("gRPC Correspond failed")
-            await context.abort(code, "internal error")
+        except Exception as exc:
+            extra = () if batch_id is None else ((BATCH_ID_KEY, str(batch_id)),)
+            code = _status_of(exc)
+            await self._fail("Correspond", exc, context, extra)
         finally:
             if code == grpc.StatusCode.OK and _cancelled(context):
                 code = grpc.StatusCode.CANCELLED  # the stream ended because the client left
-            if metrics is not None:
-                metrics.in_flight.labels("grpc").dec()
-                metrics.grpc_latency.labels("Correspond", code.name).observe(
-                    time.perf_counter() - started
-                )
+            metrics.in_flight.labels("grpc").dec()
+            metrics.grpc_latency.labels("Correspond", code.name).observe(
+                time.perf_counter() - started
+            )
 
     # ------------------------------------------------------------------ implementations
 
@@ -279,9 +316,10 @@ class LiteGEServicer:
     ) -> Any:
         which = message.WhichOneof("queries")
         if which == "query_indices":
-            queries: Any = np.asarray(message.query_indices.values, dtype=np.int64)
+            queries: Any = await _array(message.query_indices.values, np.int64)
         elif which == "query_points":
-            queries = _points(message.query_points.xyz, "query_points")
+            flat = await _array(message.query_points.xyz, np.float64)
+            queries = _unflatten(flat, "query_points")
         elif which == "all_queries" and message.all_queries:
             queries = "all"
         elif which is None:
@@ -309,12 +347,43 @@ class LiteGEServicer:
         if message.return_distance:
             response.MergeFromString(
                 _packed_float_field(self._match_distances_field, result.distances)
+                + _packed_float_field(self._match_unit_area_field, result.distances_unit_area)
             )
         return response
 
     async def _register_shape(
         self, request_iterator: AsyncIterator[Any], context: grpc.aio.ServicerContext
     ) -> Any:
+        """Read the stream (within the body-read timeout), then take a slot; the parsing runs
+        in a worker thread."""
+        timeout_s = self.settings.body_read_timeout_s
+        try:
+            async with asyncio.timeout(timeout_s):
+                header, data = await self._read_upload(request_iterator)
+        except TimeoutError:
+            raise RequestTimeoutError(
+                f"the upload stream did not complete within {timeout_s:g} s"
+            ) from None
+        file_format = header.file_format.strip().lower().lstrip(".")
+        kind = _optional(header, "kind")
+        if file_format != "arrays":
+            if not file_format:
+                raise RequestError("the header's file_format is required")
+            if len(header.vertices) or len(header.faces):
+                raise RequestError("inline vertices/faces need file_format 'arrays'")
+        with self.runtime.admission.slot():
+            if file_format == "arrays":
+                shape = await self.runtime.parse_upload(self._shape_from_arrays, header, data, kind)
+            else:
+                shape = await self.runtime.parse_upload(
+                    self.runtime.load_upload, data, file_format, kind
+                )
+            info = await self.runtime.register_shape(shape, model=_optional(header, "model"))
+        return self._info(info)
+
+    async def _read_upload(self, request_iterator: AsyncIterator[Any]) -> tuple[Any, bytes]:
+        """The header and the concatenated chunks of a ``RegisterShape`` stream (bounded by
+        the upload limit)."""
         limit = self.settings.max_upload_bytes
         header = None
         chunks: list[bytes] = []
@@ -337,25 +406,11 @@ class LiteGEServicer:
                 )
         if header is None:
             raise RequestError("empty RegisterShape stream: the first message must be a header")
-        file_format = header.file_format.strip().lower().lstrip(".")
-        kind = _optional(header, "kind")
-        if file_format == "arrays":
-            shape = self._shape_from_arrays(header, b"".join(chunks), kind)
-        else:
-            if not file_format:
-                raise RequestError("the header's file_format is required")
-            if len(header.vertices) or len(header.faces):
-                raise RequestError("inline vertices/faces need file_format 'arrays'")
-            data = b"".join(chunks)
-            if len(data) >= THREAD_PARSE_BYTES:
-                shape = await asyncio.to_thread(self.runtime.load_upload, data, file_format, kind)
-            else:
-                shape = self.runtime.load_upload(data, file_format, kind)
-        info = await self.runtime.register_shape(shape, model=_optional(header, "model"))
-        return self._info(info)
+        return header, b"".join(chunks)
 
-    def _shape_from_arrays(self, header: Any, data: bytes, kind: str | None) -> Any:
-        """The two ``arrays`` encodings of ``ShapeHeader`` → a validated shape."""
+    def _shape_from_arrays(self, header: Any, data: bytes, kind: str | None) -> Shape:
+        """The two ``arrays`` encodings of ``ShapeHeader`` → a validated shape (worker
+        thread)."""
         if header.HasField("n_vertices"):
             if len(header.vertices) or len(header.faces):
                 raise RequestError("send the arrays either inline or as raw chunks, not both")
@@ -373,7 +428,7 @@ class LiteGEServicer:
         else:
             if data:
                 raise RequestError("chunks after an 'arrays' header need n_vertices (raw mode)")
-            vertices = _points(header.vertices, "vertices")
+            vertices = _unflatten(np.asarray(header.vertices, dtype=np.float64), "vertices")
             flat_faces = np.asarray(header.faces, dtype=np.int64)
             if flat_faces.size % 3:
                 raise ArrayShapeError(f"faces must be index triples; got {flat_faces.size}")
@@ -393,51 +448,89 @@ class LiteGEServicer:
     async def _geodesic(self, request: Any, context: grpc.aio.ServicerContext) -> Any:
         which = request.WhichOneof("sources")
         if which == "source_indices":
-            sources: Any = np.asarray(request.source_indices.values, dtype=np.int64)
+            sources: Any = await _array(request.source_indices.values, np.int64)
         elif which == "source_points":
-            sources = _points(request.source_points.xyz, "source_points")
+            flat = await _array(request.source_points.xyz, np.float64)
+            sources = _unflatten(flat, "source_points")
         else:
             raise RequestError("sources are required: source_indices or source_points")
         which = request.WhichOneof("targets")
         if which == "target_indices":
-            targets: Any = np.asarray(request.target_indices.values, dtype=np.int64)
+            targets: Any = await _array(request.target_indices.values, np.int64)
         elif which == "target_points":
-            targets = _points(request.target_points.xyz, "target_points")
+            flat = await _array(request.target_points.xyz, np.float64)
+            targets = _unflatten(flat, "target_points")
         elif which is None or request.all_targets:
             targets = "all"
         else:
             raise RequestError("all_targets = false names no targets")
-        info, distances = await self.runtime.geodesic(
+        answer, distances = await self.runtime.geodesic(
             _shape_id(request),
             sources,
             targets,
             model=_optional(request, "model"),
             timeout_s=self._timeout_s(context),
+            method=_optional(request, "method"),
         )
         rows, cols = distances.shape
-        response = self.pb2.GeodesicResponse(rows=rows, cols=cols, shape=self._info(info))
+        response = self.pb2.GeodesicResponse(
+            rows=rows,
+            cols=cols,
+            method=answer.method,
+            engine=answer.engine,
+            shape_id=answer.shape_id,
+        )
+        if answer.info is not None:
+            response.shape.CopyFrom(self._info(answer.info))
         response.MergeFromString(_packed_float_field(self._distances_field, distances))
         return response
 
     async def _path(self, request: Any, context: grpc.aio.ServicerContext) -> Any:
-        if not request.HasField("source"):
+        source = _query_point(request.source) if request.HasField("source") else None
+        target = _query_point(request.target) if request.HasField("target") else None
+        if source is None:
             raise RequestError("source is required: an index or an xyz point")
-        if not request.HasField("target"):
+        if target is None:
             raise RequestError("target is required: an index or an xyz point")
         result = await self.runtime.path(
             _shape_id(request),
-            _query_point(request.source, "source"),
-            _query_point(request.target, "target"),
+            source,
+            target,
             model=_optional(request, "model"),
             timeout_s=self._timeout_s(context),
+            method=_optional(request, "method"),
         )
-        return self.pb2.PathResponse(
+        response = self.pb2.PathResponse(
             points=np.asarray(result.points, dtype=np.float64).ravel().tolist(),
             length=result.length,
-            predicted_distance=result.predicted_distance,
-            n_steps=result.n_steps,
-            converged=result.converged,
+            method=result.method,
+            engine=result.engine,
+            distance=result.distance,
+            segments=[self.pb2.PathSegment(start=i, method=how) for i, how in result.segments],
+            model=result.model or "",
         )
+        if result.predicted_distance is not None:
+            response.predicted_distance = result.predicted_distance
+        if result.n_steps is not None:
+            response.n_steps = result.n_steps
+        if result.converged is not None:
+            response.converged = result.converged
+        return response
+
+
+def _problem_of(exc: Exception) -> LiteGEError | None:
+    """The LiteGE problem ``exc`` is: itself, an out-of-memory problem for a device or host
+    out of memory, or ``None`` (an unexpected error)."""
+    if isinstance(exc, LiteGEError):
+        return exc
+    if is_out_of_memory(exc):
+        return OutOfMemoryError("the service ran out of memory for this request")
+    return None
+
+
+def _status_of(exc: Exception) -> grpc.StatusCode:
+    problem = _problem_of(exc)
+    return grpc.StatusCode.INTERNAL if problem is None else problem_for(problem).grpc_status
 
 
 def _cancelled(context: grpc.aio.ServicerContext) -> bool:
@@ -480,7 +573,7 @@ def _address(host: str, port: int) -> str:
     return f"{host}:{port}"
 
 
-async def start_grpc_server(runtime: Any, host: str, port: int) -> tuple[grpc.aio.Server, int]:
+async def start_grpc_server(runtime: Runtime, host: str, port: int) -> tuple[grpc.aio.Server, int]:
     """Build, bind and start the gRPC server on ``host:port`` (``port`` 0: any free port).
 
     Serves ``litege.v1.LiteGE`` over ``runtime``, ``grpc.health.v1.Health`` (overall and

@@ -48,6 +48,16 @@ _TABLE: dict[type[core.LiteGEError], tuple[int, grpc.StatusCode, str]] = {
     core.DegenerateShapeError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Degenerate shape"),
     core.ShapeTooLargeError: (413, grpc.StatusCode.INVALID_ARGUMENT, "Shape too large"),
     core.IndexOutOfRangeError: (422, grpc.StatusCode.INVALID_ARGUMENT, "Index out of range"),
+    core.MethodNotApplicableError: (
+        422,
+        grpc.StatusCode.INVALID_ARGUMENT,
+        "Method not applicable to this shape",
+    ),
+    core.MethodSizeLimitError: (
+        422,
+        grpc.StatusCode.INVALID_ARGUMENT,
+        "Shape too large for this method",
+    ),
     core.ArtifactError: (500, grpc.StatusCode.INTERNAL, "Corrupt model or cache artifact"),
     core.ComputationError: (500, grpc.StatusCode.INTERNAL, "Computation failed"),
     core.MissingDependencyError: (501, grpc.StatusCode.UNIMPLEMENTED, "Missing dependency"),
@@ -63,8 +73,11 @@ _TABLE: dict[type[core.LiteGEError], tuple[int, grpc.StatusCode, str]] = {
     svc.ServiceError: (500, grpc.StatusCode.INTERNAL, "Service error"),
     svc.ShapeNotFoundError: (404, grpc.StatusCode.NOT_FOUND, "Shape not found"),
     svc.AuthenticationError: (401, grpc.StatusCode.UNAUTHENTICATED, "Missing or wrong API key"),
+    svc.RetryLaterError: (503, grpc.StatusCode.RESOURCE_EXHAUSTED, "Retry later"),
     svc.OverloadedError: (503, grpc.StatusCode.RESOURCE_EXHAUSTED, "Service overloaded"),
+    svc.OutOfMemoryError: (503, grpc.StatusCode.RESOURCE_EXHAUSTED, "Out of memory"),
     svc.DeadlineExceededError: (504, grpc.StatusCode.DEADLINE_EXCEEDED, "Deadline exceeded"),
+    svc.RequestTimeoutError: (408, grpc.StatusCode.DEADLINE_EXCEEDED, "Request body timeout"),
     svc.NotReadyError: (503, grpc.StatusCode.UNAVAILABLE, "Service not ready"),
 }
 
@@ -72,7 +85,7 @@ _TABLE: dict[type[core.LiteGEError], tuple[int, grpc.StatusCode, str]] = {
 def problem_for(exc: core.LiteGEError) -> ProblemKind:
     """The table entry of the most specific class of ``exc`` (walks its MRO)."""
     for cls in type(exc).__mro__:
-        entry = _TABLE.get(cls)  # type: ignore[arg-type]
+        entry = _TABLE.get(cls)
         if entry is not None:
             status, grpc_status, title = entry
             if isinstance(exc, svc.OverloadedError):

@@ -1,4 +1,4 @@
-"""The service's one object: models, shape repository, store and micro-batcher.
+"""The service's one object: models, shape repository, store, solvers and micro-batcher.
 
 REST (:mod:`service.app`) and gRPC (:mod:`service.grpc_server`) are thin translations onto
 this class; it owns no maths (that is :mod:`litege_core`) and no protocol details.
@@ -7,26 +7,37 @@ this class; it owns no maths (that is :mod:`litege_core`) and no protocol detail
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import functools
 import logging
 import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
 
-from litege_core.bundle import load_shipped, shipped_bundles
 from litege_core.device import resolve_device
-from litege_core.errors import ArrayShapeError, LiteGEError
+from litege_core.engines import ClassicalPath
+from litege_core.errors import LiteGEError, ShapeTooLargeError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
+from litege_core.learned import GeodesicPath, Predictor, load_shipped, shipped_bundles
 from litege_core.matching.model import MatchingModel
-from litege_core.paths import GeodesicPath
-from litege_core.predictor import Predictor
+from litege_core.query import PointQuery, QueryLike, parse_query
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
-from service.batcher import MicroBatcher
-from service.errors import TooManyQueriesError, UnknownModelError
+from service.batcher import CancelToken, MicroBatcher
+from service.classical import METHODS, SolverCache
+from service.errors import (
+    DeadlineExceededError,
+    OutOfMemoryError,
+    OverloadedError,
+    PayloadTooLargeError,
+    RequestError,
+    TooManyQueriesError,
+    UnknownModelError,
+)
 from service.matching import MatchingRepository
 from service.metrics import ServiceMetrics
 from service.repository import Registered, ShapeRepository
@@ -34,6 +45,21 @@ from service.settings import Settings
 from service.store import ArtifactStore, make_store
 
 log = logging.getLogger("litege.runtime")
+
+T = TypeVar("T")
+
+CORRESPOND_CHUNK_QUERIES = 512
+"""Correspondence queries per compute job: a large request runs as several jobs, so that other
+requests interleave with it and a timed-out or cancelled one stops after the current chunk."""
+GEODESIC_CHUNK_PAIRS = 1 << 18
+"""Most source × target pairs per geodesic compute job (larger requests run in row blocks)."""
+INLINE_PARSE_VALUES = 4096
+"""Query values parsed on the event loop up to this many top-level items; more in a thread."""
+CLASSICAL_CHUNK_SOURCES = {"exact": 4, "heat": 64, "graph": 256}
+"""Most sources per classical geodesic compute job (one solve each: exact ~0.1-1 s, heat and
+graph ~1 ms at 5K-20K vertices), so that other requests interleave with a large one."""
+LEARNED = "learned"
+"""The default ``method``: the model's prediction (engine ``"learned"``)."""
 
 
 @dataclass(frozen=True)
@@ -50,10 +76,14 @@ class ShapeInfo:
     ood_calibrated: bool
     out_of_distribution: bool | None
     created: bool
+    model_scores: dict[str, float] | None = None
+    """Every loaded model's OOD score of the shape when ``model`` was chosen automatically
+    (``auto``: the lowest wins); ``None`` when a model was named."""
 
     @classmethod
     def of(cls, registered: Registered) -> ShapeInfo:
         state = registered.state
+        scores = registered.scores
         return cls(
             shape_id=state.shape_id,
             kind=state.kind.value,
@@ -65,35 +95,87 @@ class ShapeInfo:
             ood_calibrated=state.ood_calibrated,
             out_of_distribution=state.is_out_of_distribution,
             created=registered.created,
+            model_scores=None if scores is None else dict(scores),
         )
 
 
 @dataclass(frozen=True)
+class GeodesicAnswer:
+    """Who answered a geodesic request.
+
+    Attributes:
+        shape_id: the shape.
+        method: the requested method (``learned``, ``heat``, ``exact``, ``graph``).
+        engine: what ran: ``learned``, or the classical engine (``heat``,
+            ``pointcloud-heat``, ``exact-mmp``, ``knn-graph``).
+        info: the shape's registration under the model that answered (``learned``);
+            ``None`` for classical methods (no model involved).
+    """
+
+    shape_id: str
+    method: str
+    engine: str
+    info: ShapeInfo | None = None
+
+    @property
+    def model(self) -> str | None:
+        return None if self.info is None else self.info.model
+
+
+@dataclass(frozen=True)
 class PathResult:
-    """A traced geodesic path, from source to target.
+    """A geodesic path, from source to target.
 
     Attributes:
         points: ``(L, 3)`` float64 polyline in the user's frame, ``points[0]`` the source.
         length: polyline length (user units).
-        predicted_distance: the network's distance between the end points (user units).
-        n_steps: accepted gradient steps.
-        converged: whether the walk reached the source.
+        method: the requested method; ``engine``: what ran (see :class:`GeodesicAnswer`).
+        distance: the method's distance between the end points (user units): the network's
+            prediction (``learned``) or the engine's distance (exact: the exact geodesic).
+        segments: ``(start_index, how)`` per part of the polyline, in order (which method
+            produced which part: ``learned``, ``edge-flip``, ``mesh-edges``, ``knn-graph``,
+            ``straight``, ``heat-descent``, ``exact-mmp``).
+        model: the model that answered (``learned``), else ``None``.
+        predicted_distance: ``distance`` of a learned path, else ``None``.
+        n_steps: accepted gradient steps of a learned walk, else ``None``.
+        converged: whether a learned walk reached the source, else ``None``.
     """
 
     points: np.ndarray
     length: float
-    predicted_distance: float
-    n_steps: int
-    converged: bool
+    method: str
+    engine: str
+    distance: float
+    segments: tuple[tuple[int, str], ...]
+    model: str | None = None
+    predicted_distance: float | None = None
+    n_steps: int | None = None
+    converged: bool | None = None
 
     @classmethod
-    def of(cls, path: GeodesicPath) -> PathResult:
+    def of(cls, path: GeodesicPath, model: str) -> PathResult:
         return cls(
-            points=np.ascontiguousarray(np.asarray(path.points)[::-1]),
+            points=np.ascontiguousarray(path.points),  # the library gives source → target
             length=float(path.length),
+            method=LEARNED,
+            engine=LEARNED,
+            distance=float(path.predicted_distance),
+            segments=tuple((int(i), str(how)) for i, how in path.segments),
+            model=model,
             predicted_distance=float(path.predicted_distance),
             n_steps=int(path.n_steps),
             converged=bool(path.converged),
+        )
+
+    @classmethod
+    def of_classical(cls, path: ClassicalPath, method: str) -> PathResult:
+        return cls(
+            points=np.ascontiguousarray(path.points),
+            length=float(path.length),
+            method=method,
+            engine=path.engine,
+            distance=float(path.distance),
+            segments=tuple((int(i), str(how)) for i, how in path.segments),
         )
 
 
@@ -106,18 +188,63 @@ class Readiness:
 
 @dataclass(frozen=True)
 class _GeodesicJob:
+    """Distances ``sources × targets`` on one shape. With ``max_pairs`` set, a job larger than
+    that answers :class:`_Split` instead of computing (the caller then sends row blocks)."""
+
     shape_id: str
     model: str | None
-    sources: Any
-    targets: Any
+    sources: PointQuery
+    targets: PointQuery
+    token: CancelToken
+    max_pairs: int | None = None
+
+
+@dataclass(frozen=True)
+class _ClassicalGeodesicJob:
+    """Distances ``sources × targets`` by a classical method. With ``max_rows`` set, a job of
+    more sources than that or more pairs than ``max_pairs`` answers :class:`_Split`."""
+
+    shape_id: str
+    method: str
+    sources: PointQuery
+    targets: PointQuery
+    token: CancelToken
+    max_rows: int | None = None
+    max_pairs: int | None = None
+
+
+@dataclass(frozen=True)
+class _Split:
+    """The answer of a geodesic job too large for one compute job: its target count."""
+
+    n_targets: int
 
 
 @dataclass(frozen=True)
 class _PathJob:
     shape_id: str
     model: str | None
-    source: Any
-    target: Any
+    source: PointQuery
+    target: PointQuery
+
+
+@dataclass(frozen=True)
+class _ClassicalPathJob:
+    shape_id: str
+    method: str
+    source: PointQuery
+    target: PointQuery
+    token: CancelToken
+
+
+@dataclass(frozen=True)
+class _PrepareJob:
+    """Prepare both shapes of a correspondence; answers the source's point count."""
+
+    source_id: str
+    target_id: str
+    model: str
+    token: CancelToken
 
 
 @dataclass(frozen=True)
@@ -125,8 +252,8 @@ class _CorrespondJob:
     source_id: str
     target_id: str
     model: str
-    indices: np.ndarray | None
-    points: np.ndarray | None
+    queries: PointQuery
+    token: CancelToken
 
 
 @dataclass(frozen=True)
@@ -137,8 +264,11 @@ class Correspondence:
         source_shape_id, target_shape_id: the two shapes.
         model: the matching model that answered.
         matches: ``(K,)`` int64 matched target vertex / point indices.
-        distances: ``(K,)`` float32 predicted cross-shape geodesic at each match, in unit-area
-            units (both shapes scaled to unit surface area), not the shapes' input units.
+        distances: ``(K,)`` float32 predicted cross-shape geodesic at each match in the
+            target's input units (``distances_unit_area`` scaled back by the target's
+            unit-area scale).
+        distances_unit_area: ``(K,)`` float32 the same in unit-area units (both shapes
+            scaled to unit surface area): what the matching network predicts.
         evaluations: network pair evaluations used.
     """
 
@@ -147,6 +277,7 @@ class Correspondence:
     model: str
     matches: np.ndarray
     distances: np.ndarray
+    distances_unit_area: np.ndarray
     evaluations: int
 
     @property
@@ -154,39 +285,88 @@ class Correspondence:
         return int(self.matches.shape[0])
 
 
-def as_query(value: Any, what: str) -> Any:
-    """A JSON/proto query (list of ints, list of xyz triples, ``"all"`` / ``None`` for
-    targets) as the array the predictor takes; validation of ranges is the predictor's."""
-    if value is None or (isinstance(value, str) and value == "all" and what == "targets"):
-        return None
-    if isinstance(value, str):
-        raise ArrayShapeError(f"{what} must be indices, xyz points or (targets) 'all'")
+class Admission:
+    """The concurrency limit (``LITEGE_MAX_CONCURRENCY``) shared by REST and gRPC: requests
+    being served at once, over both protocols. Used on the event loop only."""
+
+    def __init__(
+        self, limit: int, metrics: ServiceMetrics, retry_after_s: Callable[[], float]
+    ) -> None:
+        self.limit = int(limit)
+        self.in_flight = 0
+        self._metrics = metrics
+        self._retry_after_s = retry_after_s
+
+    @contextlib.contextmanager
+    def slot(self) -> Iterator[None]:
+        """Hold one slot while the block runs.
+
+        Raises:
+            OverloadedError: (status 429) every slot is taken.
+        """
+        if self.in_flight >= self.limit:
+            self._metrics.rejected.labels("concurrency").inc()
+            raise OverloadedError(
+                f"more than {self.limit} concurrent requests; retry later",
+                retry_after_s=self._retry_after_s(),
+                status=429,
+            )
+        self.in_flight += 1
+        try:
+            yield
+        finally:
+            self.in_flight -= 1
+
+
+class _Deadline:
+    """The end of one request's time budget, shared by all of its compute jobs."""
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self.at = time.monotonic() + timeout_s
+
+    def remaining(self) -> float:
+        left = self.at - time.monotonic()
+        if left <= 0:
+            raise DeadlineExceededError(f"no result within {self.timeout_s:.3g} s")
+        return left
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` says the device or the host ran out of memory (CUDA's
+    ``OutOfMemoryError``, a ``RuntimeError`` saying "out of memory", or ``MemoryError``)."""
+    if isinstance(exc, torch.cuda.OutOfMemoryError | MemoryError):
+        return True
+    return isinstance(exc, RuntimeError) and "out of memory" in str(exc).lower()
+
+
+def _parse(value: QueryLike, what: str, **options: Any) -> PointQuery:
+    """:func:`parse_query`, with a query too large for memory reported as one (413)."""
     try:
-        array = np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise ArrayShapeError(f"{what} is not a regular array: {exc}") from exc
-    if array.size == 0:
-        raise ArrayShapeError(f"{what} is empty")
-    if array.dtype == object or array.dtype.kind not in "iuf":
-        raise ArrayShapeError(f"{what} must be numbers (indices or xyz points)")
-    return array
+        return parse_query(value, what, **options)
+    except MemoryError:
+        raise PayloadTooLargeError(f"{what} are too large to hold in memory") from None
 
 
-def as_match_queries(value: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Correspondence queries (``"all"`` / ``None``, indices, or xyz points) as
-    ``(indices, points)``: ``(None, None)`` for every source point, else one of the two."""
-    if value is None or (isinstance(value, str) and value == "all"):
-        return None, None
-    if isinstance(value, str):
-        raise ArrayShapeError("queries must be indices, xyz points or 'all'")
-    array = as_query(value, "queries")
-    if array.ndim == 1 and array.dtype.kind in "iu":
-        return array.astype(np.int64), None
-    if array.ndim == 2 and array.shape[1] == 3:
-        return None, array.astype(np.float64)
-    raise ArrayShapeError(
-        f"queries must be (K,) integer indices or (K, 3) xyz points, got shape {array.shape}"
-    )
+def _is_small(value: Any) -> bool:
+    """Whether parsing ``value`` is cheap enough for the event loop."""
+    if isinstance(value, np.ndarray):
+        return value.size <= INLINE_PARSE_VALUES
+    if isinstance(value, list | tuple):
+        return len(value) <= INLINE_PARSE_VALUES // 3
+    return True
+
+
+def _blocks(query: PointQuery, size: int) -> Iterator[PointQuery]:
+    """``query`` (indices or points, not "all") in consecutive blocks of ``size``."""
+    if query.indices is not None:
+        for start in range(0, query.indices.shape[0], size):
+            yield PointQuery(indices=query.indices[start : start + size])
+    elif query.points is not None:
+        for start in range(0, query.points.shape[0], size):
+            yield PointQuery(points=query.points[start : start + size])
+    else:
+        raise ValueError("an 'all' query has no blocks before the shape is known")
 
 
 class Runtime:
@@ -220,9 +400,13 @@ class Runtime:
         self.matching = MatchingRepository(
             matching_models or {},
             self.repository,
-            store,
-            cache_bytes=settings.state_cache_bytes,
-            ttl_s=settings.cache_ttl_s,
+            cache_bytes=settings.matching_cache_bytes,
+            metrics=metrics,
+        )
+        self.solvers = SolverCache(
+            self.repository,
+            cache_bytes=settings.solver_cache_bytes,
+            max_exact_vertices=settings.max_exact_vertices,
             metrics=metrics,
         )
         self.device = next(iter(predictors.values())).device
@@ -233,6 +417,9 @@ class Runtime:
                 "delete": self._handle_delete,
                 "geodesic": self._handle_geodesic,
                 "path": self._handle_path,
+                "classical_geodesic": self._handle_classical_geodesic,
+                "classical_path": self._handle_classical_path,
+                "prepare_pair": self._handle_prepare,
                 "correspond": self._handle_correspond,
             },
             max_batch=settings.batch_max_size,
@@ -241,6 +428,10 @@ class Runtime:
             metrics=metrics,
             thread_initializer=self._init_compute_thread,
         )
+        self.admission = Admission(settings.max_concurrency, metrics, self.batcher.retry_after_s)
+        self.correspond_chunk = CORRESPOND_CHUNK_QUERIES
+        self.geodesic_chunk_pairs = GEODESIC_CHUNK_PAIRS
+        self.classical_chunk_sources = dict(CLASSICAL_CHUNK_SOURCES)
         self.started_at = time.time()
 
     # ------------------------------------------------------------------ life cycle
@@ -303,6 +494,7 @@ class Runtime:
                 memory_bytes=settings.memory_cache_bytes,
                 hot_bytes=settings.hot_cache_bytes,
                 ttl_s=settings.cache_ttl_s,
+                write_behind_bytes=settings.write_behind_bytes,
             )
         runtime = cls(settings, predictors, store, metrics, matching)
         runtime.batcher.start()
@@ -317,9 +509,9 @@ class Runtime:
         )
         return runtime
 
-    async def close(self) -> None:
-        """Drain queued work, then release the store."""
-        await self.batcher.close()
+    async def close(self, timeout_s: float | None = None) -> None:
+        """Drain queued work (for at most ``timeout_s``), then release the store."""
+        await self.batcher.close(timeout_s)
         self.store.close()
 
     def _init_compute_thread(self) -> None:
@@ -362,14 +554,42 @@ class Runtime:
         )
 
     # ------------------------------------------------------------------ inputs
+    # (parsing runs in a worker thread: callers use asyncio.to_thread / parse_upload)
 
     def load_upload(self, data: bytes, file_format: str, kind: str | None = None) -> Shape:
-        """Parse and validate an uploaded file within the upload limits."""
-        return load_shape(data, file_format=file_format, kind=kind, limits=self.limits)
+        """Parse and validate an uploaded file within the upload limits.
+
+        Raises:
+            ShapeTooLargeError: the file declares more than memory can hold.
+        """
+        try:
+            return load_shape(data, file_format=file_format, kind=kind, limits=self.limits)
+        except MemoryError:
+            raise ShapeTooLargeError(
+                "the file declares arrays too large to hold in memory"
+            ) from None
 
     def shape_from_arrays(self, vertices: Any, faces: Any = None, kind: str | None = None) -> Shape:
         """Validate JSON/proto arrays within the upload limits."""
-        return Shape.from_arrays(vertices, faces, kind=kind, limits=self.limits)
+        try:
+            return Shape.from_arrays(vertices, faces, kind=kind, limits=self.limits)
+        except MemoryError:
+            raise ShapeTooLargeError("the arrays are too large to hold in memory") from None
+
+    async def parse_upload(self, parse: Callable[..., T], *args: Any) -> T:
+        """Run an upload parser (:meth:`load_upload`, :meth:`shape_from_arrays`, or a
+        protocol's own decoding around them) in a worker thread, off the event loop."""
+        try:
+            return await asyncio.to_thread(parse, *args)
+        except MemoryError:
+            raise PayloadTooLargeError("the upload is too large to hold in memory") from None
+
+    async def parse_query(self, value: QueryLike, what: str, **options: Any) -> PointQuery:
+        """:func:`litege_core.query.parse_query` (the one rule for every protocol), in a
+        worker thread unless ``value`` is small."""
+        if _is_small(value):
+            return _parse(value, what, **options)
+        return await asyncio.to_thread(_parse, value, what, **options)
 
     @staticmethod
     def supported_formats() -> tuple[str, ...]:
@@ -396,47 +616,164 @@ class Runtime:
     async def geodesic(
         self,
         shape_id: str,
-        sources: Any,
-        targets: Any = None,
+        sources: QueryLike,
+        targets: QueryLike = None,
         model: str | None = None,
         timeout_s: float | None = None,
-    ) -> tuple[ShapeInfo, np.ndarray]:
-        """``(S, T)`` float32 distances in the user's units, and the shape's info."""
-        job = _GeodesicJob(
-            shape_id, model, as_query(sources, "sources"), as_query(targets, "targets")
+        method: str | None = None,
+    ) -> tuple[GeodesicAnswer, np.ndarray]:
+        """``(S, T)`` float32 distances in the user's units, and who answered.
+
+        ``sources``: indices or xyz points; ``targets``: the same or ``None`` / ``"all"``
+        (raw values or :class:`PointQuery`). ``method``: ``learned`` (default; ``model``
+        picks the bundle), ``heat``, ``exact`` or ``graph`` (``model`` is then only checked).
+        A request of more than ``geodesic_chunk_pairs`` pairs (classical: more sources than
+        ``classical_chunk_sources[method]``) runs as row blocks, one compute job each.
+
+        Raises:
+            RequestError: an unknown method.
+            TooManyQueriesError: more pairs than ``max_queries``, or ``exact`` with more
+                sources than ``max_exact_sources``.
+        """
+        method = self.method_name(method)
+        if method != LEARNED and model is not None:
+            self.repository.model_name(model)  # an unknown model is refused all the same
+        src = await self.parse_query(sources, "sources", allow_all=False)
+        dst = await self.parse_query(targets, "targets")
+        if method == "exact":
+            self._check_exact_sources(src.count(0))
+        deadline = _Deadline(self._timeout(timeout_s))
+        with _cancel_on_exit() as token:
+            if method != LEARNED:
+                return await self._classical_geodesic(shape_id, method, src, dst, deadline, token)
+            job = _GeodesicJob(shape_id, model, src, dst, token, self.geodesic_chunk_pairs)
+            answer = await self._submit("geodesic", job, deadline, token)
+            if not isinstance(answer, _Split):
+                info, distances = answer
+                return GeodesicAnswer(shape_id, LEARNED, LEARNED, info), distances
+            rows = max(1, self.geodesic_chunk_pairs // max(1, answer.n_targets))
+            found, blocks = None, []
+            for block in _blocks(src, rows):
+                part = replace(job, sources=block, max_pairs=None)
+                found, distances = await self._submit("geodesic", part, deadline, token)
+                blocks.append(distances)
+            assert found is not None
+            return GeodesicAnswer(shape_id, LEARNED, LEARNED, found), np.concatenate(blocks)
+
+    async def _classical_geodesic(
+        self,
+        shape_id: str,
+        method: str,
+        src: PointQuery,
+        dst: PointQuery,
+        deadline: _Deadline,
+        token: CancelToken,
+    ) -> tuple[GeodesicAnswer, np.ndarray]:
+        max_rows = self.classical_chunk_sources[method]
+        job = _ClassicalGeodesicJob(
+            shape_id, method, src, dst, token, max_rows, self.geodesic_chunk_pairs
         )
-        return await self.batcher.submit("geodesic", job, timeout_s=self._timeout(timeout_s))
+        answer = await self._submit("classical_geodesic", job, deadline, token)
+        if not isinstance(answer, _Split):
+            engine, distances = answer
+            return GeodesicAnswer(shape_id, method, engine), distances
+        rows = max(1, min(max_rows, self.geodesic_chunk_pairs // max(1, answer.n_targets)))
+        engine, blocks = "", []
+        for block in _blocks(src, rows):
+            part = replace(job, sources=block, max_rows=None, max_pairs=None)
+            engine, distances = await self._submit("classical_geodesic", part, deadline, token)
+            blocks.append(distances)
+        return GeodesicAnswer(shape_id, method, engine), np.concatenate(blocks)
 
     async def path(
         self,
         shape_id: str,
-        source: Any,
-        target: Any,
+        source: QueryLike,
+        target: QueryLike,
         model: str | None = None,
         timeout_s: float | None = None,
+        method: str | None = None,
     ) -> PathResult:
-        job = _PathJob(
-            shape_id, model, _single_point(source, "source"), _single_point(target, "target")
-        )
-        return await self.batcher.submit("path", job, timeout_s=self._timeout(timeout_s))
+        """The path from ``source`` to ``target`` (one index or one xyz point each) by
+        ``method`` (see :meth:`geodesic`; ``exact`` on a mesh: the exact geodesic)."""
+        method = self.method_name(method)
+        if method != LEARNED and model is not None:
+            self.repository.model_name(model)
+        src = await self.parse_query(source, "source", allow_all=False, single=True)
+        dst = await self.parse_query(target, "target", allow_all=False, single=True)
+        timeout = self._timeout(timeout_s)
+        if method == LEARNED:
+            job = _PathJob(shape_id, model, src, dst)
+            return await self.batcher.submit("path", job, timeout_s=timeout)
+        with _cancel_on_exit() as token:
+            classical = _ClassicalPathJob(shape_id, method, src, dst, token)
+            return await self.batcher.submit(
+                "classical_path", classical, timeout_s=timeout, token=token
+            )
 
     async def correspond(
         self,
         source_shape_id: str,
         target_shape_id: str,
-        queries: Any = "all",
+        queries: QueryLike = "all",
         model: str | None = None,
         timeout_s: float | None = None,
     ) -> Correspondence:
         """Match ``queries`` of the source shape (indices, xyz points in its units, or
-        ``"all"``) on the target shape; both must be registered."""
+        ``"all"``) on the target shape; both must be registered.
+
+        The queries run in chunks of ``correspond_chunk``, one compute job each, so other
+        requests interleave with a large one; a request that times out or is cancelled stops
+        before its next chunk.
+        """
         name = self.matching.model_name(model)  # unknown model: fail before queueing
-        indices, points = as_match_queries(queries)
-        given = indices if indices is not None else points
-        if given is not None:
-            self._check_match_count(int(given.shape[0]))
-        job = _CorrespondJob(source_shape_id, target_shape_id, name, indices, points)
-        return await self.batcher.submit("correspond", job, timeout_s=self._timeout(timeout_s))
+        query = await self.parse_query(queries, "queries")
+        if not query.is_all:
+            self._check_match_count(query.count(0))
+        deadline = _Deadline(self._timeout(timeout_s))
+        with _cancel_on_exit() as token:
+            if query.is_all:
+                prepare = _PrepareJob(source_shape_id, target_shape_id, name, token)
+                n_points = await self._submit("prepare_pair", prepare, deadline, token)
+                self._check_match_count(n_points)
+                query = PointQuery(indices=np.arange(n_points, dtype=np.int64))
+            parts: list[Correspondence] = []
+            for block in _blocks(query, self.correspond_chunk):
+                job = _CorrespondJob(source_shape_id, target_shape_id, name, block, token)
+                parts.append(await self._submit("correspond", job, deadline, token))
+        return Correspondence(
+            source_shape_id,
+            target_shape_id,
+            name,
+            np.concatenate([p.matches for p in parts]),
+            np.concatenate([p.distances for p in parts]),
+            np.concatenate([p.distances_unit_area for p in parts]),
+            sum(p.evaluations for p in parts),
+        )
+
+    async def _submit(self, kind: str, job: Any, deadline: _Deadline, token: CancelToken) -> Any:
+        return await self.batcher.submit(kind, job, timeout_s=deadline.remaining(), token=token)
+
+    @staticmethod
+    def method_name(method: str | None) -> str:
+        """``method`` checked (``None`` → ``learned``).
+
+        Raises:
+            RequestError: not one of :data:`service.classical.METHODS`.
+        """
+        name = LEARNED if method is None else method
+        if name not in METHODS:
+            raise RequestError(f"unknown method {name!r}; expected one of {list(METHODS)}")
+        return name
+
+    def _check_exact_sources(self, n_sources: int) -> None:
+        limit = self.settings.max_exact_sources
+        if n_sources > limit:
+            raise TooManyQueriesError(
+                f"method 'exact' takes at most {limit} sources per request (one exact solve "
+                f"each; LITEGE_MAX_EXACT_SOURCES) and this one has {n_sources}: send fewer, "
+                "or use method 'heat', 'graph' or 'learned'"
+            )
 
     def _check_match_count(self, n_queries: int) -> None:
         if n_queries > self.settings.max_queries:
@@ -450,7 +787,8 @@ class Runtime:
         return limit if timeout_s is None else min(limit, max(timeout_s, 0.0))
 
     # ------------------------------------------------------------------ batch handlers
-    # (run on the compute thread; one result or exception per job)
+    # (run on the compute thread; one result or exception per job: a job's failure, a device
+    # out of memory included, is its own and never its batch neighbours')
 
     def _handle_register(self, jobs: list[tuple[Shape, str | None]]) -> list[Any]:
         by_model: dict[str | None, list[int]] = {}
@@ -459,47 +797,59 @@ class Runtime:
         results: list[Any] = [None] * len(jobs)
         for model, positions in by_model.items():
             shapes = [jobs[i][0] for i in positions]
-            try:
-                registered = self.repository.register_many(shapes, model)
-                for i, r in zip(positions, registered, strict=True):
-                    results[i] = ShapeInfo.of(r)
-            except LiteGEError:
-                for i in positions:  # isolate the failing shape
-                    results[i] = _capture(
-                        lambda i=i: ShapeInfo.of(
-                            self.repository.register_many([jobs[i][0]], jobs[i][1])[0]
-                        )
-                    )
+            outcomes = self._batched(
+                functools.partial(self._register, shapes, model),
+                [functools.partial(self._register_one, *jobs[i]) for i in positions],
+            )
+            for i, outcome in zip(positions, outcomes, strict=True):
+                results[i] = outcome
         return results
 
+    def _register(self, shapes: list[Shape], model: str | None) -> list[ShapeInfo]:
+        return [ShapeInfo.of(r) for r in self.repository.register_many(shapes, model)]
+
+    def _register_one(self, shape: Shape, model: str | None) -> ShapeInfo:
+        return ShapeInfo.of(self.repository.register_many([shape], model)[0])
+
     def _handle_info(self, jobs: list[tuple[str, str | None]]) -> list[Any]:
-        return [_capture(lambda j=j: ShapeInfo.of(self.repository.get(*j))) for j in jobs]
+        return [self._capture(functools.partial(self._info, *j)) for j in jobs]
+
+    def _info(self, shape_id: str, model: str | None) -> ShapeInfo:
+        return ShapeInfo.of(self.repository.get(shape_id, model))
 
     def _handle_delete(self, jobs: list[str]) -> list[Any]:
-        return [_capture(lambda j=j: self._delete(j)) for j in jobs]
+        return [self._capture(functools.partial(self._delete, j)) for j in jobs]
 
     def _delete(self, shape_id: str) -> bool:
         prepared = self.matching.delete(shape_id)
-        return self.repository.delete(shape_id) or prepared
+        solvers = self.solvers.delete(shape_id)
+        return self.repository.delete(shape_id) or prepared or solvers
+
+    def _handle_prepare(self, jobs: list[_PrepareJob]) -> list[Any]:
+        return [self._capture(functools.partial(self._prepare, j), token=j.token) for j in jobs]
+
+    def _prepare(self, job: _PrepareJob) -> int:
+        source = self.matching.get(job.source_id, job.model)
+        self.matching.get(job.target_id, job.model)
+        return source.n_points
 
     def _handle_correspond(self, jobs: list[_CorrespondJob]) -> list[Any]:
-        return [_capture(lambda j=j: self._correspond(j)) for j in jobs]
+        return [self._capture(functools.partial(self._correspond, j), token=j.token) for j in jobs]
 
     def _correspond(self, job: _CorrespondJob) -> Correspondence:
         source = self.matching.get(job.source_id, job.model)
         target = self.matching.get(job.target_id, job.model)
-        if job.indices is None and job.points is None:
-            self._check_match_count(source.n_points)
-        result = self.matching.models[job.model].match(
-            source, target, job.indices, query_points=job.points
-        )
+        result = self.matching.models[job.model].match(source, target, job.queries)
         self.metrics.correspond_batches.labels(job.model).inc()
+        unit_area = np.asarray(result.distance, dtype=np.float32)
+        in_target_units = target.transform.unscale_distance(unit_area.astype(np.float64))
         return Correspondence(
             job.source_id,
             job.target_id,
             job.model,
             result.indices,
-            result.distance,
+            np.asarray(in_target_units, dtype=np.float32),
+            unit_area,
             result.evaluations,
         )
 
@@ -507,31 +857,37 @@ class Runtime:
         results: list[Any] = [None] * len(jobs)
         ready: dict[str, list[tuple[int, Registered]]] = {}
         for i, job in enumerate(jobs):
+            if job.token.cancelled:
+                results[i] = _given_up()
+                continue
             try:
                 registered = self.repository.get(job.shape_id, job.model)
-                self._check_query_count(job, registered.state.n_points)
-                ready.setdefault(registered.model, []).append((i, registered))
+                n_targets = job.targets.count(registered.state.n_points)
+                self._check_query_count(job.sources.count(0), n_targets)
             except LiteGEError as exc:
                 results[i] = exc
+                continue
+            if job.max_pairs is not None and job.sources.count(0) * n_targets > job.max_pairs:
+                results[i] = _Split(n_targets)
+                continue
+            ready.setdefault(registered.model, []).append((i, registered))
         for model, items in ready.items():
             predictor = self.repository.predictors[model]
             states = [r.state for _, r in items]
             sources = [jobs[i].sources for i, _ in items]
             targets = [jobs[i].targets for i, _ in items]
-            try:
-                outputs = predictor.distances_many(states, sources, targets)
-            except LiteGEError:
-                outputs = [  # one bad query must not fail its batch neighbours
-                    _capture(lambda s=s, a=a, b=b, p=predictor: p.distances(s, a, b))
+            outputs = self._batched(
+                functools.partial(predictor.distances_many, states, sources, targets),
+                [
+                    functools.partial(predictor.distances, s, a, b)
                     for s, a, b in zip(states, sources, targets, strict=True)
-                ]
+                ],
+            )
             for (i, registered), out in zip(items, outputs, strict=True):
                 results[i] = out if isinstance(out, Exception) else (ShapeInfo.of(registered), out)
         return results
 
-    def _check_query_count(self, job: _GeodesicJob, n_points: int) -> None:
-        n_sources = _count(job.sources)
-        n_targets = n_points if job.targets is None else _count(job.targets)
+    def _check_query_count(self, n_sources: int, n_targets: int) -> None:
         if n_sources * n_targets > self.settings.max_queries:
             raise TooManyQueriesError(
                 f"{n_sources} sources × {n_targets} targets = {n_sources * n_targets} pairs "
@@ -554,52 +910,135 @@ class Runtime:
         for key, positions in groups.items():
             registered = found[key]
             predictor = self.repository.predictors[registered.model]
-            sources = [jobs[i].source for i in positions]
-            targets = [jobs[i].target for i in positions]
-            if _same_query_kind(sources) and _same_query_kind(targets):
-                try:
-                    paths = predictor.paths(
-                        registered.state,
-                        np.stack(sources),
-                        np.stack(targets),
-                    )
-                    for i, path in zip(positions, paths, strict=True):
-                        results[i] = PathResult.of(path)
-                    continue
-                except LiteGEError:
-                    pass
-            for i in positions:
-                results[i] = _capture(
-                    lambda i=i, r=registered, p=predictor: PathResult.of(
-                        p.path(r.state, jobs[i].source, jobs[i].target)
-                    )
+            sources = _stacked([jobs[i].source for i in positions])
+            targets = _stacked([jobs[i].target for i in positions])
+            singles = [
+                functools.partial(self._path, predictor, registered, jobs[i].source, jobs[i].target)
+                for i in positions
+            ]
+            if sources is None or targets is None:  # indices and points mixed: one by one
+                outcomes = [self._capture(call) for call in singles]
+            else:
+                outcomes = self._batched(
+                    functools.partial(self._paths, predictor, registered, sources, targets),
+                    singles,
                 )
+            for i, outcome in zip(positions, outcomes, strict=True):
+                results[i] = outcome
         return results
 
+    # The queries are PointQuery objects: Predictor.path/paths pass them to parse_query, which
+    # takes any QueryLike (their `int | ArrayLike` annotations are narrower than that).
+    @staticmethod
+    def _path(
+        predictor: Predictor, registered: Registered, source: QueryLike, target: QueryLike
+    ) -> PathResult:
+        return PathResult.of(predictor.path(registered.state, source, target), registered.model)
 
-def _capture(call: Any) -> Any:
+    @staticmethod
+    def _paths(
+        predictor: Predictor, registered: Registered, sources: QueryLike, targets: QueryLike
+    ) -> list[PathResult]:
+        paths = predictor.paths(registered.state, sources, targets)
+        return [PathResult.of(path, registered.model) for path in paths]
+
+    def _handle_classical_geodesic(self, jobs: list[_ClassicalGeodesicJob]) -> list[Any]:
+        return [
+            self._capture(functools.partial(self._classical_distances, j), token=j.token)
+            for j in jobs
+        ]
+
+    def _classical_distances(self, job: _ClassicalGeodesicJob) -> tuple[str, np.ndarray] | _Split:
+        solver = self.solvers.get(job.shape_id, job.method)
+        n_sources = job.sources.count(0)
+        n_targets = job.targets.count(solver.shape.n_points)
+        self._check_query_count(n_sources, n_targets)
+        if job.max_rows is not None and (
+            n_sources > job.max_rows
+            or (job.max_pairs is not None and n_sources * n_targets > job.max_pairs)
+        ):
+            return _Split(n_targets)
+        return solver.engine, solver.distances(job.sources, job.targets)
+
+    def _handle_classical_path(self, jobs: list[_ClassicalPathJob]) -> list[Any]:
+        return [
+            self._capture(functools.partial(self._classical_path, j), token=j.token) for j in jobs
+        ]
+
+    def _classical_path(self, job: _ClassicalPathJob) -> PathResult:
+        solver = self.solvers.get(job.shape_id, job.method)
+        return PathResult.of_classical(solver.path(job.source, job.target), job.method)
+
+    # ------------------------------------------------------------------ failure isolation
+
+    def _batched(
+        self, call_all: Callable[[], Sequence[Any]], calls: Sequence[Callable[[], Any]]
+    ) -> list[Any]:
+        """``call_all()`` (one result per job); when it raises (one bad job, a device out of
+        memory), each job alone, so that only the jobs that fail by themselves fail."""
+        try:
+            results = list(call_all())
+        except Exception as exc:
+            if len(calls) == 1:
+                return [self._failure(exc)]
+            if is_out_of_memory(exc):
+                _free_device_memory()
+            log.info("a batch of %d jobs failed (%s); retrying them one by one", len(calls), exc)
+            return [self._capture(call) for call in calls]
+        if len(results) != len(calls):
+            raise RuntimeError(f"a batched call gave {len(results)} results for {len(calls)}")
+        return results
+
+    def _capture(self, call: Callable[[], Any], token: CancelToken | None = None) -> Any:
+        """``call()``, or the exception it raised (as its job's answer)."""
+        if token is not None and token.cancelled:
+            return _given_up()
+        try:
+            return call()
+        except Exception as exc:
+            return self._failure(exc)
+
+    def _failure(self, exc: Exception) -> Exception:
+        """What a job that raised ``exc`` answers: an out-of-memory becomes a retry-later
+        problem (503 / RESOURCE_EXHAUSTED); anything else as it is."""
+        if not is_out_of_memory(exc):
+            return exc
+        _free_device_memory()
+        log.warning("out of memory in a compute job: %s", exc)
+        error = OutOfMemoryError(
+            f"the {self.device} device ran out of memory for this request; retry later or "
+            "send fewer queries",
+            retry_after_s=self.batcher.retry_after_s(),
+        )
+        error.__cause__ = exc
+        return error
+
+
+@contextlib.contextmanager
+def _cancel_on_exit() -> Iterator[CancelToken]:
+    """A token for one request's compute jobs, cancelled when the request ends without its
+    answer (deadline, client gone, error), so queued jobs of it are skipped."""
+    token = CancelToken()
     try:
-        return call()
-    except LiteGEError as exc:
-        return exc
+        yield token
+    except BaseException:
+        token.cancel()
+        raise
 
 
-def _count(query: np.ndarray) -> int:
-    return int(query.shape[0]) if query.ndim >= 1 else 1
+def _given_up() -> DeadlineExceededError:
+    return DeadlineExceededError("the request ended (deadline or cancellation) before this job ran")
 
 
-def _single_point(value: Any, what: str) -> np.ndarray:
-    """One vertex index (0-d int array) or one xyz point ``(3,)`` float64."""
-    array = as_query(value, what)
-    if array is None:
-        raise ArrayShapeError(f"{what} is required")
-    if array.ndim == 0 and array.dtype.kind in "iu":
-        return array.astype(np.int64)
-    if array.shape == (3,):
-        return array.astype(np.float64)
-    raise ArrayShapeError(f"{what} must be one vertex index or one [x, y, z] point")
+def _free_device_memory() -> None:
+    if torch.cuda.is_available():
+        torch.cuda.empty_cache()
 
 
-def _same_query_kind(queries: Sequence[np.ndarray]) -> bool:
-    """Whether the queries can be stacked into one batch (all indices, or all points)."""
-    return all(q.ndim == 0 for q in queries) or all(q.shape == (3,) for q in queries)
+def _stacked(queries: Sequence[PointQuery]) -> PointQuery | None:
+    """Single-point queries as one query (all indices, or all points); ``None`` if mixed."""
+    if all(q.indices is not None for q in queries):
+        return PointQuery(indices=np.concatenate([q.indices for q in queries]))
+    if all(q.points is not None for q in queries):
+        return PointQuery(points=np.concatenate([q.points for q in queries]))
+    return None

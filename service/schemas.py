@@ -1,19 +1,75 @@
-"""Request and response bodies of the REST API (separate request/response models)."""
+"""Request and response bodies of the REST API (separate request/response models).
+
+Query fields (``sources``, ``targets``, ``source``, ``target``, ``queries``) are taken as the
+JSON they are and parsed by the one rule of :func:`litege_core.query.parse_query` (in
+:class:`service.runtime.Runtime`), exactly as gRPC's; their JSON schema documents that rule.
+"""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
 
 Point = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, z]")]
 Triangle = Annotated[list[int], Field(min_length=3, max_length=3)]
-VertexIndex = Annotated[int, Field(ge=0)]
-Indices = Annotated[list[VertexIndex], Field(min_length=1, description="vertex/point indices")]
-Points = Annotated[
-    list[Point], Field(min_length=1, description="xyz points in the shape's frame and units")
-]
 ShapeKindName = Literal["mesh", "point_cloud"]
+MethodName = Literal["learned", "heat", "exact", "graph"]
+EngineName = Literal["learned", "heat", "pointcloud-heat", "exact-mmp", "knn-graph"]
+
+_MODEL_DESCRIPTION = (
+    "geodesic model bundle, or 'auto': the loaded model with the lowest out-of-distribution "
+    "score for this shape (default: the service's LITEGE_DEFAULT_MODEL, 'auto' unless set)"
+)
+_METHODS_TEXT = (
+    "'learned' (default: the model's prediction), 'heat' (meshes: robust intrinsic heat "
+    "method; point clouds: point-cloud heat method), 'exact' (meshes only: exact polyhedral "
+    "geodesics, MMP; refused above LITEGE_MAX_EXACT_VERTICES vertices{extra}) or 'graph' "
+    "(Dijkstra on the k-nearest-neighbour graph). Same units (the shape's input units) and "
+    "query types for all; 'model' only matters for 'learned'"
+)
+_GEODESIC_METHOD = _METHODS_TEXT.format(extra=" and above LITEGE_MAX_EXACT_SOURCES sources")
+_PATH_METHOD = _METHODS_TEXT.format(extra="; its paths are exact geodesics")
+
+_INDICES_SCHEMA = {
+    "type": "array",
+    "items": {"type": "integer", "minimum": 0},
+    "minItems": 1,
+    "description": "vertex/point indices",
+}
+_POINTS_SCHEMA = {
+    "type": "array",
+    "items": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+    "minItems": 1,
+    "description": "xyz points in the shape's frame and units (snapped onto the surface)",
+}
+_POINT_SCHEMA = {
+    "type": "array",
+    "items": {"type": "number"},
+    "minItems": 3,
+    "maxItems": 3,
+    "description": "[x, y, z]",
+}
+_ALL_SCHEMA = {"type": "string", "enum": ["all"], "description": "every vertex/point"}
+
+Query = Annotated[Any, WithJsonSchema({"anyOf": [_INDICES_SCHEMA, _POINTS_SCHEMA]})]
+"""Indices or xyz points (``"all"`` is refused where one must name points)."""
+QueryOrAll = Annotated[
+    Any, WithJsonSchema({"anyOf": [_INDICES_SCHEMA, _POINTS_SCHEMA, _ALL_SCHEMA]})
+]
+"""Indices, xyz points or ``"all"``."""
+SinglePoint = Annotated[
+    Any,
+    WithJsonSchema(
+        {
+            "anyOf": [
+                {"type": "integer", "minimum": 0, "description": "a vertex/point index"},
+                _POINT_SCHEMA,
+            ]
+        }
+    ),
+]
+"""One index or one ``[x, y, z]`` point."""
 
 
 class _Request(BaseModel):
@@ -26,21 +82,23 @@ class ShapeArraysRequest(_Request):
     vertices: Annotated[list[Point], Field(min_length=1)]
     faces: list[Triangle] | None = None
     kind: ShapeKindName | None = None
-    model: str | None = Field(None, description="model bundle (default: the service default)")
+    model: str | None = Field(None, description=_MODEL_DESCRIPTION)
 
 
 class GeodesicRequest(_Request):
     shape_id: str = Field(min_length=1, max_length=128)
-    model: str | None = None
-    sources: Indices | Points
-    targets: Indices | Points | Literal["all"] = "all"
+    model: str | None = Field(None, description=_MODEL_DESCRIPTION)
+    method: MethodName = Field("learned", description=_GEODESIC_METHOD)
+    sources: Query = Field(description="vertex/point indices or xyz points")
+    targets: QueryOrAll = Field("all", description="indices, xyz points or 'all'")
 
 
 class PathRequest(_Request):
     shape_id: str = Field(min_length=1, max_length=128)
-    model: str | None = None
-    source: VertexIndex | Point
-    target: VertexIndex | Point
+    model: str | None = Field(None, description=_MODEL_DESCRIPTION)
+    method: MethodName = Field("learned", description=_PATH_METHOD)
+    source: SinglePoint = Field(description="one vertex/point index or one [x, y, z] point")
+    target: SinglePoint = Field(description="one vertex/point index or one [x, y, z] point")
 
 
 class CorrespondenceRequest(_Request):
@@ -49,7 +107,7 @@ class CorrespondenceRequest(_Request):
 
     source_shape_id: str = Field(min_length=1, max_length=128)
     target_shape_id: str = Field(min_length=1, max_length=128)
-    queries: Indices | Points | Literal["all"] = Field(
+    queries: QueryOrAll = Field(
         "all",
         description="source vertex/point indices, xyz points in the source's frame and units, "
         "or 'all' (every source vertex/point)",
@@ -69,15 +127,32 @@ class ShapeInfoResponse(BaseModel):
     ood_calibrated: bool
     out_of_distribution: bool | None
     created: bool
+    model_scores: dict[str, float] | None = Field(
+        None,
+        description="when the model was chosen automatically ('auto'): every loaded model's "
+        "out-of-distribution score for this shape (z-score when calibrated; 'model' is the "
+        "lowest); null when a model was named",
+    )
 
 
 class GeodesicResponse(BaseModel):
     shape_id: str
-    model: str
+    model: str | None = Field(
+        description="the model that answered ('learned'); null for classical methods"
+    )
+    method: MethodName = Field(description="the method asked for")
+    engine: EngineName = Field(
+        description="what ran: 'learned', or the classical engine ('heat', 'pointcloud-heat', "
+        "'exact-mmp', 'knn-graph')"
+    )
     rows: int
     cols: int
     units: Literal["input"] = "input"
-    distances: list[list[float]] = Field(description="rows × cols, row-major, in input units")
+    distances: list[list[float | None]] = Field(
+        description="rows × cols, row-major, in input units; null where a classical engine "
+        "finds no surface path (points on different connected components: +inf in the "
+        "binary and msgpack formats)"
+    )
 
 
 class CorrespondenceResponse(BaseModel):
@@ -90,19 +165,53 @@ class CorrespondenceResponse(BaseModel):
     )
     distances: list[float] | None = Field(
         None,
-        description="per query, the predicted cross-shape geodesic distance at the match, in "
-        "unit-area units (both shapes scaled to unit surface area), NOT the shapes' input "
-        "units; null unless return_distance was true",
+        description="per query, the predicted cross-shape geodesic distance at the match in "
+        "the TARGET shape's input units (distances_unit_area scaled by the target's own "
+        "unit-area scale); null unless return_distance was true",
+    )
+    distances_unit_area: list[float] | None = Field(
+        None,
+        description="the same distances in unit-area units (both shapes scaled to unit "
+        "surface area: what the matching network predicts, comparable across shapes); null "
+        "unless return_distance was true",
+    )
+
+
+class PathSegment(BaseModel):
+    start: int = Field(description="index in points where this part starts")
+    method: str = Field(
+        description="what produced the part: 'learned' (the learned walk), 'edge-flip', "
+        "'mesh-edges', 'knn-graph', 'straight' (finishing a stalled learned walk), "
+        "'heat-descent', 'exact-mmp'"
     )
 
 
 class PathResponse(BaseModel):
     shape_id: str
+    model: str | None = Field(
+        None, description="the model that answered ('learned'); null for classical methods"
+    )
+    method: MethodName = Field(description="the method asked for")
+    engine: EngineName = Field(description="what ran (see GeodesicResponse.engine)")
     points: list[Point] = Field(description="polyline from source to target")
-    length: float
-    predicted_distance: float
-    n_steps: int
-    converged: bool
+    length: float = Field(description="polyline length, input units")
+    distance: float = Field(
+        description="the method's distance between source and target, input units (learned: "
+        "the predicted distance; exact: the exact geodesic, equal to length to rounding)"
+    )
+    segments: list[PathSegment] = Field(
+        description="the parts of the polyline in order; part k runs from points[start_k] to "
+        "the next part's start (the last one to the end)"
+    )
+    predicted_distance: float | None = Field(
+        None, description="learned paths: the network's distance; null otherwise"
+    )
+    n_steps: int | None = Field(None, description="learned paths: accepted gradient steps")
+    converged: bool | None = Field(
+        None,
+        description="learned paths: whether the learned walk reached the source (else an "
+        "on-surface route finished it, see segments); null for classical methods",
+    )
 
 
 class Problem(BaseModel):

@@ -8,20 +8,29 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 MiB = 1024 * 1024
+AUTO_MODEL = "auto"
+"""The model name that picks, per shape, the loaded model with the lowest OOD score."""
 
 
 class Settings(BaseSettings):
     """Every knob of the service. Defaults are the embedded single-machine setup: in-process
     cache, shipped models, CPU unless a GPU is present, no API key, loopback only."""
 
-    model_config = SettingsConfigDict(env_prefix="LITEGE_", extra="ignore", frozen=True)
+    model_config = SettingsConfigDict(
+        env_prefix="LITEGE_", extra="ignore", frozen=True, hide_input_in_errors=True
+    )
+    """``hide_input_in_errors``: a start-up error never prints a value (API key, URLs)."""
 
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     grpc_port: int = Field(50051, ge=0, le=65535)
 
     models: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
-    default_model: str = "quadrupeds"
+    default_model: str = "auto"
+    """Geodesic model of a registration or query that names none: ``auto`` (every loaded model
+    scores the shape and the lowest out-of-distribution z-score wins; with one model loaded,
+    that one) or the name of a loaded model (then a query naming no model uses the first model,
+    this one first, that the shape is registered under)."""
     device: str = "auto"
     matching_model: str | None = "quadrupeds"
     """Matching bundle of ``POST /correspondences`` and the ``Correspond`` RPC (a shipped name
@@ -34,7 +43,12 @@ class Settings(BaseSettings):
     hot_cache_bytes: int = Field(256 * MiB, ge=MiB)
     """Bound of the in-process tier in front of Redis."""
     state_cache_bytes: int = Field(512 * MiB, ge=MiB)
-    """Bound of the live (embedded, on-device) shape states."""
+    """Bound of the live geodesic shape states (embeddings on the device, the shape's arrays,
+    surface projectors once built)."""
+    matching_cache_bytes: int = Field(256 * MiB, ge=MiB)
+    """Bound of the live shapes prepared for matching (aligned points, NN cache, features)."""
+    write_behind_bytes: int = Field(128 * MiB, ge=MiB)
+    """Bound of the writes queued for Redis while it is unreachable (oldest dropped)."""
 
     api_key: str | None = None
 
@@ -45,6 +59,16 @@ class Settings(BaseSettings):
     """Largest sources × targets per request (and points per path request × path count), and
     most correspondence queries per request or stream batch."""
     max_path_requests: int = Field(64, ge=1)
+    max_exact_vertices: int = Field(20_000, ge=1)
+    """Largest mesh (vertices) that ``method: exact`` runs on; larger ones are refused (422):
+    one exact solve takes ~0.1 s at 5K vertices, 0.4 s at 10K and 6 s at 41K."""
+    max_exact_sources: int = Field(16, ge=1)
+    """Most sources of one ``method: exact`` geodesic request (422 above); each source is one
+    exact solve."""
+    solver_cache_bytes: int = Field(256 * MiB, ge=MiB)
+    """Bound of the live classical solvers (``method`` heat / exact / graph), one per shape and
+    method: the engines' arrays plus an estimate of their native memory (factorisations, MMP
+    meshes), ~8 KiB per vertex for heat and exact."""
     max_concurrency: int = Field(64, ge=1)
 
     batch_max_size: int = Field(64, ge=1)
@@ -54,6 +78,9 @@ class Settings(BaseSettings):
     latency (measured: a 2 ms wait added 2 ms to every single-client request)."""
     queue_size: int = Field(256, ge=1)
     request_timeout_s: float = Field(60.0, gt=0)
+    body_read_timeout_s: float = Field(30.0, gt=0)
+    """Longest time to receive a request's body (REST: 408) or an upload stream (gRPC:
+    DEADLINE_EXCEEDED); a slow client holds no concurrency slot meanwhile."""
     torch_threads: int | None = Field(None, ge=1)
 
     log_format: Literal["json", "text"] = "json"
@@ -75,16 +102,23 @@ class Settings(BaseSettings):
     def _check(self) -> Settings:
         if not self.models:
             raise ValueError("LITEGE_MODELS must name at least one model")
-        if self.default_model not in self.models:
+        if AUTO_MODEL in self.models:
+            raise ValueError(f"LITEGE_MODELS cannot name a model {AUTO_MODEL!r} (reserved)")
+        if self.default_model != AUTO_MODEL and self.default_model not in self.models:
             raise ValueError(
-                f"LITEGE_DEFAULT_MODEL={self.default_model!r} is not in LITEGE_MODELS={self.models}"
+                f"LITEGE_DEFAULT_MODEL={self.default_model!r} is neither {AUTO_MODEL!r} nor in "
+                f"LITEGE_MODELS={self.models}"
             )
         if self.api_key is not None and len(self.api_key) < 16:
             raise ValueError("LITEGE_API_KEY must be at least 16 characters (or unset)")
         if self.redis_url is not None and not self.redis_url.startswith(
             ("redis://", "rediss://", "unix://")
         ):
-            raise ValueError(f"LITEGE_REDIS_URL must be a redis:// URL, got {self.redis_url!r}")
+            scheme = self.redis_url.partition("://")[0] if "://" in self.redis_url else ""
+            raise ValueError(
+                "LITEGE_REDIS_URL must be a redis://, rediss:// or unix:// URL"
+                + (f", not {scheme}://…" if scheme else "")
+            )
         return self
 
     def public_summary(self) -> dict[str, object]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import re
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Annotated
@@ -21,10 +22,8 @@ from fastapi import Depends, FastAPI, Query, Request
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.exceptions import HTTPException
 
-from litege_core.errors import ArtifactError
-from service.errors import ShapeNotFoundError
+from litege_core.shape import Shape
 from service.runtime import Runtime
-from service.store import artifact_key, decode_arrays
 
 STATIC_DIR = Path(__file__).resolve().parent / "static" / "viewer"
 ASSET_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,128}$")
@@ -103,31 +102,16 @@ def example_obj(name: str) -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
-def read_geometry(runtime: Runtime, shape_id: str, model: str | None) -> dict[str, np.ndarray]:
-    """The stored arrays of a registered shape (``vertices``, and ``faces`` for meshes), read
-    from the store (thread-safe) without touching the compute thread."""
-    names = (
-        [runtime.repository.model_name(model)]
-        if model is not None
-        else [runtime.settings.default_model, *runtime.model_names]
-    )
-    for name in dict.fromkeys(names):
-        bundle_hash = runtime.repository.predictors[name].bundle.content_hash
-        raw = runtime.store.get(artifact_key(bundle_hash, shape_id, "arrays"))
-        if raw is None:
-            continue
-        try:
-            arrays, _ = decode_arrays(raw)
-        except ArtifactError as exc:
-            raise ShapeNotFoundError(f"shape {shape_id!r} has unreadable arrays: {exc}") from exc
-        return arrays
-    raise ShapeNotFoundError(
-        f"shape {shape_id!r} is not registered (unknown, deleted, or expired from the cache); "
-        "upload it again with POST /shapes"
-    )
+def read_geometry(runtime: Runtime, shape_id: str, model: str | None) -> Shape:
+    """The registered shape's own geometry, through the shape repository (thread-safe: a live
+    state's shape or the stored geometry, without touching the compute thread). ``model`` is
+    only checked: a shape's geometry is the same under every model."""
+    if model is not None:
+        runtime.repository.model_name(model)
+    return runtime.repository.shape(shape_id)
 
 
-def add_viewer_routes(app: FastAPI, require_api_key: object) -> None:
+def add_viewer_routes(app: FastAPI, require_api_key: Callable[[Request], None]) -> None:
     """Mount the viewer on ``app`` (``require_api_key``: the API's key dependency)."""
 
     def runtime_of(request: Request) -> Runtime:
@@ -171,13 +155,12 @@ def add_viewer_routes(app: FastAPI, require_api_key: object) -> None:
         """``application/octet-stream``: float32 vertices ``(N, 3)`` then uint32 faces
         ``(F, 3)``, little-endian; counts in ``X-N-Points`` / ``X-N-Faces``."""
         runtime = runtime_of(request)
-        arrays = await anyio.to_thread.run_sync(read_geometry, runtime, shape_id, model)
-        vertices = np.ascontiguousarray(arrays["vertices"], dtype="<f4")
-        faces = arrays.get("faces")
+        shape = await anyio.to_thread.run_sync(read_geometry, runtime, shape_id, model)
+        vertices = np.ascontiguousarray(shape.vertices, dtype="<f4")
         faces = (
             np.zeros((0, 3), dtype="<u4")
-            if faces is None
-            else np.ascontiguousarray(faces, dtype="<u4")
+            if shape.faces is None
+            else np.ascontiguousarray(shape.faces, dtype="<u4")
         )
         return Response(
             vertices.tobytes() + faces.tobytes(),

@@ -54,12 +54,10 @@ def toy_predictor(tmp_path_factory):
     """A Predictor over a tiny bundle (4-component basis, untrained 32-wide net)."""
     import torch
 
-    from litege_core.bundle import load_bundle, save_bundle
     from litege_core.canonical import canonicalize_bbox
-    from litege_core.describe import shape_samples
     from litege_core.descriptor import VoxelGrid, fit_basis
+    from litege_core.learned import Predictor, load_bundle, save_bundle, shape_samples
     from litege_core.nets import GeodesicNet
-    from litege_core.predictor import Predictor
 
     canonical = []
     for seed in range(6):

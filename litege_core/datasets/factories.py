@@ -1,12 +1,38 @@
-"""Shape factories that feed the dataset builder: the procedural families of ``synth``."""
+"""Shape factories that feed the dataset builder.
+
+* :class:`SynthFactory`: the procedural families of ``synth`` (template datasets: one shared
+  triangulation);
+* collection factories (each shape has its own triangulation, see
+  :class:`~litege_core.datasets.build.CollectionFactory`):
+  :class:`RiggedFactory` (posed rigged glTF animals), :class:`MakeHumanFactory` (MakeHuman
+  bodies) and :class:`FolderFactory` (a directory of user meshes).
+
+The real-shape factories read their assets from a path (never from the repository): the
+train-data directory is ``root`` or, by default, ``$LITEGE_TRAIN_DATA`` or
+``../shared/train-data``.
+"""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError
+
+if TYPE_CHECKING:
+    from litege_core.synth.folder import FolderSettings
+
+DEFAULT_TRAIN_DATA = "../shared/train-data"
+
+
+def train_data_root(root: str | os.PathLike | None = None) -> Path:
+    """The train-data directory: ``root``, else ``$LITEGE_TRAIN_DATA``, else
+    ``../shared/train-data`` (relative to the working directory)."""
+    return Path(root or os.environ.get("LITEGE_TRAIN_DATA") or DEFAULT_TRAIN_DATA)
 
 
 @dataclass(frozen=True)
@@ -33,10 +59,105 @@ class SynthFactory:
         return generate_shape(self.category, family, seed).vertices
 
 
-def factory_for(category: str) -> SynthFactory:
-    """The factory of a ``synth`` category (``"quadruped"`` or ``"biped"``)."""
+@dataclass(frozen=True)
+class RiggedFactory:
+    """Posed, remeshed rigged glTF animals (:mod:`litege_core.synth.rigged`); a family is an
+    animal of :data:`~litege_core.synth.rigged.ANIMALS`."""
+
+    root: str
+    category: str = "rigged"
+
+    @property
+    def version(self) -> str:
+        from litege_core.synth.rigged import RIGGED_VERSION
+
+        return RIGGED_VERSION
+
+    def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
+        from litege_core.synth.rigged import animal_path, cached_model, posed_animal
+
+        model = cached_model(str(animal_path(self.root, family)), family)
+        vertices, faces, _ = posed_animal(model, seed)
+        return vertices, faces
+
+
+@dataclass(frozen=True)
+class MakeHumanFactory:
+    """Shaped, posed, remeshed MakeHuman bodies (:mod:`litege_core.synth.makehuman`); one
+    family, ``"makehuman"``."""
+
+    root: str
+    category: str = "makehuman"
+
+    @property
+    def version(self) -> str:
+        from litege_core.synth.makehuman import MAKEHUMAN_VERSION
+
+        return MAKEHUMAN_VERSION
+
+    def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
+        from litege_core.synth.makehuman import cached_makehuman, posed_human
+
+        if family != "makehuman":
+            raise InputError(f"unknown makehuman family {family!r}")
+        vertices, faces, _ = posed_human(cached_makehuman(str(Path(self.root) / "makehuman")), seed)
+        return vertices, faces
+
+
+@dataclass(frozen=True)
+class FolderFactory:
+    """Augmented remeshes of the mesh files of a directory (:mod:`litege_core.synth.folder`);
+    a family is a file path relative to ``directory``. ``digest`` (of the files' names and
+    bytes) is part of the version, so a build never resumes over changed files."""
+
+    directory: str
+    digest: str
+    settings: FolderSettings | None = None
+    category: str = "folder"
+
+    @property
+    def version(self) -> str:
+        from litege_core.synth.folder import FOLDER_VERSION, FolderSettings
+
+        settings = self.settings or FolderSettings()
+        return f"{FOLDER_VERSION}:{self.digest}:{settings.describe()}"
+
+    def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
+        from litege_core.synth.folder import FolderSettings, folder_shape
+
+        return folder_shape(self.directory, family, seed, self.settings or FolderSettings())
+
+
+def factory_for(category: str, root: str | os.PathLike | None = None):
+    """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
+    ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``).
+
+    Raises:
+        InputError: unknown category, or the train-data assets are missing.
+    """
     from litege_core.synth import CATEGORIES
 
-    if category not in CATEGORIES:
-        raise InputError(f"unknown category {category!r}; expected one of {CATEGORIES}")
-    return SynthFactory(category)
+    if category in CATEGORIES:
+        return SynthFactory(category)
+    if category in ("rigged", "makehuman"):
+        base = train_data_root(root)
+        probe = base / ("quaternius-uaa" if category == "rigged" else "makehuman")
+        if not probe.is_dir():
+            raise InputError(
+                f"{probe} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
+            )
+        return RiggedFactory(str(base)) if category == "rigged" else MakeHumanFactory(str(base))
+    raise InputError(
+        f"unknown category {category!r}; expected one of {(*CATEGORIES, 'rigged', 'makehuman')}"
+    )
+
+
+__all__ = [
+    "DEFAULT_TRAIN_DATA",
+    "FolderFactory",
+    "MakeHumanFactory",
+    "RiggedFactory",
+    "SynthFactory",
+    "factory_for",
+    "train_data_root",
+]

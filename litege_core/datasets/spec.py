@@ -1,8 +1,19 @@
 """What a ground-truth geodesic dataset contains: the :class:`DatasetSpec`.
 
-A dataset covers one category (all shapes share one triangulation). Shape ``k`` of a split has
-family ``families[k % len(families)]`` and seed ``SPLIT_SEED_OFFSETS[split] + k``, so splits
-never share a seed and any shape can be regenerated from (category, family, seed).
+Two kinds of dataset:
+
+* ``template`` (format version 1): one procedural category whose shapes all share one
+  triangulation; ``n_shared_sources`` farthest-point samples of the template are sources on
+  every shape.
+* ``collection`` (format version 2): shapes with their own vertex counts and triangulations
+  (posed real animals, MakeHuman bodies, a folder of user meshes). Shared sources make no
+  sense across topologies, so ``n_shared_sources`` becomes the number of farthest-point
+  sources of *each shape* (starting at its vertex 0).
+
+Shape ``k`` of a split has family ``families[k % len(families)]`` (or of that split's own
+family list, ``split_families``, when families are split by file) and seed
+``SPLIT_SEED_OFFSETS[split] + k``, so splits never share a seed and any shape can be
+regenerated from (category, family, seed).
 
 Storage precision (decided here, recorded in the manifest):
 
@@ -23,6 +34,10 @@ from litege_core.errors import InputError
 SPLITS = ("train", "val", "test")
 SPLIT_SEED_OFFSETS = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 FORMAT_VERSION = 1
+COLLECTION_FORMAT_VERSION = 2
+KINDS = ("template", "collection")
+COLLECTION_SOURCES = ("rigged", "makehuman")
+"""Collection categories with presets (``folder`` datasets are specified per directory)."""
 
 
 @dataclass(frozen=True)
@@ -31,13 +46,19 @@ class DatasetSpec:
 
     Attributes:
         name: dataset name (directory name by convention).
-        category: shape category of the factory (``"quadruped"`` or ``"biped"``).
+        category: shape category of the factory (``"quadruped"``, ``"biped"``; for
+            collections ``"rigged"``, ``"makehuman"`` or ``"folder"``).
         families: families cycled through by shape index.
         n_shapes: shapes per split, e.g. ``{"train": 400, "val": 50, "test": 50}``.
-        n_shared_sources: sources shared by every shape (farthest-point samples of the
-            template), so every pair of shapes yields cross-shape targets.
+        n_shared_sources: template kind: sources shared by every shape (farthest-point
+            samples of the template), so every pair of shapes yields cross-shape targets;
+            collection kind: farthest-point sources of each shape.
         n_extra_sources: extra random sources per shape (seeded by the shape's seed).
         shard_size: shapes per shard file.
+        kind: ``"template"`` or ``"collection"`` (see the module docstring).
+        split_families: optional per-split family lists (a subset of ``families`` each),
+            e.g. the files of a folder split train/val/test by file; ``None``: every split
+            cycles through ``families``.
     """
 
     name: str
@@ -47,10 +68,22 @@ class DatasetSpec:
     n_shared_sources: int = 48
     n_extra_sources: int = 16
     shard_size: int = 32
+    kind: str = "template"
+    split_families: dict[str, tuple[str, ...]] | None = None
 
     def __post_init__(self) -> None:
         if not self.families:
             raise InputError("a dataset needs at least one family")
+        if self.kind not in KINDS:
+            raise InputError(f"unknown dataset kind {self.kind!r}; expected one of {KINDS}")
+        if self.split_families is not None:
+            if set(self.split_families) - set(SPLITS):
+                raise InputError(f"split_families has unknown splits; expected {SPLITS}")
+            for split, names in self.split_families.items():
+                if set(names) - set(self.families):
+                    raise InputError(f"split_families[{split!r}] names unknown families")
+                if self.n_shapes.get(split, 0) > 0 and not names:
+                    raise InputError(f"split {split!r} has shapes but no families")
         unknown = set(self.n_shapes) - set(SPLITS)
         if unknown:
             raise InputError(f"unknown splits {sorted(unknown)}; expected {SPLITS}")
@@ -63,38 +96,111 @@ class DatasetSpec:
     def n_sources(self) -> int:
         return self.n_shared_sources + self.n_extra_sources
 
+    @property
+    def is_collection(self) -> bool:
+        return self.kind == "collection"
+
+    @property
+    def format_version(self) -> int:
+        return COLLECTION_FORMAT_VERSION if self.is_collection else FORMAT_VERSION
+
+    def families_of(self, split: str) -> tuple[str, ...]:
+        """The families cycled through by ``split``."""
+        if self.split_families is not None and split in self.split_families:
+            return self.split_families[split]
+        return self.families
+
     def shape_key(self, split: str, index: int) -> tuple[str, int]:
         """``(family, seed)`` of shape ``index`` of ``split``."""
-        return self.families[index % len(self.families)], SPLIT_SEED_OFFSETS[split] + index
+        families = self.families_of(split)
+        return families[index % len(families)], SPLIT_SEED_OFFSETS[split] + index
 
     def distance_dtype(self, split: str) -> str:
         return "float16" if split == "train" else "float32"
 
     def to_json(self) -> str:
+        """Canonical JSON; ``kind`` and ``split_families`` are written only when they differ
+        from the defaults, so template specs serialize exactly as format version 1 did."""
         data = asdict(self)
         data["families"] = list(self.families)
+        if self.kind == "template":
+            del data["kind"]
+        if self.split_families is None:
+            del data["split_families"]
+        else:
+            data["split_families"] = {k: list(v) for k, v in self.split_families.items()}
         return json.dumps(data, sort_keys=True)
 
     @classmethod
     def from_dict(cls, data: dict) -> DatasetSpec:
         data = dict(data)
         data["families"] = tuple(data["families"])
+        if data.get("split_families") is not None:
+            data["split_families"] = {k: tuple(v) for k, v in data["split_families"].items()}
         return cls(**data)
 
 
+@dataclass(frozen=True)
+class WorkShare:
+    """One worker's share of a sharded build (``litege data build --shard I/N``).
+
+    The shard *files* of a dataset are numbered in build order (val, test, then train; see
+    :data:`litege_core.datasets.build.BUILD_ORDER`) by a global ordinal ``k``; worker ``I`` of
+    ``N`` builds the files with ``k mod N == I``. The assignment depends only on the spec, so
+    ``N`` workers (processes, machines, the pods of a Kubernetes Indexed Job) build disjoint
+    files into one directory and together produce exactly the single-process dataset.
+
+    Attributes:
+        index: ``I``, 0-based (a Kubernetes ``JOB_COMPLETION_INDEX``).
+        count: ``N``, the number of workers.
+    """
+
+    index: int
+    count: int
+
+    def __post_init__(self) -> None:
+        if isinstance(self.index, bool) or isinstance(self.count, bool):
+            raise InputError("a work share is two integers I/N")
+        if self.count < 1 or not 0 <= self.index < self.count:
+            raise InputError(f"need 0 <= I < N in --shard I/N, got {self.index}/{self.count}")
+
+    @classmethod
+    def parse(cls, text: str) -> WorkShare:
+        """``"I/N"`` → ``WorkShare(I, N)``; InputError for anything else."""
+        index, sep, count = str(text).strip().partition("/")
+        if not sep or not index.strip().isdigit() or not count.strip().isdigit():
+            raise InputError(f"--shard must be I/N with integers 0 <= I < N, got {text!r}")
+        return cls(int(index), int(count))
+
+    def owns(self, ordinal: int) -> bool:
+        """Whether the shard file of global ``ordinal`` belongs to this worker."""
+        return ordinal % self.count == self.index
+
+    def __str__(self) -> str:
+        return f"{self.index}/{self.count}"
+
+
 def preset(name: str, category: str) -> DatasetSpec:
-    """Named presets: ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min), ``full``
+    """Named presets of the procedural categories (and, for ``rigged`` / ``makehuman``, of
+    :func:`collection_preset`): ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min), ``large``
+    (2,000 training shapes: a few hours on one core, the real-shape scale step), ``full``
     (the paper's scale: ≥ 10K quadrupeds / ≥ 5K bipeds, for a 16-core machine) and
     ``matching`` (180 shapes with only the shared sources, which are all the matching target
     uses: the CPU-sized matching training set; matching is evaluated on freshly generated
     test-seed shapes, so it has no test split)."""
     from litege_core.synth import CATEGORIES, families
 
+    if category in COLLECTION_SOURCES:
+        return collection_preset(name, category)
     if category not in CATEGORIES:
-        raise InputError(f"unknown category {category!r}; expected one of {CATEGORIES}")
+        raise InputError(
+            f"unknown category {category!r}; expected one of {CATEGORIES + COLLECTION_SOURCES}"
+        )
     sizes = {
         ("small", "quadruped"): {"train": 400, "val": 50, "test": 50},
         ("small", "biped"): {"train": 400, "val": 50, "test": 50},
+        ("large", "quadruped"): {"train": 2_000, "val": 100, "test": 100},
+        ("large", "biped"): {"train": 2_000, "val": 100, "test": 100},
         ("full", "quadruped"): {"train": 10_000, "val": 300, "test": 200},
         ("full", "biped"): {"train": 5_000, "val": 200, "test": 100},
         ("matching", "quadruped"): {"train": 160, "val": 20, "test": 0},
@@ -109,3 +215,53 @@ def preset(name: str, category: str) -> DatasetSpec:
         n_shapes=sizes[(name, category)],
         n_extra_sources=0 if name == "matching" else DatasetSpec.n_extra_sources,
     )
+
+
+def collection_preset(name: str, source: str) -> DatasetSpec:
+    """Presets of the collection sources (per-shape triangulations, ~4–5.5K vertices):
+
+    * ``rigged``: the 12 rigged glTF animals (11 Quaternius + the Khronos fox) posed from
+      their animation clips, one family each;
+    * ``makehuman``: MakeHuman bodies (random gender/muscle/weight and pose), one family.
+
+    ``small``: 480 + 48 + 48 (rigged) / 400 + 50 + 50 (makehuman) shapes, ``large``: 2,400 +
+    120 + 120 / 2,000 + 100 + 100. 48 farthest-point + 16 random sources per shape.
+    """
+    if source not in COLLECTION_SOURCES:
+        raise InputError(f"unknown collection source {source!r}; expected {COLLECTION_SOURCES}")
+    if source == "rigged":
+        from litege_core.synth.rigged import ANIMALS
+
+        families: tuple[str, ...] = ANIMALS
+    else:
+        families = ("makehuman",)
+    sizes = {
+        ("small", "rigged"): {"train": 480, "val": 48, "test": 48},
+        ("large", "rigged"): {"train": 2_400, "val": 120, "test": 120},
+        ("small", "makehuman"): {"train": 400, "val": 50, "test": 50},
+        ("large", "makehuman"): {"train": 2_000, "val": 100, "test": 100},
+    }
+    if (name, source) not in sizes:
+        raise InputError(f"unknown preset {name!r} for collection source {source!r}")
+    return DatasetSpec(
+        name=f"{source}-{name}",
+        category=source,
+        families=families,
+        n_shapes=sizes[(name, source)],
+        shard_size=16,
+        kind="collection",
+    )
+
+
+__all__ = [
+    "COLLECTION_FORMAT_VERSION",
+    "COLLECTION_SOURCES",
+    "FORMAT_VERSION",
+    "KINDS",
+    "SPLITS",
+    "SPLIT_SEED_OFFSETS",
+    "DatasetSpec",
+    "WorkShare",
+    "collection_preset",
+    "preset",
+]

@@ -12,15 +12,30 @@
         seed       (S,)      int64
         family     (S,)      int64      index into spec.families
 
+**Collection datasets** (manifest ``"kind": "collection"``, ``format_version`` 2) hold shapes
+with their own vertex counts and triangulations. There is no template file; each shard pads
+its shapes to the shard's largest vertex / face count ``Vs`` / ``Fs``::
+
+    DIR/{split}-{i:05d}.safetensors
+        vertices    (S, Vs, 3) float32    rows ≥ n_vertices[s] are 0
+        faces       (S, Fs, 3) int32      rows ≥ n_faces[s] are -1
+        n_vertices  (S,)       int64
+        n_faces     (S,)       int64
+        sources     (S, R)     int32      first R0 columns: farthest-point samples of the shape
+        distances   (S, R, Vs) float16 (train) / float32 (val, test); columns ≥ n_vertices are 0
+        area, seed, family     as above
+
+Readers concatenate shards along the shape axis, re-padding to the split's largest counts.
+Padding keeps every array rectangular, so training gathers by index exactly as for template
+datasets and only has to draw targets below ``n_vertices[s]``.
+
 Shards are written to a temporary name and renamed, and the manifest is rewritten after each
 shard, so an interrupted build resumes from the last complete shard. No pickle anywhere.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -31,51 +46,41 @@ from litege_core.errors import ArtifactError
 MANIFEST = "manifest.json"
 TEMPLATE = "template.safetensors"
 SHARD_KEYS = ("vertices", "sources", "distances", "area", "seed", "family")
+COLLECTION_KEYS = (*SHARD_KEYS, "faces", "n_vertices", "n_faces")
+FACE_PAD = -1
+"""Value of the padding rows of a collection shard's ``faces``."""
+
+
+def pad_axis(array: NDArray, size: int, axis: int, value: float = 0) -> NDArray:
+    """``array`` padded with ``value`` at the end of ``axis`` to length ``size``."""
+    missing = size - array.shape[axis]
+    if missing < 0:
+        raise ValueError("cannot pad to a smaller size")
+    if missing == 0:
+        return array
+    widths = [(0, 0)] * array.ndim
+    widths[axis] = (0, missing)
+    return np.pad(array, widths, constant_values=value)
+
+
+def concatenate_collection(shards: list[dict[str, NDArray]]) -> dict[str, NDArray]:
+    """Concatenate collection shards (or splits) along the shape axis, re-padding vertices,
+    faces and distances to the largest counts."""
+    n_v = max(s["vertices"].shape[1] for s in shards)
+    n_f = max(s["faces"].shape[1] for s in shards)
+    padded = {
+        "vertices": [pad_axis(s["vertices"], n_v, 1) for s in shards],
+        "distances": [pad_axis(s["distances"], n_v, 2) for s in shards],
+        "faces": [pad_axis(s["faces"], n_f, 1, FACE_PAD) for s in shards],
+    }
+    return {
+        key: np.concatenate(padded[key] if key in padded else [s[key] for s in shards])
+        for key in COLLECTION_KEYS
+    }
 
 
 def shard_name(split: str, index: int) -> str:
     return f"{split}-{index:05d}.safetensors"
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def write_tensors_atomic(path: Path, tensors: dict[str, NDArray]) -> str:
-    """Write ``tensors`` to ``path`` via a temporary file; return the file's SHA-256."""
-    from safetensors.numpy import save_file
-
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    save_file({k: np.ascontiguousarray(v) for k, v in tensors.items()}, str(temporary))
-    os.replace(temporary, path)
-    return file_sha256(path)
-
-
-def read_tensors(path: Path, keys: tuple[str, ...] | None = None) -> dict[str, NDArray]:
-    """Read a safetensors file (optionally only ``keys``), raising ArtifactError on damage."""
-    from safetensors import SafetensorError
-    from safetensors.numpy import load_file
-
-    try:
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
-    if keys is not None:
-        missing = set(keys) - set(tensors)
-        if missing:
-            raise ArtifactError(f"{path.name} lacks tensors {sorted(missing)}")
-        tensors = {k: tensors[k] for k in keys}
-    return tensors
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    temporary.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    os.replace(temporary, path)
 
 
 def read_manifest(directory: Path) -> dict:
@@ -86,3 +91,16 @@ def read_manifest(directory: Path) -> dict:
         raise ArtifactError(f"no {MANIFEST} in {directory}") from exc
     except json.JSONDecodeError as exc:
         raise ArtifactError(f"{path} is not valid JSON: {exc}") from exc
+
+
+__all__ = [
+    "COLLECTION_KEYS",
+    "FACE_PAD",
+    "MANIFEST",
+    "SHARD_KEYS",
+    "TEMPLATE",
+    "concatenate_collection",
+    "pad_axis",
+    "read_manifest",
+    "shard_name",
+]

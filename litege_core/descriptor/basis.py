@@ -54,13 +54,43 @@ TENSOR_DTYPES: dict[str, np.dtype] = {
 }
 
 
+VOXEL_LATTICES: tuple[str, ...] = ("full", "bcc", "stride2")
+"""Which informative voxels a :class:`DescriptorEngine` evaluates the UDF at:
+
+* ``"full"`` (default): every one; the descriptor the networks were trained on.
+* ``"bcc"``: voxels whose grid indices ``(i, j, k)`` are all even or all odd (a body-centred
+  lattice, about 1/4 of them);
+* ``"stride2"``: voxels whose indices are all even (about 1/8).
+
+On a lattice, the codes are the least-squares fit of the components to the UDF at the kept
+voxels, ``z = (P_S P_Sᵀ)⁻¹ P_S (u_S − μ_S)``, and the residual is that fit's residual scaled by
+``√(M / |S|)`` (an estimate of the full one). The UDF is smooth at the voxel scale, so the codes
+stay close to the full ones (issue 17, measured by ``scripts/bench_predictor.py
+--accuracy``, BENCHMARKS.md ``predictor-accuracy``); they are an approximation, opt-in."""
+
+
+def lattice_voxels(grid: VoxelGrid, voxel_indices: ArrayLike, lattice: str) -> NDArray:
+    """Positions (into ``voxel_indices``) of the voxels ``lattice`` keeps (sorted)."""
+    if lattice not in VOXEL_LATTICES:
+        raise InputError(f"lattice must be one of {VOXEL_LATTICES}, got {lattice!r}")
+    indices = np.asarray(voxel_indices, dtype=np.int64)
+    if lattice == "full":
+        return np.arange(indices.shape[0])
+    odd = grid.ijk(indices) % 2 == 1  # (M, 3)
+    keep = ~odd.any(axis=1)
+    if lattice == "bcc":
+        keep |= odd.all(axis=1)
+    return np.flatnonzero(keep)
+
+
 class DescriptorResult(NamedTuple):
     """Descriptors of a batch of clouds.
 
     Attributes:
         descriptors: ``(B, k)`` float32 codes ``(udf − μ)Pᵀ``.
         residual: ``(B,)`` float32 ``‖udf − μ − PᵀP(udf − μ)‖``, an out-of-distribution score.
-        udf: ``(B, M)`` float32 UDF at the informative voxels.
+        udf: ``(B, M)`` float32 UDF at the informative voxels (at the lattice's voxels only,
+            ``(B, |S|)``, for an engine on a lattice).
     """
 
     descriptors: torch.Tensor
@@ -72,15 +102,48 @@ class DescriptorEngine:
     """A basis placed on one device: centres, mean and components uploaded once.
 
     Build with :meth:`UdfPcaBasis.engine`.
+
+    The reconstruction residual is computed directly, ``‖c − zP‖`` (see :meth:`_residual`).
     """
 
-    def __init__(self, basis: UdfPcaBasis, device: torch.device, udf_backend: UdfBackend) -> None:
+    def __init__(
+        self,
+        basis: UdfPcaBasis,
+        device: torch.device,
+        udf_backend: UdfBackend,
+        lattice: str = "full",
+    ) -> None:
         self.device = device
         self.n_components = basis.n_components
-        self.udf = UdfEvaluator(basis.centers, backend=udf_backend, device=device)
-        self.mean = torch.from_numpy(np.array(basis.mean)).to(device)  # (M,)
-        self.components = torch.from_numpy(np.array(basis.components)).to(device)  # (k, M)
-        self._components_t = self.components.T.contiguous()  # (M, k)
+        self.lattice = lattice
+        kept = lattice_voxels(basis.grid, basis.voxel_indices, lattice)
+        self.n_voxels = int(kept.shape[0])
+        self._full = lattice == "full"
+        centers = basis.centers if self._full else basis.centers[kept]
+        self.udf = UdfEvaluator(centers, backend=udf_backend, device=device)
+        if self._full:
+            self.mean = torch.from_numpy(np.array(basis.mean)).to(device)  # (M,)
+            projection = np.ascontiguousarray(basis.components.T)  # (M, k)
+        else:
+            self.mean = torch.from_numpy(basis.mean[kept]).to(device)  # (|S|,)
+            subset = basis.components[:, kept].astype(np.float64)  # (k, |S|)
+            # least squares on the kept voxels: z = (P_S P_Sᵀ)⁻¹ P_S c_S
+            projection = np.linalg.solve(subset @ subset.T, subset).T.astype(np.float32)
+        self._components_t = torch.from_numpy(projection).to(device)  # (|S|, k)
+        self._kept = kept
+        self._subset_components = (
+            None
+            if self._full
+            else torch.from_numpy(np.ascontiguousarray(basis.components[:, kept])).to(device)
+        )
+        self._residual_scale = float(np.sqrt(basis.n_voxels / self.n_voxels))
+
+    @property
+    def components(self) -> torch.Tensor:
+        """``(k, |S|)`` float32 components at the evaluated voxels (all of them: ``(k, M)``)."""
+        if self._subset_components is None:
+            return self._components_t.T
+        return self._subset_components
 
     def describe_batch(self, clouds: ArrayLike | torch.Tensor) -> torch.Tensor:
         """``(B, P, 3)`` canonical clouds (or a list of ``(P_b, 3)``) → ``(B, k)`` float32."""
@@ -93,8 +156,16 @@ class DescriptorEngine:
             udf = self.udf(clouds)
             centred = udf - self.mean
             codes = centred @ self._components_t
-            residual = torch.linalg.vector_norm(centred - codes @ self.components, dim=1)
+            residual = self._residual(centred, codes)
         return DescriptorResult(codes, residual, udf)
+
+    def _residual(self, centred: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        """``(B,)`` float32 residual ``‖c − zP‖`` of ``(B, |S|)`` centred UDFs and their
+        ``(B, k)`` codes, computed directly: the expanded form ``‖c‖² − 2z·Pc + zᵀGz`` is
+        cheaper but cancels catastrophically when the residual is small against ``‖c‖``, and
+        the residual is the out-of-distribution score, compared across batches and models."""
+        fitted = codes @ self.components  # (B, |S|): the fit at the evaluated voxels
+        return torch.linalg.vector_norm(centred - fitted, dim=1) * self._residual_scale
 
 
 @dataclass(frozen=True, eq=False)
@@ -297,15 +368,21 @@ class UdfPcaBasis:
 
     # ----------------------------------------------------------------- descriptors
     def engine(
-        self, device: torch.device | str = "cpu", udf_backend: str | UdfBackend = "auto"
+        self,
+        device: torch.device | str = "cpu",
+        udf_backend: str | UdfBackend = "auto",
+        lattice: str = "full",
     ) -> DescriptorEngine:
-        """The basis placed on ``device`` (built on first use, then cached)."""
+        """The basis placed on ``device`` (built on first use, then cached); ``lattice``: the
+        voxels evaluated (:data:`VOXEL_LATTICES`, default every informative voxel)."""
         dev = resolve_device(device)
         backend = UdfBackend.parse(udf_backend)
-        key = (str(dev), backend)
+        if lattice not in VOXEL_LATTICES:
+            raise InputError(f"lattice must be one of {VOXEL_LATTICES}, got {lattice!r}")
+        key = (str(dev), backend, lattice)
         engines: dict = self._engines  # type: ignore[attr-defined]
         if key not in engines:
-            engines[key] = DescriptorEngine(self, dev, resolve_backend(backend, dev))
+            engines[key] = DescriptorEngine(self, dev, resolve_backend(backend, dev), lattice)
         return engines[key]
 
     def describe(
@@ -424,7 +501,9 @@ __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "TENSOR_DTYPES",
+    "VOXEL_LATTICES",
     "DescriptorEngine",
     "DescriptorResult",
     "UdfPcaBasis",
+    "lattice_voxels",
 ]

@@ -52,7 +52,7 @@ def _unpack(item: ShapeInput, index: int) -> tuple[NDArray, NDArray | None]:
     try:
         if isinstance(item, tuple) and len(item) == 2:
             return validate_arrays(item[0], item[1])
-        return validate_arrays(item, None)  # type: ignore[arg-type]
+        return validate_arrays(item, None)
     except InputError as exc:
         raise type(exc)(f"shape #{index}: {exc.message}") from exc
 

@@ -221,7 +221,7 @@ def fit_pca_streamed(
     # pass 1: moments (Chan et al.) fused with the sketch Y = XΩ
     n, mean, m2 = 0, None, None
     sketch_rows: list[NDArray] = []
-    omega = None
+    omega: NDArray | None = None
     for chunk in data:
         if omega is None:
             d = chunk.shape[1]
@@ -246,12 +246,13 @@ def fit_pca_streamed(
     y = np.concatenate(sketch_rows).astype(np.float64)[:, :width]
     y -= (mean @ omega[:, :width].astype(np.float64))[None, :]
     total_variance = float(m2.sum() / (n - 1))
-    mean_c = mean.astype(dtype)
+    mean_c: NDArray = mean.astype(dtype)
 
     def left_product(q: NDArray) -> NDArray:
         """``(X − μ)ᵀ Q``, ``(d, l)``, in one pass."""
         out = np.zeros((d, q.shape[1]))
-        start, qc = 0, q.astype(dtype)
+        qc: NDArray = q.astype(dtype)
+        start = 0
         for chunk in data:
             out += chunk.T @ qc[start : start + chunk.shape[0]]
             start += chunk.shape[0]
@@ -261,7 +262,7 @@ def fit_pca_streamed(
 
     def right_product(z: NDArray) -> NDArray:
         """``(X − μ) Z``, ``(n, l)``, in one pass."""
-        zc = z.astype(dtype)
+        zc: NDArray = z.astype(dtype)
         shift = mean_c @ zc
         parts = [chunk @ zc - shift for chunk in data]
         out = np.concatenate(parts).astype(np.float64)

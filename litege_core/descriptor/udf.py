@@ -41,9 +41,9 @@ do, but it was **not measured here** (no GPU in this task).
 
 from __future__ import annotations
 
-import enum
 import importlib.util
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 import torch
@@ -59,10 +59,8 @@ from litege_core.errors import ArrayShapeError, MissingDependencyError
 TORCH_BLOCK_ELEMENTS = 1 << 24
 
 
-class UdfBackend(ParsableEnum):
+class UdfBackend(ParsableEnum, noun="UDF backend"):
     """How the nearest sample point of each voxel centre is found."""
-
-    _noun = enum.nonmember("UDF backend")
 
     AUTO = "auto"
     KDTREE = "kdtree"
@@ -258,7 +256,7 @@ def stack_clouds(clouds: ArrayLike | torch.Tensor | Sequence[ArrayLike]) -> NDAr
             out[b, : c.shape[0]] = c
             out[b, c.shape[0] :] = c[0]
         return out
-    return as_clouds(clouds)
+    return as_clouds(cast(ArrayLike, clouds))  # lists and tensors were handled above
 
 
 def compute_udf(

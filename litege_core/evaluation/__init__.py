@@ -1,1 +1,3 @@
 """Evaluation protocols: geodesic regression (and, later, matching) against baselines."""
+
+__all__: list[str] = []

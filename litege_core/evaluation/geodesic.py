@@ -17,6 +17,9 @@ Protocol (paper §7.1, with the reference code's bugs fixed, reference-spec §7 
   pairs of a setting (mean and median), pairs at distance 0 (a source with itself) excluded.
 * Baselines on the same inputs: kNN-graph Dijkstra and point-cloud heat on clouds; the mesh heat
   method and kNN Dijkstra on the mesh vertices for the mesh setting.
+* Frame selection (issue 14): ``evaluate(..., frames=("signs",))`` adds a LiteGE row per
+  candidate set of :mod:`litege_core.learned.frame` (the lowest-residual candidate frame
+  instead of the plain PCA sign rule), registered through :func:`register_in_frame`.
 """
 
 from __future__ import annotations
@@ -29,8 +32,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litege_core.errors import ComputationError
-from litege_core.geodesics import compute_distances
+from litege_core.engines import compute_distances
+from litege_core.errors import ComputationError, InputError
 from litege_core.metrics import geodesic_error
 from litege_core.sampling import farthest_point_sampling, sample_surface
 from litege_core.shape import Shape
@@ -38,6 +41,44 @@ from litege_core.variants import add_noise, cut_by_planes
 
 SETTINGS = ("mesh", "cloud_2000", "cloud_300", "noise_0.01", "cut_10", "cut_15")
 KNN_NEIGHBOURS = 10
+HELD_OUT_SEED_OFFSET = 2_000_000
+"""First seed of the procedural test split (never trained on), as in ``datasets.spec``."""
+
+
+@dataclass(frozen=True)
+class RealSet:
+    """A folder of real evaluation shapes under the eval-data root."""
+
+    key: str
+    folder: str
+    pattern: str
+    group: str
+    model: str  # the shipped geodesic model of that category
+    category: str
+
+
+REAL_SETS = {
+    "tosca": RealSet(
+        "tosca", "tosca_5k", "*.off", "TOSCA animals (real)", "quadrupeds", "quadruped"
+    ),
+    "faust": RealSet("faust", "faust_5k", "*.off", "FAUST humans (real)", "humans", "biped"),
+    "leopard": RealSet("leopard", "leopard", "*.obj", "leopard (real)", "quadrupeds", "quadruped"),
+}
+"""Real sets of the research-only evaluation data (``../shared/eval-data``); the leopard is a
+single 50K-vertex mesh (CC BY 4.0)."""
+
+
+def real_shape_paths(eval_root: str | Path, key: str, limit: int | None = None) -> list[Path]:
+    """Sorted shape files of one real set; ``[]`` when the folder is absent (users' machines
+    do not have the research-only evaluation data)."""
+    if key not in REAL_SETS:
+        raise InputError(f"unknown real set {key!r}; expected one of {sorted(REAL_SETS)}")
+    real = REAL_SETS[key]
+    folder = Path(eval_root) / real.folder
+    if not folder.is_dir():
+        return []
+    paths = sorted(folder.glob(real.pattern))
+    return paths if limit is None else paths[:limit]
 
 
 @dataclass(frozen=True)
@@ -79,6 +120,8 @@ def synthetic_eval_shapes(dataset_dir: str | Path, limit: int, split: str = "tes
     from litege_core.datasets import GeodesicDataset
 
     dataset = GeodesicDataset(dataset_dir)
+    if dataset.faces is None:
+        raise InputError(f"{dataset_dir}: synthetic evaluation needs a template dataset")
     table = dataset.load_split(split)
     shapes = []
     for i in range(min(limit, table["vertices"].shape[0])):
@@ -97,18 +140,78 @@ def synthetic_eval_shapes(dataset_dir: str | Path, limit: int, split: str = "tes
     return shapes
 
 
-def real_eval_shapes(paths: Iterable[Path], group: str, n_sources: int) -> list[EvalShape]:
-    """Real meshes with exact rows from ``n_sources`` farthest-point sources, at unit area."""
+def real_eval_shapes(
+    paths: Iterable[Path], group: str, n_sources: int, cache_dir: str | Path | None = None
+) -> list[EvalShape]:
+    """Real meshes with exact rows from ``n_sources`` farthest-point sources, at unit area.
+
+    With ``cache_dir``, the exact rows are stored there (``GROUP-NAME-SOURCES.npz``, keyed by
+    the mesh's content hash) and reused; keep the cache out of the repository (it holds
+    derived data of research-only meshes)."""
     from litege_core.io import load_shape
 
     shapes = []
     for path in paths:
         loaded = load_shape(path)
+        if loaded.faces is None:
+            raise InputError(f"{path}: real evaluation shapes are meshes, got a point cloud")
         vertices, _ = unit_area(loaded.vertices, loaded.faces)
         shape = Shape.from_arrays(vertices, loaded.faces)
         sources = farthest_point_sampling(vertices, n_sources)
-        gt = compute_distances(shape, sources, method="exact").distances
-        shapes.append(EvalShape(Path(path).stem, group, vertices, shape.faces, sources, gt))
+        gt = _cached_rows(shape, sources, cache_dir, f"{Path(path).parent.name}-{Path(path).stem}")
+        shapes.append(EvalShape(Path(path).stem, group, vertices, loaded.faces, sources, gt))
+    return shapes
+
+
+def _cached_rows(shape: Shape, sources: NDArray, cache_dir, name: str) -> NDArray:
+    if cache_dir is None:
+        return compute_distances(shape, sources, method="exact").distances
+    cache = Path(cache_dir) / f"{name}-{sources.size}.npz"
+    if cache.exists():
+        with np.load(cache) as stored:
+            if str(stored["hash"]) == shape.content_hash and np.array_equal(
+                stored["sources"], sources
+            ):
+                return stored["gt"]
+    gt = compute_distances(shape, sources, method="exact").distances
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(cache, hash=shape.content_hash, sources=sources, gt=gt)
+    return gt
+
+
+def generated_eval_shapes(
+    category: str,
+    n_shapes: int,
+    n_sources: int,
+    *,
+    seed_offset: int = HELD_OUT_SEED_OFFSET,
+    cache_dir: str | Path | None = None,
+) -> list[EvalShape]:
+    """Held-out procedural shapes generated on the fly (no dataset needed): shape ``k`` is
+    family ``families[k % F]`` with seed ``seed_offset + k`` (the test split's seeds, never
+    trained on), at unit area, with exact rows from ``n_sources`` farthest-point sources."""
+    from litege_core import synth
+
+    families = synth.families(category)
+    faces = np.asarray(synth.template(category).faces)
+    shapes = []
+    for k in range(n_shapes):
+        family, seed = families[k % len(families)], seed_offset + k
+        generated = synth.generate_shape(category, family, seed)
+        vertices, _ = unit_area(np.asarray(generated.vertices, np.float64), faces)
+        shape = Shape.from_arrays(vertices, faces)
+        sources = farthest_point_sampling(vertices, n_sources)
+        gt = _cached_rows(shape, sources, cache_dir, f"{category}-{family}-{seed}")
+        shapes.append(
+            EvalShape(
+                f"{family}-{seed}",
+                f"synthetic {category}s (held-out seeds)",
+                vertices,
+                faces,
+                sources,
+                gt,
+            )
+        )
     return shapes
 
 
@@ -138,11 +241,49 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
 Method = Callable[[EvalInput], NDArray]
 
 
-def litege_method(predictor) -> Method:
-    """LiteGE through a :class:`~litege_core.predictor.Predictor`."""
+def register_in_frame(
+    predictor, shape: Shape, candidates: str = "signs", *, margin: float = 0.0, seed: int = 0
+):
+    """Register ``shape`` in the frame :func:`~litege_core.learned.frame.select_frame` picks.
+
+    Stand-in for ``Predictor.register`` with frame selection (until the predictor has it):
+    the chosen transform, descriptor and residual go into a
+    :class:`~litege_core.learned.state.ShapeRecord` that :meth:`Predictor.restore` embeds.
+    ``candidates="pca"`` gives exactly ``predictor.register(shape, seed=seed)``.
+
+    Returns:
+        ``(state, choice)``: the :class:`ShapeState` and the :class:`FrameChoice`.
+    """
+    from litege_core.arrays import frozen
+    from litege_core.learned.describe import shape_samples
+    from litege_core.learned.frame import select_frame
+    from litege_core.learned.state import ShapeRecord
+
+    points = shape_samples(shape, predictor.n_mesh_samples, seed)
+    choice = select_frame(
+        points, predictor.bundle.basis, predictor.device, candidates, margin=margin
+    )
+    record = ShapeRecord(
+        shape_id=shape.content_hash,
+        bundle_hash=predictor.bundle.content_hash,
+        transform=choice.transform,
+        descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
+        residual=choice.residual,
+        seed=int(seed),
+    )
+    return predictor.restore(shape, record), choice
+
+
+def litege_method(predictor, frame: str = "pca", margin: float = 0.0) -> Method:
+    """LiteGE through a :class:`~litege_core.learned.predictor.Predictor`; ``frame`` other
+    than ``"pca"`` selects the canonical frame among those candidates (see
+    :func:`register_in_frame`)."""
 
     def run(item: EvalInput) -> NDArray:
-        state = predictor.register(item.shape)
+        if frame == "pca":
+            state = predictor.register(item.shape)
+        else:
+            state, _ = register_in_frame(predictor, item.shape, frame, margin=margin)
         return predictor.distances(state, item.source_index)
 
     return run
@@ -155,8 +296,10 @@ def baseline_method(name: str, **options) -> Method:
     return run
 
 
-def methods_for(setting: str, predictor) -> dict[str, Method]:
+def methods_for(setting: str, predictor, frames: Sequence[str] = ()) -> dict[str, Method]:
     methods = {"LiteGE": litege_method(predictor)}
+    for frame in frames:
+        methods[f"LiteGE (frame: {frame})"] = litege_method(predictor, frame)
     if setting == "mesh":
         methods["heat (mesh)"] = baseline_method("heat")
     else:
@@ -178,16 +321,109 @@ class SettingResult:
 
 
 def evaluate(
-    shapes: Sequence[EvalShape], predictor, settings: Sequence[str] = SETTINGS, seed: int = 0
+    shapes: Sequence[EvalShape],
+    predictor,
+    settings: Sequence[str] = SETTINGS,
+    seed: int = 0,
+    frames: Sequence[str] = (),
 ) -> list[SettingResult]:
-    """Run every method on every (shape, setting); pooled errors per (group, setting, method)."""
+    """Run every method on every (shape, setting); pooled errors per (group, setting, method).
+
+    ``frames``: extra LiteGE rows with frame selection among these candidate sets
+    (:data:`~litege_core.learned.frame.FRAME_CANDIDATES`, ``"pca"`` excluded)."""
+    return evaluate_methods(
+        shapes, lambda setting: methods_for(setting, predictor, frames), settings, seed
+    )
+
+
+def results_table(results: Sequence[SettingResult]) -> str:
+    """Markdown table: error mean / median (GT mean 100), pairs, unreachable, seconds."""
+    lines = [
+        "| shapes | setting | method | mean error | median error | pairs | unreachable | time s |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r.group} | {r.setting} | {r.method} | {r.mean:.2f} | {r.median:.2f} | "
+            f"{r.n_pairs} | {100 * r.unreachable:.1f} % | {r.seconds:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- model comparison
+
+
+def collection_eval_shapes(
+    dataset_dir: str | Path,
+    split: str = "test",
+    limit: int | None = None,
+    group: str | None = None,
+) -> list[EvalShape]:
+    """Shapes of one split of a collection dataset (each its own triangulation, e.g. the
+    held-out files of ``litege train geodesic --meshes``) with their stored exact rows, at
+    unit area. ``group`` names them in the results (default: the dataset name and split)."""
+    from litege_core.datasets import GeodesicDataset, shape_mesh
+
+    dataset = GeodesicDataset(dataset_dir)
+    if not dataset.is_collection:
+        raise InputError(f"{dataset_dir} is a template dataset: use synthetic_eval_shapes")
+    table = dataset.load_split(split)
+    label = group or f"{dataset.spec.name} ({split})"
+    shapes = []
+    count = table["seed"].shape[0] if limit is None else min(limit, table["seed"].shape[0])
+    for i in range(count):
+        raw_vertices, faces = shape_mesh(table, i)
+        vertices, scale = unit_area(raw_vertices, faces)
+        family = dataset.spec.families[int(table["family"][i])]
+        shapes.append(
+            EvalShape(
+                name=f"{family}-{int(table['seed'][i])}",
+                group=label,
+                vertices=vertices,
+                faces=faces,
+                sources=table["sources"][i].astype(np.int64),
+                gt=table["distances"][i][:, : vertices.shape[0]].astype(np.float64) * scale,
+            )
+        )
+    return shapes
+
+
+HEAT = "heat"
+KNN = f"kNN Dijkstra (k={KNN_NEIGHBOURS})"
+
+
+def comparison_methods(
+    predictors: dict[str, object], baselines: bool = True
+) -> Callable[[str], dict[str, Method]]:
+    """``setting → {name: method}`` for :func:`evaluate_methods`: one LiteGE row per named
+    predictor and, with ``baselines``, the heat method (mesh heat on meshes, point-cloud heat on
+    clouds, one name: :data:`HEAT`) and kNN-graph Dijkstra (:data:`KNN`)."""
+
+    def methods(setting: str) -> dict[str, Method]:
+        found = {name: litege_method(predictor) for name, predictor in predictors.items()}
+        if baselines:
+            found[HEAT] = baseline_method("heat" if setting == "mesh" else "pointcloud_heat")
+            found[KNN] = baseline_method("knn_graph", k=KNN_NEIGHBOURS)
+        return found
+
+    return methods
+
+
+def evaluate_methods(
+    shapes: Sequence[EvalShape],
+    methods: Callable[[str], dict[str, Method]],
+    settings: Sequence[str] = SETTINGS,
+    seed: int = 0,
+) -> list[SettingResult]:
+    """:func:`evaluate` with any methods (e.g. :func:`comparison_methods`): pooled errors per
+    (group, setting, method) on the same inputs (``make_input(shape, setting, seed + i)``), so
+    results of separate calls with the same shapes, settings and seed are comparable."""
     results = []
-    groups = sorted({s.group for s in shapes})
-    for group in groups:
+    for group in sorted({s.group for s in shapes}):
         members = [s for s in shapes if s.group == group]
         for setting in settings:
             inputs = [make_input(s, setting, seed + i) for i, s in enumerate(members)]
-            for name, method in methods_for(setting, predictor).items():
+            for name, method in methods(setting).items():
                 start = time.perf_counter()
                 predicted, truth = [], []
                 for item in inputs:
@@ -219,15 +455,64 @@ def evaluate(
     return results
 
 
-def results_table(results: Sequence[SettingResult]) -> str:
-    """Markdown table: error mean / median (GT mean 100), pairs, unreachable, seconds."""
-    lines = [
-        "| shapes | setting | method | mean error | median error | pairs | unreachable | time s |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
-    ]
+def mean_by_method(results: Sequence[SettingResult]) -> dict[str, float]:
+    """The mean error of each method averaged over its (group, setting) rows."""
+    by_method: dict[str, list[float]] = {}
     for r in results:
-        lines.append(
-            f"| {r.group} | {r.setting} | {r.method} | {r.mean:.2f} | {r.median:.2f} | "
-            f"{r.n_pairs} | {100 * r.unreachable:.1f} % | {r.seconds:.1f} |"
-        )
+        by_method.setdefault(r.method, []).append(r.mean)
+    return {name: float(np.mean(values)) for name, values in by_method.items()}
+
+
+def comparison_table(results: Sequence[SettingResult], methods: Sequence[str] = ()) -> str:
+    """Markdown table, one row per (group, setting) and one column per method: mean error
+    (median in parentheses), GT mean = 100, then a row of the means over the settings.
+    ``methods`` orders the columns (default: first appearance)."""
+    order = list(methods) or list(dict.fromkeys(r.method for r in results))
+    cells = {(r.group, r.setting, r.method): r for r in results}
+    rows = list(dict.fromkeys((r.group, r.setting) for r in results))
+    lines = [
+        "| shapes | setting | " + " | ".join(order) + " |",
+        "|---|---|" + "---:|" * len(order),
+    ]
+    for group, setting in rows:
+        values = []
+        for name in order:
+            r = cells.get((group, setting, name))
+            values.append("–" if r is None else f"{r.mean:.2f} ({r.median:.2f})")
+        lines.append(f"| {group} | {setting} | " + " | ".join(values) + " |")
+    means = mean_by_method(results)
+    average = " | ".join(f"**{means[name]:.2f}**" if name in means else "–" for name in order)
+    lines.append("| all | mean over settings | " + average + " |")
     return "\n".join(lines)
+
+
+__all__ = [
+    "HEAT",
+    "HELD_OUT_SEED_OFFSET",
+    "KNN",
+    "KNN_NEIGHBOURS",
+    "REAL_SETS",
+    "SETTINGS",
+    "EvalInput",
+    "EvalShape",
+    "Method",
+    "RealSet",
+    "SettingResult",
+    "baseline_method",
+    "collection_eval_shapes",
+    "comparison_methods",
+    "comparison_table",
+    "evaluate",
+    "evaluate_methods",
+    "generated_eval_shapes",
+    "litege_method",
+    "make_input",
+    "mean_by_method",
+    "methods_for",
+    "real_eval_shapes",
+    "real_shape_paths",
+    "register_in_frame",
+    "results_table",
+    "synthetic_eval_shapes",
+    "unit_area",
+]

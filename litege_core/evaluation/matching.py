@@ -19,8 +19,15 @@ Protocol (reference-spec §5.4 and §7.3, pair sets in :mod:`litege_core.evaluat
 Methods:
 
 * ``litege``: :meth:`MatchingModel.prepare` both shapes, :meth:`MatchingModel.match` the queries.
+  Ablation rows (issue 15) are :class:`LiteGEVariant` objects, named ``litege[TOKENS]``:
+  ``tnet`` / ``judged`` (the frames of ``prepare``; default ``auto``), ``mirror-vote``
+  (``match(side="network")``: also match on Y's mirror image and keep the lower mean predicted
+  distance), ``zoomout`` (``match(refine="zoomout")``, meshes only) and ``zoomout-hybrid``
+  (``match(refine="zoomout-hybrid")``); each mesh's spectrum (and heat solver) is computed in
+  ``prepare``, so its time counts like the preparation's.
 * ``nn``: the same :meth:`MatchingModel.prepare` (``prepared.aligned``: the model's own alignment
-  into the unit-area frame), then the nearest Y point of each query (a KD-tree). Its time
+  into the unit-area frame), then the nearest Y point of each query (a KD-tree); one row per
+  frames mode of the LiteGE variants (``nn[tnet]``, ``nn[judged]``; ``nn`` for ``auto``). Its time
   includes the whole ``prepare`` (descriptor and NN cache too, which NN alone would not need);
   LiteGE's also includes the per-point network features (memoized per shape).
 * ``zoomout``: functional maps with ``pyFM`` (PyPI ``pyfmaps``, extra ``litege[eval]``): unit-area
@@ -40,7 +47,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -104,52 +111,132 @@ class Timed:
     seconds: float
 
 
-class MatchMethod:
+class MatchMethod(Protocol):
     """A matching method: ``prepare`` each shape once, then ``match`` queries of X on Y.
 
-    ``prep_key`` names the preparation; methods with the same key share prepared shapes (and
-    their measured time).
+    ``name`` labels the method in results; ``prep_key`` names the preparation: methods with the
+    same key share prepared shapes (and their measured time).
     """
 
-    name = ""
-    prep_key = ""
+    name: str
+    prep_key: str
 
     def prepare(self, shape: Shape) -> Any:
-        raise NotImplementedError
+        """The per-shape preparation (timed once per ``prep_key`` and shape)."""
+        ...
 
     def match(self, x: Any, y: Any, queries: NDArray) -> NDArray:
-        raise NotImplementedError
+        """``(Q,)`` int64 indices into Y of the matches of X's ``queries``."""
+        ...
 
 
-class LiteGEMethod(MatchMethod):
-    name = "litege"
+VARIANT_FRAMES = ("auto", "tnet", "judged")
+VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid")
 
-    def __init__(self, model, seed: int = 0) -> None:
+
+@dataclass(frozen=True)
+class LiteGEVariant:
+    """One LiteGE row of the ablation (issue 15).
+
+    Attributes:
+        frames: ``prepare(frames=…)``: ``auto``, ``tnet`` or ``judged``.
+        side: ``match(side=…)``: ``frame``, or ``network`` (token ``mirror-vote``).
+        refine: ``match(refine=…)``: ``none``, ``zoomout`` or ``zoomout-hybrid`` (meshes only).
+    """
+
+    frames: str = "auto"
+    side: str = "frame"
+    refine: str = "none"
+
+    @classmethod
+    def parse(cls, text: str) -> LiteGEVariant:
+        """``"judged+zoomout"``-style text: one frames token (default ``auto``), optionally
+        ``mirror-vote`` and one of ``zoomout``, ``zoomout-hybrid``, joined by ``+``."""
+        from litege_core.errors import InputError
+
+        tokens = [t.strip() for t in text.split("+") if t.strip()]
+        frames = [t for t in tokens if t in VARIANT_FRAMES]
+        refine = [t for t in tokens if t.startswith("zoomout")]
+        unknown = [t for t in tokens if t not in VARIANT_FRAMES + VARIANT_OPTIONS]
+        if unknown or len(frames) > 1 or len(refine) > 1:
+            raise InputError(
+                f"bad LiteGE variant {text!r}: one of {list(VARIANT_FRAMES)} and any of "
+                f"{list(VARIANT_OPTIONS)}, joined by '+'"
+            )
+        return cls(
+            frames=frames[0] if frames else "auto",
+            side="network" if "mirror-vote" in tokens else "frame",
+            refine=refine[0] if refine else "none",
+        )
+
+    @property
+    def tokens(self) -> list[str]:
+        out = [] if self.frames == "auto" else [self.frames]
+        if self.side == "network":
+            out.append("mirror-vote")
+        if self.refine != "none":
+            out.append(self.refine)
+        return out
+
+    @property
+    def name(self) -> str:
+        """``litege`` for the default, else ``litege[tokens]``."""
+        return f"litege[{'+'.join(self.tokens)}]" if self.tokens else "litege"
+
+
+def method_label(name: str) -> str:
+    """Table label of a method name (``litege[judged+zoomout]`` → ``LiteGE [judged+zoomout]``)."""
+    if name in METHOD_LABELS:
+        return METHOD_LABELS[name]
+    base, _, rest = name.partition("[")
+    if rest and base in METHOD_LABELS:
+        return f"{METHOD_LABELS[base]} [{rest.rstrip(']')}]"
+    return name
+
+
+class LiteGEMethod:
+    """:meth:`MatchingModel.prepare` both shapes, :meth:`MatchingModel.match` the queries, with
+    the options of a :class:`LiteGEVariant`. A refined variant computes each mesh's spectrum in
+    ``prepare`` (memoized per shape, so its time is charged like the preparation's)."""
+
+    def __init__(self, model, seed: int = 0, variant: LiteGEVariant | None = None) -> None:
         self.model = model
         self.seed = seed
-        self.prep_key = f"litege:{model.content_hash}:{seed}"
+        self.variant = variant or LiteGEVariant()
+        self.name = self.variant.name
+        refined = "" if self.variant.refine == "none" else f":{self.variant.refine}"
+        self.prep_key = f"litege:{model.content_hash}:{seed}:{self.variant.frames}{refined}"
 
     def prepare(self, shape: Shape):
-        prepared = self.model.prepare(shape, seed=self.seed)
+        prepared = self.model.prepare(shape, seed=self.seed, frames=self.variant.frames)
         self.model.features(prepared)  # memoized per shape: charge it to the preparation
+        if self.variant.refine != "none" and prepared.faces is not None:
+            from litege_core.matching.refine import ZoomOutSettings as RefineSettings
+            from litege_core.matching.refine import heat_engine, spectrum
+
+            spectrum(prepared, RefineSettings())
+            if self.variant.refine == "zoomout-hybrid":
+                heat_engine(prepared).prepare()
         return prepared
 
     def match(self, x, y, queries: NDArray) -> NDArray:
-        return self.model.match(x, y, queries).indices
+        return self.model.match(
+            x, y, queries, side=self.variant.side, refine=self.variant.refine
+        ).indices
 
 
-class NearestNeighbourMethod(MatchMethod):
+class NearestNeighbourMethod:
     """Nearest Y point of each query in the model's aligned unit-area frame."""
 
-    name = "nn"
-
-    def __init__(self, model, seed: int = 0) -> None:
+    def __init__(self, model, seed: int = 0, frames: str = "auto") -> None:
         self.model = model
         self.seed = seed
-        self.prep_key = f"nn:{model.content_hash}:{seed}"
+        self.frames = frames
+        self.name = "nn" if frames == "auto" else f"nn[{frames}]"
+        self.prep_key = f"nn:{model.content_hash}:{seed}:{frames}"
 
     def prepare(self, shape: Shape):
-        return self.model.prepare(shape, seed=self.seed)
+        return self.model.prepare(shape, seed=self.seed, frames=self.frames)
 
     def match(self, x, y, queries: NDArray) -> NDArray:
         tree = cKDTree(np.asarray(y.aligned, dtype=np.float64))
@@ -187,7 +274,7 @@ def _import_pyfm():
     return TriMesh, FunctionalMapping
 
 
-class ZoomOutMethod(MatchMethod):
+class ZoomOutMethod:
     """Functional maps + ZoomOut with pyFM (needs ``pyfmaps``)."""
 
     name = "zoomout"
@@ -209,9 +296,7 @@ class ZoomOutMethod(MatchMethod):
             None if shape.faces is None else np.asarray(shape.faces),
             normalize=shape.is_mesh,
         )
-        robust = (
-            not shape.is_mesh or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
-        )
+        robust = shape.faces is None or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
         mesh.process(k=s.n_eigen, robust=robust)
         if not shape.is_mesh:  # unit area as the point-cloud Laplacian's mass measures it
             mesh.scale(1.0 / np.sqrt(float(mesh.A.sum())))
@@ -389,7 +474,7 @@ def results_table(results: Sequence[SettingResult], header: str | None = None) -
         "|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in results:
-        label = METHOD_LABELS.get(r.method, r.method)
+        label = method_label(r.method)
         auc = f"{_fmt(r.auc, 1)} @{auc_threshold(r.setting):g}" if np.isfinite(r.auc) else "—"
         seconds = _fmt(r.seconds_per_pair, 3 if r.seconds_per_pair < 1 else 2)
         lines.append(
@@ -453,12 +538,19 @@ class ModelChooser:
         )
 
 
-def build_methods(model, baselines: Sequence[str], seed: int) -> list[MatchMethod]:
+def build_methods(
+    model,
+    baselines: Sequence[str],
+    seed: int,
+    variants: Sequence[LiteGEVariant] = (LiteGEVariant(),),
+) -> list[MatchMethod]:
+    """LiteGE (one method per variant), NN (one per frames mode of the variants), ZoomOut."""
     methods: list[MatchMethod] = []
     if model is not None:
-        methods.append(LiteGEMethod(model, seed))
+        methods += [LiteGEMethod(model, seed, v) for v in variants]
         if "nn" in baselines:
-            methods.append(NearestNeighbourMethod(model, seed))
+            modes = dict.fromkeys(v.frames for v in variants)
+            methods += [NearestNeighbourMethod(model, seed, mode) for mode in modes]
     if "zoomout" in baselines:
         methods.append(ZoomOutMethod())
     return methods
@@ -478,8 +570,12 @@ def run_matching_evaluation(
     rotate_input: bool = True,
     workers: int = 1,
     log: Callable[[str], None] | None = None,
+    variants: Sequence[str | LiteGEVariant] = ("auto",),
 ) -> list[SettingResult]:
-    """Every requested synthetic setting and real set, every method; see the module doc."""
+    """Every requested synthetic setting and real set, every method; see the module doc.
+
+    ``variants``: the LiteGE rows (:meth:`LiteGEVariant.parse` text or variants); a refined
+    variant is not run on point-cloud settings (a row with a note says so)."""
     from litege_core.errors import InputError, LiteGEError
     from litege_core.evaluation import matching_data as data
 
@@ -492,14 +588,22 @@ def run_matching_evaluation(
     chooser = ModelChooser(model, device)
     results: list[SettingResult] = []
 
+    parsed = [v if isinstance(v, LiteGEVariant) else LiteGEVariant.parse(v) for v in variants]
+    if not parsed:
+        raise InputError("give at least one LiteGE variant")
+
     def run_set(setting: str, pairs: list[MatchPair], category: str) -> None:
         chosen, reason = chooser.for_category(category)
         notes = {}
+        meshes = all(p.x.shape.is_mesh and p.y.shape.is_mesh for p in pairs)
+        kept = [v for v in parsed if meshes or v.refine == "none"]
         if chosen is None:
-            notes = {"litege": reason}
+            notes = {v.name: reason for v in parsed}
             if "nn" in baselines:
                 notes["nn"] = f"{reason} (NN uses its alignment)"
-        methods = build_methods(chosen, baselines, seed)
+        else:
+            notes = {v.name: "refinement needs meshes" for v in parsed if v not in kept}
+        methods = build_methods(chosen, baselines, seed, kept)
         say(f"{setting}: {len(pairs)} pairs, methods {[m.name for m in methods]}")
         results.extend(evaluate_pairs(setting, pairs, methods, notes, log=say))
 
@@ -508,6 +612,7 @@ def run_matching_evaluation(
     if settings:
         pool = data.SyntheticPool(category, n_pairs, n_queries, seed, rotate_input, workers)
     for setting in settings:
+        assert pool is not None  # made above whenever there are settings
         try:
             pairs = pool.pairs(setting)
         except MissingDependencyError as exc:
@@ -530,3 +635,37 @@ def run_matching_evaluation(
             continue
         run_set(name, pairs, data.REAL_CATEGORY[name])
     return results
+
+
+__all__ = [
+    "CATEGORY_NOUN",
+    "FLIP_MARGIN",
+    "FLIP_RATIO",
+    "METHODS",
+    "METHOD_LABELS",
+    "N_THRESHOLDS",
+    "ROBUST_BOUNDARY",
+    "SHIPPED_FOR_CATEGORY",
+    "VARIANT_FRAMES",
+    "VARIANT_OPTIONS",
+    "LiteGEMethod",
+    "LiteGEVariant",
+    "MatchMethod",
+    "ModelChooser",
+    "NearestNeighbourMethod",
+    "SettingResult",
+    "Timed",
+    "ZoomOutMethod",
+    "ZoomOutSettings",
+    "auc_threshold",
+    "auc_x100",
+    "build_methods",
+    "evaluate_pairs",
+    "flips",
+    "load_matching_model",
+    "machine_header",
+    "mean_error_x100",
+    "method_label",
+    "results_table",
+    "run_matching_evaluation",
+]

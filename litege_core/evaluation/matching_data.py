@@ -36,7 +36,7 @@ Remeshed and point-cloud variants are measured on the intact (template-topology)
 were made from, on which every variant point has a known location: one surface for every
 setting, and exact rows on a ≈4K-vertex mesh cost a fraction of those on a 10K remesh. The
 ground-truth points are inserted into the intact mesh as vertices
-(:func:`~litege_core.geodesics.insert_surface_points`), exact rows are computed from them, and
+(:func:`~litege_core.engines.insert_surface_points`), exact rows are computed from them, and
 the distance to any other variant point interpolates the rows at the point's triangle. Where
 that value is below ``NEAR_FIELD_EDGES`` mean edge lengths (the source's own neighbourhood,
 where linear interpolation of a distance cone overestimates) the Euclidean distance is used
@@ -48,7 +48,12 @@ average (0.025 on the ×100 scale) and 0.013 at worst (measured on 500- and 8000
 
 * ``tosca``: TOSCA ``tosca_5k`` poses within one animal class; ``corres/NAME.vts`` maps row
   ``k`` to a vertex (1-based) of every shape of the class; anchors are ``Q`` random rows.
-  Mirrored ground truth from ``NAME.sym.vts`` where present (flip rate "—" otherwise).
+  Mirrored ground truth from ``NAME.sym.vts`` where present; otherwise *derived* from the
+  class's rest pose ``CLASS0`` (:func:`derived_mirror_rows`: TOSCA's rest poses are mirror
+  symmetric across the plane ``x = mean x`` of their file frame to within 0.2 mean edge
+  lengths; row ``k``'s mirror is the row whose rest-pose vertex is nearest to the reflection
+  of row ``k``'s), carried to every pose of the class by ``corres``. No mirror (flip rate "—")
+  when the rest pose is missing or not symmetric within ``SYMMETRY_TOLERANCE`` edges.
 * ``tosca-landmarks``: the original high-resolution TOSCA ``cat0``, ``dog0``, ``horse0``,
   ``wolf0`` with 21 landmarks of the same meaning in every class (cross-species, non-isometric);
   the mirrored landmark comes from ``CLASS.sym.info`` (pairs swapped, the rest self-symmetric).
@@ -62,6 +67,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import permutations
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,6 +76,9 @@ from scipy.spatial import cKDTree
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 from litege_core.validate import triangle_areas
+
+if TYPE_CHECKING:
+    from litege_core.engines import GeodesicEngine
 from litege_core.variants import SurfaceLocation, random_rotation, rotate
 
 SYNTHETIC_SETTINGS = ("template", "remesh5k", "aniso10k", "broken40", "cloud8k", "cloud500")
@@ -78,6 +87,9 @@ REAL_SETS = ("tosca", "tosca-landmarks", "faust")
 #: Category of the shapes of each real set (which matching model answers them).
 REAL_CATEGORY = {"tosca": "quadruped", "tosca-landmarks": "quadruped", "faust": "biped"}
 NEAR_FIELD_EDGES = 3.0
+SYMMETRY_TOLERANCE = 0.5
+"""Mean distance (in mean edge lengths) between a rest pose's reflected vertices and the pose
+above which :func:`derived_mirror_rows` declines to derive a mirror map."""
 BROKEN_FRACTION = 0.4
 TOSCA_CLASSES = ("cat", "dog", "horse", "wolf")
 _SETTING_CODE = {name: i for i, name in enumerate((*SYNTHETIC_SETTINGS, *REAL_SETS))}
@@ -100,7 +112,7 @@ class ExactRows:
         self.faces = np.asarray(faces, dtype=np.int64)
         self.scale = unit_area_scale(self.vertices, self.faces)
         self.workers = workers
-        self._engine = None
+        self._engine: GeodesicEngine | None = None
         self._memo: dict[int, NDArray] = {}
 
     def __call__(self, sources: NDArray) -> NDArray:
@@ -108,7 +120,7 @@ class ExactRows:
         missing = np.unique([s for s in sources.tolist() if s not in self._memo])
         if missing.size:
             if self._engine is None:
-                from litege_core.geodesics import make_engine
+                from litege_core.engines import make_engine
 
                 mesh = Shape.from_arrays(self.vertices, self.faces)
                 self._engine = make_engine(mesh, "exact", n_workers=self.workers)
@@ -139,7 +151,7 @@ class SurfacePointRows:
         self._memo: dict[int, NDArray] = {}
 
     def __call__(self, sources: NDArray) -> NDArray:
-        from litege_core.geodesics import insert_surface_points, make_engine
+        from litege_core.engines import insert_surface_points, make_engine
 
         sources = np.asarray(sources, dtype=np.int64)
         missing = np.unique([s for s in sources.tolist() if s not in self._memo])
@@ -436,11 +448,43 @@ def _load_real(path: Path, seed: int, code: int, index: int, rotate_input: bool,
     from litege_core.io import load_shape
 
     loaded = load_shape(path)
+    if loaded.faces is None:
+        raise InputError(f"{path}: the real evaluation sets are meshes, got a point cloud")
     rows = ExactRows(loaded.vertices, loaded.faces, workers)
     vertices = loaded.vertices
     if rotate_input:
         vertices = rotate(vertices, random_rotation(_rng(seed, code, index, 1)))
     return Shape.from_arrays(vertices, loaded.faces), rows
+
+
+def derived_mirror_rows(
+    vertices: NDArray, faces: NDArray, rows: NDArray, tolerance: float = SYMMETRY_TOLERANCE
+) -> NDArray | None:
+    """Mirror of each row of a dense correspondence, from a mirror-symmetric rest pose.
+
+    Args:
+        vertices, faces: the rest pose in its file frame (symmetric across ``x = mean x``).
+        rows: ``(K,)`` rest-pose vertex of each correspondence row.
+        tolerance: largest accepted mean asymmetry, in mean edge lengths.
+
+    Returns:
+        ``(K,)`` the mirrored row of each row, or ``None`` when the pose is not symmetric.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    edge = float(np.linalg.norm(vertices[faces] - vertices[np.roll(faces, 1, 1)], axis=2).mean())
+    centre = vertices[:, 0].mean()
+
+    def reflect(points: NDArray) -> NDArray:
+        out = points.copy()
+        out[:, 0] = 2.0 * centre - out[:, 0]
+        return out
+
+    asymmetry = cKDTree(vertices).query(reflect(vertices))[0].mean() / edge
+    if not asymmetry <= tolerance:
+        return None
+    points = vertices[np.asarray(rows, dtype=np.int64)]
+    return cKDTree(points).query(reflect(points))[1].astype(np.int64)
 
 
 def _dense_pairs(
@@ -453,8 +497,12 @@ def _dense_pairs(
     rotate_input: bool,
     workers: int,
     category: str,
+    rest: dict[str, str] | None = None,
 ) -> list[MatchPair]:
-    """Ordered pairs within each group of a folder with dense ``corres/NAME.vts`` maps."""
+    """Ordered pairs within each group of a folder with dense ``corres/NAME.vts`` maps.
+
+    ``rest`` names each group's rest pose, from which a mirror map is derived for members
+    without a ``NAME.sym.vts`` (:func:`derived_mirror_rows`)."""
     code = _SETTING_CODE[setting]
     candidates = [
         (a, b) for members in groups.values() for a, b in permutations(sorted(members), 2)
@@ -468,13 +516,36 @@ def _dense_pairs(
     maps = {n: read_vts(folder / "corres" / f"{n}.vts") for n in names}
     n_rows = min(m.size for m in maps.values())
     ids = np.sort(rng.choice(n_rows, size=min(n_queries, n_rows), replace=False))
+    group_of = {n: g for g, members in groups.items() for n in members}
+    derived: dict[str, NDArray | None] = {}
     shapes = {}
     for index, name in enumerate(names):
         shape, rows = _load_real(folder / f"{name}.off", seed, code, index, rotate_input, workers)
         sym_path = folder / "corres" / f"{name}.sym.vts"
         mirror = read_vts(sym_path)[:n_rows] if sym_path.exists() else None
+        group = group_of[name]
+        if mirror is None and rest and group in rest:
+            if group not in derived:
+                derived[group] = _group_mirror(folder, rest[group], n_rows)
+            row_mirror = derived[group]
+            if row_mirror is not None:
+                mirror = maps[name][:n_rows][row_mirror]
         shapes[name] = EvalShape(name, shape, maps[name][:n_rows], rows, mirror, category)
     return [_anchor_pair(setting, shapes[a], shapes[b], ids) for a, b in pairs]
+
+
+def _group_mirror(folder: Path, rest_name: str, n_rows: int) -> NDArray | None:
+    """Row mirror of a group from its rest pose's file (``None`` when absent or asymmetric)."""
+    from litege_core.io import load_shape
+
+    path, corres = folder / f"{rest_name}.off", folder / "corres" / f"{rest_name}.vts"
+    if not (path.exists() and corres.exists()):
+        return None
+    loaded = load_shape(path)
+    rows = read_vts(corres)[:n_rows]
+    if rows.size < n_rows or loaded.faces is None:
+        return None
+    return derived_mirror_rows(loaded.vertices, loaded.faces, rows)
 
 
 def tosca_pairs(
@@ -486,8 +557,9 @@ def tosca_pairs(
     for path in sorted(folder.glob("*.off")):
         if (folder / "corres" / f"{path.stem}.vts").exists():
             groups.setdefault(re.sub(r"\d+$", "", path.stem), []).append(path.stem)
+    rest = {group: f"{group}0" for group in groups}
     return _dense_pairs(
-        "tosca", folder, groups, n_pairs, n_queries, seed, rotate_input, workers, "quadruped"
+        "tosca", folder, groups, n_pairs, n_queries, seed, rotate_input, workers, "quadruped", rest
     )
 
 
@@ -569,3 +641,34 @@ def eval_data_pairs(
     if name == "faust":
         return faust_pairs(root, n_pairs, n_queries, seed, rotate_input, workers)
     return tosca_landmark_pairs(root, n_pairs, seed, rotate_input, workers)
+
+
+__all__ = [
+    "BROKEN_FRACTION",
+    "NEAR_FIELD_EDGES",
+    "REAL_CATEGORY",
+    "REAL_SETS",
+    "REMESH_SETTINGS",
+    "SYMMETRY_TOLERANCE",
+    "SYNTHETIC_SETTINGS",
+    "TOSCA_CLASSES",
+    "EvalShape",
+    "ExactRows",
+    "MatchPair",
+    "SurfacePointRows",
+    "SyntheticPool",
+    "derived_mirror_rows",
+    "eval_data_pairs",
+    "faust_pairs",
+    "match_errors",
+    "read_pid",
+    "read_sym_info",
+    "read_vts",
+    "synthetic_pairs",
+    "synthetic_pool",
+    "synthetic_shape",
+    "template_anchors",
+    "tosca_landmark_pairs",
+    "tosca_pairs",
+    "unit_area_scale",
+]

@@ -9,8 +9,10 @@
     BUNDLE/tnet.safetensors      T-Net weights
     BUNDLE/matching-K.safetensors   matching network K (several = an ensemble, outputs averaged)
 
-Loading verifies every file hash and that the networks fit the basis, as for geodesic bundles.
-Shipped matching bundles live in ``litege_core/models/NAME-matching/``.
+Loading verifies every file hash and that the networks fit the basis, as for geodesic bundles:
+both formats are a :class:`~litege_core.learned.bundle.Bundle`, written and opened by the same
+functions of :mod:`litege_core.learned.bundle`. Shipped matching bundles live in
+``litege_core/models/NAME-matching/``.
 """
 
 from __future__ import annotations
@@ -22,23 +24,26 @@ from typing import Any
 
 import torch
 
-from litege_core.bundle import (
-    SHIPPED_DIR,
-    descriptor_summary,
-    narrowed_state,
-    read_verified_manifest,
-    write_manifest,
-)
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import ArtifactError, InputError
+from litege_core.learned.bundle import (
+    BASIS_FILE,
+    FORMAT_VERSION,
+    MANIFEST,
+    SHIPPED_DIR,
+    Bundle,
+    check_descriptor_width,
+    consistent_manifest,
+    load_weights,
+    open_bundle,
+    shipped_directories,
+    write_bundle,
+)
 from litege_core.matching.cache import DEFAULT_NEIGHBOURS, DEFAULT_TIER_SIZES
 from litege_core.matching.frame import MatchingPipeline
-from litege_core.nets import GeodesicNet, TNet, load_state
+from litege_core.nets import GeodesicNet, TNet
 
-FORMAT_VERSION = 1
 KIND = "matching"
-MANIFEST = "manifest.json"
-BASIS_FILE = "basis.safetensors"
 TNET_FILE = "tnet.safetensors"
 SUFFIX = "-matching"
 
@@ -67,7 +72,7 @@ class SearchSettings:
 
 
 @dataclass(frozen=True, eq=False)
-class MatchingBundle:
+class MatchingBundle(Bundle):
     """A loaded matching bundle (networks in eval mode on one device)."""
 
     name: str
@@ -80,16 +85,8 @@ class MatchingBundle:
     path: Path | None = None
 
     @property
-    def content_hash(self) -> str:
-        return str(self.manifest["content_hash"])
-
-    @property
-    def category(self) -> str:
-        return str(self.manifest.get("category", "unknown"))
-
-    @property
-    def device(self) -> torch.device:
-        return next(self.networks[0].parameters()).device
+    def modules(self) -> tuple[torch.nn.Module, ...]:
+        return (*self.networks, self.tnet)
 
 
 def save_matching_bundle(
@@ -108,25 +105,9 @@ def save_matching_bundle(
     weights_dtype: torch.dtype = torch.float32,
 ) -> dict[str, Any]:
     """Write a matching bundle; returns its manifest."""
-    from safetensors.torch import save_file
-
     pipeline = pipeline or MatchingPipeline()
     search = search or SearchSettings()
-    if not networks:
-        raise InputError("a matching bundle needs at least one network")
-    for net in networks:
-        if net.descriptor_dim != basis.n_components:
-            raise InputError(
-                f"network expects {net.descriptor_dim}-d descriptors, "
-                f"basis has {basis.n_components} components"
-            )
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    basis.save(directory / BASIS_FILE)
-    save_file(narrowed_state(tnet, weights_dtype), str(directory / TNET_FILE))
-    for k, net in enumerate(networks):
-        save_file(narrowed_state(net, weights_dtype), str(directory / network_file(k)))
-    names = [BASIS_FILE, TNET_FILE, *(network_file(k) for k in range(len(networks)))]
+    check_descriptor_width(networks, basis)
     core = {
         "format_version": FORMAT_VERSION,
         "kind": KIND,
@@ -137,20 +118,17 @@ def save_matching_bundle(
         "search": asdict(search),
         "tnet": tnet.config(),
         "networks": [net.config() for net in networks],
-        "descriptor": descriptor_summary(basis),
     }
-    return write_manifest(directory, core, names, training, metrics)
-
-
-def _load_state_file(module: torch.nn.Module, path: Path) -> None:
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
-    try:
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError) as exc:
-        raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
-    load_state(module, tensors)
+    weights = {TNET_FILE: tnet, **{network_file(k): net for k, net in enumerate(networks)}}
+    return write_bundle(
+        directory,
+        core,
+        basis,
+        weights,
+        weights_dtype=weights_dtype,
+        training=training,
+        metrics=metrics,
+    )
 
 
 def load_matching_bundle(
@@ -161,27 +139,16 @@ def load_matching_bundle(
     Raises:
         ArtifactError: missing or damaged files, hash mismatch, or inconsistent pieces.
     """
-    directory = Path(path)
-    manifest = read_verified_manifest(directory, "matching bundle")
-    if manifest.get("kind") != KIND or manifest.get("format_version") != FORMAT_VERSION:
-        raise ArtifactError(f"{directory} is not a matching bundle of format {FORMAT_VERSION}")
-    basis = UdfPcaBasis.load(directory / BASIS_FILE)
-    if basis.content_hash != manifest["descriptor"]["basis_hash"]:
-        raise ArtifactError("bundle basis differs from the one it was trained with")
-    try:
+    directory, manifest, basis = open_bundle(path, KIND, "matching bundle")
+    with consistent_manifest("matching bundle"):
         tnet = TNet.from_config(manifest["tnet"])
         networks = tuple(GeodesicNet.from_config(c) for c in manifest["networks"])
         pipeline = MatchingPipeline.from_dict(manifest["pipeline"])
         search = SearchSettings.from_dict(manifest["search"])
-    except (KeyError, TypeError, ValueError, InputError) as exc:
-        raise ArtifactError(f"matching bundle manifest is inconsistent: {exc}") from exc
-    if not networks or any(n.descriptor_dim != basis.n_components for n in networks):
-        raise ArtifactError("bundle networks and basis disagree on the descriptor size")
-    _load_state_file(tnet, directory / TNET_FILE)
+    check_descriptor_width(networks, basis, ArtifactError)
+    load_weights(tnet, directory / TNET_FILE, device)
     for k, net in enumerate(networks):
-        _load_state_file(net, directory / network_file(k))
-        net.to(device).eval()
-    tnet.to(device).eval()
+        load_weights(net, directory / network_file(k), device)
     return MatchingBundle(
         manifest["name"], basis, tnet, networks, pipeline, search, manifest, directory
     )
@@ -189,13 +156,11 @@ def load_matching_bundle(
 
 def shipped_matching_bundles() -> list[str]:
     """Names (without the ``-matching`` suffix) of the shipped matching bundles."""
-    if not SHIPPED_DIR.is_dir():
-        return []
-    return sorted(
-        p.name[: -len(SUFFIX)]
-        for p in SHIPPED_DIR.iterdir()
-        if p.name.endswith(SUFFIX) and (p / MANIFEST).exists()
-    )
+    return [
+        directory.name.removesuffix(SUFFIX)
+        for directory in shipped_directories(KIND)
+        if directory.name.endswith(SUFFIX)
+    ]
 
 
 def resolve_matching_bundle(name_or_path: str | os.PathLike) -> Path:
@@ -209,3 +174,20 @@ def resolve_matching_bundle(name_or_path: str | os.PathLike) -> Path:
     raise InputError(
         f"unknown matching model {text!r}; shipped matching models: {shipped_matching_bundles()}"
     )
+
+
+__all__ = [
+    "BASIS_FILE",
+    "FORMAT_VERSION",
+    "KIND",
+    "MANIFEST",
+    "SUFFIX",
+    "TNET_FILE",
+    "MatchingBundle",
+    "SearchSettings",
+    "load_matching_bundle",
+    "network_file",
+    "resolve_matching_bundle",
+    "save_matching_bundle",
+    "shipped_matching_bundles",
+]

@@ -9,6 +9,15 @@ Every shape is centred and scaled to unit-area units, then rotated by the T-Net:
 The T-Net sees at most ``n_tnet_points`` points of the scaled cloud (the authors feed 8000 at
 test time but trained on 2000, spec §1.6 🐞); its rotation ``R_pred`` right-multiplies the
 points, so the frame's :class:`~litege_core.canonical.Transform` has rotation ``R_predᵀ``.
+
+**Candidate frames** (issue 15, step 1). On real animals the T-Net's typical failure is a
+discrete one: the frame is right up to a half turn about a canonical axis (a long-tailed cat
+read tail-first, a crouching animal upside down). :func:`candidate_turns` lists the turns ``M``
+tried after the T-Net (``q' = M q`` in the canonical frame: the identity first, then the half
+turns about x, y and z); :func:`turned` applies one to a frame. Which one is kept is decided by
+:class:`~litege_core.matching.judge.FrameJudge` (the matching network itself, against canonical
+reference animals). Rotated copies of the input are *not* candidates: the shipped T-Net works
+in the cloud's PCA frame, which turns with the input, so they would all give one answer.
 """
 
 from __future__ import annotations
@@ -34,6 +43,20 @@ from litege_core.shape import Shape
 
 Scaling = Literal["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"]
 SCALINGS: tuple[str, ...] = ("auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500")
+
+FrameMode = Literal["auto", "tnet", "judged"]
+FRAME_MODES: tuple[str, ...] = ("auto", "tnet", "judged")
+"""``tnet``: the T-Net's frame as is (the reference); ``judged``: the T-Net's frame and its half
+turns about the canonical axes, the one the matching network finds most like the canonical
+reference animals kept (:class:`~litege_core.matching.judge.FrameJudge`); ``auto``: ``judged``
+when the model has reference animals (a procedural category), else ``tnet``."""
+
+TURN_NAMES: tuple[str, ...] = ("identity", "half-turn x", "half-turn y", "half-turn z")
+"""Names of the candidate turns of :func:`candidate_turns`, in order."""
+
+MIRROR = np.diag([-1.0, 1.0, 1.0])
+"""Reflection across the canonical sagittal plane (``x → −x``; x is the animal's left-right
+axis): maps an animal onto its mirror image, left and right swapped."""
 
 
 @dataclass(frozen=True)
@@ -115,6 +138,7 @@ def scale_frame(
         cloud (input units) the T-Net and the descriptor are computed from.
     """
     if scaling == "unit_area":
+        assert shape.faces is not None, "unit-area scaling is chosen for meshes only"
         rng = np.random.default_rng(seed)
         transform = canonicalize_unit_area(
             shape.vertices, shape.faces, pipeline.n_center_samples, rng
@@ -180,6 +204,26 @@ def align_shapes(
     return frames
 
 
+def candidate_turns(mode: str = "judged") -> NDArray:
+    """Turns ``M`` ``(K, 3, 3)`` tried after the T-Net, in the canonical frame (``q' = M q``).
+
+    ``tnet``: the identity alone; ``judged``: the identity, then the half turns about x, y and
+    z (:data:`TURN_NAMES`). All are proper rotations, so handedness never changes.
+    """
+    if mode not in ("tnet", "judged"):
+        raise InputError(f"candidate turns of 'tnet' or 'judged', got {mode!r}")
+    turns = [np.eye(3)]
+    if mode == "judged":
+        half_turns = ((1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))
+        turns += [np.diag(signs) for signs in half_turns]
+    return np.stack(turns)
+
+
+def turned(transform: Transform, turn: NDArray) -> Transform:
+    """``transform`` followed by the canonical-frame rotation ``turn`` (``q' = turn · q``)."""
+    return Transform(np.asarray(turn) @ transform.rotation, transform.center, transform.scale)
+
+
 def _orthonormal(matrix: NDArray) -> NDArray:
     """The nearest proper rotation (float32 Gram–Schmidt output drifts by ~1e-7)."""
     u, _, vt = np.linalg.svd(matrix)
@@ -190,3 +234,22 @@ def _orthonormal(matrix: NDArray) -> NDArray:
     if not math.isclose(abs(np.linalg.det(rotation)), 1.0, abs_tol=1e-6):
         raise InputError("the T-Net produced a degenerate rotation")
     return rotation
+
+
+__all__ = [
+    "FRAME_MODES",
+    "MIRROR",
+    "SCALINGS",
+    "TURN_NAMES",
+    "FrameMode",
+    "MatchingPipeline",
+    "Scaling",
+    "align_shapes",
+    "boundary_edge_fraction",
+    "candidate_turns",
+    "choose_scaling",
+    "scale_frame",
+    "subsample",
+    "tnet_rotations",
+    "turned",
+]

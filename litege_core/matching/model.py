@@ -4,13 +4,20 @@
 
 * :meth:`MatchingModel.prepare` puts a shape into the aligned unit-area frame (spec §1.3–1.6),
   computes its UDF-PCA descriptor and the multi-tier NN cache of its points (spec §5.2) →
-  :class:`MatchingShape` (small, pickle-free ``to_arrays`` for a cache);
+  :class:`MatchingShape` (small, pickle-free ``to_arrays`` for a cache). With
+  ``frames="judged"`` (the default for the procedural categories) the T-Net's frame competes
+  with its half turns about the canonical axes and the matching network picks the one most
+  like canonical reference animals (:mod:`litege_core.matching.judge`, issue 15 step 1);
 * :meth:`MatchingModel.match` finds, for query points of X, the point of Y minimizing the
   predicted cross-shape geodesic, coarse to fine over Y's cache, all queries at once
-  (spec §5.3, :func:`~litege_core.matching.search.coarse_to_fine_search`).
+  (spec §5.3, :func:`~litege_core.matching.search.coarse_to_fine_search`). Options:
+  ``side="network"`` also matches on Y's mirror image and keeps the side with the lower mean
+  predicted distance (issue 15 step 2; an ablation: the score cannot see a reflection, see
+  :meth:`MatchingModel.match`); ``refine="zoomout"`` refines the matches of two meshes with
+  ZoomOut started from LiteGE's map (:mod:`litege_core.matching.refine`, step 5).
 
 The network is ``head(f(x | z_X) − f(y | z_Y))`` with per-point features ``f`` (see
-:class:`~litege_core.predictor.FoldedGeodesicNet`), so features of every point of a shape are
+:class:`~litege_core.nets.FoldedGeodesicNet`), so features of every point of a shape are
 computed once per shape and a search step is the head alone on feature differences.
 """
 
@@ -28,11 +35,8 @@ from litege_core.arrays import frozen
 from litege_core.canonical import Transform
 from litege_core.device import resolve_device
 from litege_core.errors import (
-    ArrayShapeError,
     ArtifactError,
-    IndexOutOfRangeError,
     InputError,
-    NonFiniteError,
 )
 from litege_core.matching.bundle import (
     MatchingBundle,
@@ -41,15 +45,39 @@ from litege_core.matching.bundle import (
     resolve_matching_bundle,
 )
 from litege_core.matching.cache import NNCache
-from litege_core.matching.frame import MatchingPipeline, align_shapes
+from litege_core.matching.frame import (
+    FRAME_MODES,
+    MIRROR,
+    TURN_NAMES,
+    MatchingPipeline,
+    align_shapes,
+    candidate_turns,
+    turned,
+)
+from litege_core.matching.judge import DEFAULT_MARGIN, FrameJudge, choose
+from litege_core.matching.refine import (
+    REFINE_METHODS,
+    ZoomOutSettings,
+    heat_engine,
+    hybrid_refine,
+    spectrum,
+    zoomout_refine,
+)
 from litege_core.matching.search import (
     ScoreFn,
     coarse_to_fine_search,
     exhaustive_search,
     max_evaluations,
 )
-from litege_core.predictor import FoldedGeodesicNet
+from litege_core.nets import FoldedGeodesicNet
+from litege_core.projection import CloudProjector, MeshProjector, Projector, snap
+from litege_core.query import QueryLike, check_points, parse_indices, parse_query
 from litege_core.shape import Shape
+
+SIDES: tuple[str, ...] = ("frame", "network")
+"""``side`` values of :meth:`MatchingModel.match`: ``frame`` — the frames decide left and right
+(proper rotations keep each shape's handedness); ``network`` — match on Y and on its mirror image
+and keep the lower mean predicted distance."""
 
 MAX_PAIRS_PER_CALL = 16_384
 """(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
@@ -80,6 +108,10 @@ class MatchingShape:
         residual: PCA reconstruction residual of the descriptor (out-of-distribution signal).
         cache: the multi-tier NN cache of ``aligned``.
         seed: seed of every random draw of the preparation.
+        faces: ``(F, 3)`` int64 triangles of a mesh (read-only; xyz queries are snapped onto
+            them), ``None`` for point clouds.
+        frame: how the frame was chosen: ``"tnet"`` (the T-Net's frame), ``"tnet+half-turn y"``
+            (the judge turned it), ``"mirror"`` (an internal mirror-image twin).
     """
 
     shape_id: str
@@ -92,6 +124,8 @@ class MatchingShape:
     residual: float
     cache: NNCache
     seed: int
+    faces: NDArray | None = field(default=None, repr=False)
+    frame: str = "tnet"
     _lazy: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -106,8 +140,26 @@ class MatchingShape:
     def nbytes(self) -> int:
         """Bytes of the arrays and of any computed feature tables."""
         own = sum(a.nbytes for a in self.to_arrays().values())
-        lazy = sum(t.element_size() * t.nelement() for t in self._lazy.values())
+        lazy = sum(
+            t.element_size() * t.nelement()
+            for t in self._lazy.values()
+            if isinstance(t, torch.Tensor)
+        )
         return int(own + lazy)
+
+    @property
+    def projector(self) -> Projector:
+        """Surface projector in the aligned frame (built on first use): where xyz queries are
+        snapped, by the rule of :func:`litege_core.projection.snap`."""
+        projector = self._lazy.get("projector")
+        if projector is None:
+            points = np.asarray(self.aligned, dtype=np.float64)
+            if self.faces is not None:
+                projector = MeshProjector(points, self.faces)
+            else:
+                projector = CloudProjector(points)
+            self._lazy["projector"] = projector
+        return projector
 
     def to_arrays(self) -> dict[str, NDArray]:
         """Plain numpy arrays, no pickle (the NN cache's arrays are prefixed ``cache.``)."""
@@ -123,7 +175,10 @@ class MatchingShape:
             "descriptor": np.asarray(self.descriptor, dtype=np.float32),
             "residual": np.array([self.residual], dtype=np.float64),
             "seed": np.array([self.seed], dtype=np.int64),
+            "frame": _text(self.frame),
         }
+        if self.faces is not None:
+            arrays["faces"] = np.asarray(self.faces, dtype=np.int64)
         arrays.update({f"cache.{k}": v for k, v in self.cache.to_arrays().items()})
         return arrays
 
@@ -153,6 +208,8 @@ class MatchingShape:
                 residual=float(arrays["residual"].reshape(-1)[0]),
                 cache=cache,
                 seed=int(arrays["seed"].reshape(-1)[0]),
+                faces=_optional_faces(arrays.get("faces"), aligned.shape[0]),
+                frame=_untext(arrays["frame"]) if "frame" in arrays else "tnet",
             )
         except (KeyError, IndexError, ValueError, TypeError, UnicodeDecodeError) as exc:
             raise ArtifactError(f"malformed matching shape: {exc}") from exc
@@ -167,6 +224,16 @@ class MatchingShape:
         return prepared
 
 
+def _optional_faces(faces: ArrayLike | None, n_points: int) -> NDArray | None:
+    """Stored faces of a prepared mesh (absent for clouds and for older entries)."""
+    if faces is None:
+        return None
+    array = np.asarray(faces, dtype=np.int64)
+    if array.ndim != 2 or array.shape[1] != 3 or array.min() < 0 or array.max() >= n_points:
+        raise ArtifactError("malformed matching shape: faces must index the points")
+    return frozen(array)
+
+
 @dataclass(frozen=True)
 class MatchResult:
     """Matches of ``N`` queries of X on Y.
@@ -175,11 +242,15 @@ class MatchResult:
         indices: ``(N,)`` int64 matched points of Y (Y's input indexing).
         distance: ``(N,)`` float32 predicted cross-shape geodesic at the match (unit-area units).
         evaluations: network pair evaluations used.
+        refinement: how the matches were refined: ``"none"``, ``"zoomout"``, or for
+            ``zoomout-hybrid`` the start of the kept map, ``"zoomout:litege"`` or
+            ``"zoomout:descriptors"``.
     """
 
     indices: NDArray
     distance: NDArray
     evaluations: int
+    refinement: str = "none"
 
 
 class MatchingModel:
@@ -198,6 +269,7 @@ class MatchingModel:
         bundle.tnet.to(self.device).eval()
         self._folded = [FoldedGeodesicNet(net, self.device) for net in bundle.networks]
         self._engine = bundle.basis.engine(self.device)
+        self._judge: FrameJudge | None = None
 
     @classmethod
     def load(
@@ -241,22 +313,82 @@ class MatchingModel:
         nets = len(self.bundle.networks)
         return f"MatchingModel({self.name!r}, networks={nets}, device={self.device})"
 
+    @property
+    def frame_judge(self) -> FrameJudge | None:
+        """The judge of candidate frames (reference animals of the model's category), or
+        ``None`` for a category without procedural reference animals."""
+        if self._judge is None:
+            from litege_core.synth import CATEGORIES
+
+            if self.category not in CATEGORIES:
+                return None
+            self._judge = FrameJudge(
+                self._folded,
+                list(self.bundle.networks),
+                self.bundle.basis,
+                self.category,
+                self.device,
+            )
+        return self._judge
+
+    @frame_judge.setter
+    def frame_judge(self, judge: FrameJudge | None) -> None:
+        self._judge = judge
+
+    def resolve_frames(self, frames: str) -> str:
+        """``auto`` → ``judged`` when the model has a frame judge, else ``tnet``.
+
+        Raises:
+            InputError: an unknown mode, or ``judged`` without a judge.
+        """
+        if frames not in FRAME_MODES:
+            raise InputError(f"frames must be one of {list(FRAME_MODES)}, got {frames!r}")
+        has_judge = self.frame_judge is not None
+        if frames == "auto":
+            return "judged" if has_judge else "tnet"
+        if frames == "judged" and not has_judge:
+            raise InputError(
+                f"frames='judged' needs reference animals; none for category {self.category!r}"
+            )
+        return frames
+
     # ------------------------------------------------------------------ preparation
 
-    def prepare(self, shape: Shape, *, seed: int = 0, scaling: str = "auto") -> MatchingShape:
+    def prepare(
+        self,
+        shape: Shape,
+        *,
+        seed: int = 0,
+        scaling: str = "auto",
+        frames: str = "auto",
+        frame_margin: float = DEFAULT_MARGIN,
+    ) -> MatchingShape:
         """Prepare one shape (see :meth:`prepare_many`)."""
-        return self.prepare_many([shape], seed=seed, scaling=scaling)[0]
+        return self.prepare_many(
+            [shape], seed=seed, scaling=scaling, frames=frames, frame_margin=frame_margin
+        )[0]
 
     def prepare_many(
-        self, shapes: list[Shape], *, seed: int = 0, scaling: str = "auto"
+        self,
+        shapes: list[Shape],
+        *,
+        seed: int = 0,
+        scaling: str = "auto",
+        frames: str = "auto",
+        frame_margin: float = DEFAULT_MARGIN,
     ) -> list[MatchingShape]:
         """Align, describe and cache several shapes (one T-Net call per point count, one
-        descriptor call).
+        judge call, one descriptor call).
 
         Args:
             shapes: meshes or point clouds (validated :class:`Shape` objects).
             seed: seed of the surface samples and Poisson subsets.
             scaling: ``"auto"`` or a fixed scaling (see :mod:`litege_core.matching.frame`).
+            frames: ``"tnet"`` (the T-Net's frame), ``"judged"`` (the T-Net's frame or one of
+                its half turns, chosen by :attr:`frame_judge`) or ``"auto"`` (``judged`` when
+                the model has a judge).
+            frame_margin: a half turn replaces the T-Net's frame only when its judge score
+                is lower by more than this fraction.
         """
         shapes = list(shapes)
         for i, shape in enumerate(shapes):
@@ -264,17 +396,23 @@ class MatchingModel:
                 raise InputError(f"shapes[{i}] is a {type(shape).__name__}, not a Shape")
         if not shapes:
             return []
-        frames = align_shapes(
+        mode = self.resolve_frames(frames)
+        aligned_frames = align_shapes(
             shapes, self.bundle.tnet, self.pipeline, scaling=scaling, seed=int(seed)
         )
+        names = ["tnet"] * len(shapes)
+        if mode == "judged":
+            aligned_frames, names = self._judged_frames(shapes, aligned_frames, frame_margin)
         described = self._engine.describe_with_residual(
-            [cloud.astype(np.float32) for _, cloud, _ in frames]
+            [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
         descriptors = described.descriptors.detach().cpu().numpy().astype(np.float32)
         residuals = described.residual.detach().cpu().numpy().astype(np.float64)
         search = self.search
         prepared = []
-        for b, (shape, (transform, _, chosen)) in enumerate(zip(shapes, frames, strict=True)):
+        for b, (shape, (transform, cloud, chosen)) in enumerate(
+            zip(shapes, aligned_frames, strict=True)
+        ):
             aligned = transform.apply(shape.vertices)
             cache = NNCache.build(
                 aligned,
@@ -295,9 +433,33 @@ class MatchingModel:
                     residual=float(residuals[b]),
                     cache=cache,
                     seed=int(seed),
+                    faces=shape.faces,
+                    frame=names[b],
+                    _lazy={"cloud": frozen(cloud, np.float32)},
                 )
             )
         return prepared
+
+    def _judged_frames(
+        self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]], margin: float
+    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
+        """The T-Net frames or their half turns, whichever the judge scores best."""
+        judge = self.frame_judge
+        assert judge is not None
+        turns = candidate_turns("judged")
+        clouds, points = [], []
+        for shape, (transform, cloud, _) in zip(shapes, frames, strict=True):
+            base = judge.target_points(transform.apply(shape.vertices))
+            clouds += [cloud @ turn.T for turn in turns]
+            points += [base @ turn.T for turn in turns]
+        scores = judge.scores(clouds, points).reshape(len(shapes), len(turns))
+        out, names = [], []
+        for (transform, cloud, chosen), row in zip(frames, scores, strict=True):
+            best = choose(row, margin)
+            turn = turns[best]
+            out.append((turned(transform, turn), cloud @ turn.T, chosen))
+            names.append("tnet" if best == 0 else f"tnet+{TURN_NAMES[best]}")
+        return out, names
 
     # ------------------------------------------------------------------ features
 
@@ -340,60 +502,83 @@ class MatchingModel:
             prepared._lazy[key] = cached
         return list(cached)
 
-    def _query_features(
-        self,
-        source: MatchingShape,
-        queries: ArrayLike | None,
-        query_points: ArrayLike | None,
-    ) -> list[torch.Tensor]:
-        if queries is not None and query_points is not None:
-            raise InputError("give queries (indices) or query_points, not both")
-        if query_points is not None:
-            pts = np.asarray(query_points, dtype=np.float64)
-            if pts.ndim != 2 or pts.shape[1] != 3:
-                raise ArrayShapeError(f"query_points must have shape (N, 3), got {pts.shape}")
-            if not np.isfinite(pts).all():
-                raise NonFiniteError("query_points contain NaN or infinite coordinates")
-            aligned = torch.from_numpy(source.transform.apply(pts).astype(np.float32))
-            return self._point_features(aligned.to(self.device), self._biases(source))
-        table = self.features(source)
-        if queries is None:
-            return table
-        rows = check_indices(queries, source.n_points, "queries")
+    def _query_features(self, source: MatchingShape, queries: QueryLike) -> list[torch.Tensor]:
+        """Head features (one table per network) of the query points of ``source``: every
+        point, indices, or xyz points in X's input units snapped onto X's surface."""
+        query = parse_query(queries, "queries").check(source.n_points, "queries")
+        if query.points is not None:
+            snapped = snap(source.projector, source.transform.apply(query.points))
+            if snapped.indices is None:
+                aligned = torch.from_numpy(snapped.points.astype(np.float32)).to(self.device)
+                return self._point_features(aligned, self._biases(source))
+            rows = snapped.indices
+        elif query.indices is not None:
+            rows = query.indices
+        else:
+            return self.features(source)
         index = torch.from_numpy(rows).to(self.device)
-        return [t.index_select(0, index) for t in table]
+        return [t.index_select(0, index) for t in self.features(source)]
 
     # ------------------------------------------------------------------ matching
 
     def _score_fn(self, query: list[torch.Tensor], target: list[torch.Tensor]) -> ScoreFn:
         return ensemble_score_fn(self._folded, query, target)
 
-    @torch.no_grad()
-    def match(
+    def _query_vertex_rows(self, source: MatchingShape, queries: QueryLike) -> NDArray:
+        """``(N,)`` vertex rows of X for the queries (an xyz query snapped inside a triangle
+        takes the nearest vertex of the snapped point): what a vertex-to-vertex refinement
+        maps."""
+        query = parse_query(queries, "queries").check(source.n_points, "queries")
+        if query.points is not None:
+            snapped = snap(source.projector, source.transform.apply(query.points))
+            if snapped.indices is not None:
+                return np.asarray(snapped.indices, dtype=np.int64)
+            from scipy.spatial import cKDTree
+
+            tree = cKDTree(np.asarray(source.aligned, dtype=np.float64))
+            return tree.query(snapped.points)[1].astype(np.int64)
+        if query.indices is not None:
+            return np.asarray(query.indices, dtype=np.int64)
+        return np.arange(source.n_points, dtype=np.int64)
+
+    def mirrored(self, prepared: MatchingShape) -> MatchingShape:
+        """The mirror image of a prepared shape (``x → −x`` in its aligned frame): its own
+        descriptor, the same NN cache (a reflection keeps every neighbourhood) and the same
+        point indexing; memoized on ``prepared``. Used as a matching target only."""
+        self._check(prepared, "shape")
+        cached = prepared._lazy.get("mirror")
+        if cached is None:
+            cloud = prepared._lazy.get("cloud")
+            if cloud is None:  # restored from a cache: the aligned points stand in for it
+                cloud = np.asarray(prepared.aligned, dtype=np.float32)
+            described = self._engine.describe_with_residual(
+                [np.asarray(cloud, dtype=np.float32) @ MIRROR.T.astype(np.float32)]
+            )
+            cached = MatchingShape(
+                shape_id=prepared.shape_id,
+                bundle_hash=prepared.bundle_hash,
+                kind=prepared.kind,
+                scaling=prepared.scaling,
+                transform=prepared.transform,
+                aligned=frozen(np.asarray(prepared.aligned) @ MIRROR.T, np.float32),
+                descriptor=frozen(described.descriptors[0].cpu().numpy(), np.float32),
+                residual=float(described.residual[0]),
+                cache=prepared.cache,
+                seed=prepared.seed,
+                faces=prepared.faces,
+                frame="mirror",
+            )
+            prepared._lazy["mirror"] = cached
+        return cached
+
+    def _search(
         self,
-        source: MatchingShape,
+        query: list[torch.Tensor],
         target: MatchingShape,
-        queries: ArrayLike | None = None,
-        *,
-        query_points: ArrayLike | None = None,
-        beams: int | None = None,
-        exhaustive: bool = False,
-    ) -> MatchResult:
-        """Match query points of ``source`` (X) on ``target`` (Y).
-
-        Args:
-            source, target: prepared shapes (same model).
-            queries: ``(N,)`` point indices of X; with neither this nor ``query_points``,
-                every point of X.
-            query_points: ``(N, 3)`` points in X's input units instead of indices.
-            beams: candidates kept per coarse tier (default: the bundle's search setting).
-            exhaustive: score every point of Y (the slow reference of the search).
-
-        Raises:
-            IndexOutOfRangeError, ArrayShapeError, NonFiniteError: bad queries.
-        """
-        self._check(target, "target")
-        query = self._query_features(source, queries, query_points)
+        beams: int | None,
+        exhaustive: bool,
+    ) -> tuple[NDArray, NDArray, int]:
+        """``(indices (N,) int64, network values (N,), evaluations)`` on ``target``."""
         n_queries = int(query[0].shape[0])
         score = self._score_fn(query, self.features(target))
         if exhaustive:
@@ -412,11 +597,109 @@ class MatchingModel:
                 max_pairs=MAX_PAIRS_PER_CALL,
             )
             evaluations = n_queries * max_evaluations(target.cache, width)
-        distance = value.float().cpu().numpy() / self.pipeline.target_scale
+        return (
+            found.cpu().numpy().astype(np.int64),
+            value.float().cpu().numpy(),
+            int(evaluations),
+        )
+
+    @torch.no_grad()
+    def match(
+        self,
+        source: MatchingShape,
+        target: MatchingShape,
+        queries: QueryLike = None,
+        *,
+        query_points: ArrayLike | None = None,
+        beams: int | None = None,
+        exhaustive: bool = False,
+        side: str = "frame",
+        refine: str = "none",
+        zoomout: ZoomOutSettings | None = None,
+    ) -> MatchResult:
+        """Match query points of ``source`` (X) on ``target`` (Y).
+
+        Args:
+            source, target: prepared shapes (same model).
+            queries: anything :func:`litege_core.query.parse_query` takes: ``(N,)`` point
+                indices of X, ``(N, 3)`` xyz points in X's input units (snapped onto X's
+                surface, :func:`litege_core.projection.snap`), or ``None`` / ``"all"`` for
+                every point of X.
+            query_points: ``(N, 3)`` xyz points, the same as passing them as ``queries``.
+            beams: candidates kept per coarse tier (default: the bundle's search setting).
+            exhaustive: score every point of Y (the slow reference of the search).
+            side: ``"frame"`` (default): the frames decide left and right; ``"network"``:
+                also match on Y's mirror image (:meth:`mirrored`) and keep the side whose
+                matches have the lower mean predicted distance (twice the search). Measured
+                as an ablation (``litege eval matching``): on bilaterally symmetric animals
+                both sides score alike, so this does not find the side.
+            refine: ``"none"``; ``"zoomout"``: refine the matches of two meshes with ZoomOut
+                started from LiteGE's map; ``"zoomout-hybrid"``: that, or ZoomOut started from
+                a wave-kernel-signature map, whichever preserves geodesic distances better
+                (:mod:`litege_core.matching.refine`; needs pyFM; seconds per pair).
+                ``distance`` is then the network's prediction at the refined match.
+            zoomout: settings of the refinement (default :class:`ZoomOutSettings`).
+
+        Raises:
+            IndexOutOfRangeError, ArrayShapeError, NonFiniteError: bad queries.
+            InputError: unknown ``side`` or ``refine``, ``refine="zoomout"`` with a cloud.
+            MissingDependencyError: ``refine="zoomout"`` without pyFM.
+        """
+        self._check(target, "target")
+        if side not in SIDES:
+            raise InputError(f"side must be one of {list(SIDES)}, got {side!r}")
+        if refine not in REFINE_METHODS:
+            raise InputError(f"refine must be one of {list(REFINE_METHODS)}, got {refine!r}")
+        if refine != "none" and (source.faces is None or target.faces is None):
+            raise InputError(f"refine={refine!r} needs two meshes; got a point cloud")
+        if query_points is not None:
+            if queries is not None:
+                raise InputError("give queries or query_points, not both")
+            queries = check_points(query_points, "query_points")
+        query = self._query_features(source, queries)
+        found, value, evaluations = self._search(query, target, beams, exhaustive)
+        chosen = target
+        if side == "network":
+            mirror = self.mirrored(target)
+            found_m, value_m, extra = self._search(query, mirror, beams, exhaustive)
+            evaluations += extra
+            if float(value_m.mean()) < float(value.mean()):
+                found, value, chosen = found_m, value_m, mirror
+        refinement = "none"
+        if refine != "none":
+            settings = zoomout or ZoomOutSettings()
+            source_spectrum = spectrum(source, settings)
+            target_spectrum = spectrum(target, settings)
+            seed_rows = torch.from_numpy(source_spectrum.samples).to(self.device)
+            seed_query = [t.index_select(0, seed_rows) for t in self.features(source)]
+            seed_map, _, extra = self._search(seed_query, chosen, beams, exhaustive)
+            rows = self._query_vertex_rows(source, queries)
+            if refine == "zoomout":
+                found = zoomout_refine(seed_map, source_spectrum, target_spectrum, rows, settings)
+                refinement = "zoomout"
+            else:
+                hybrid = hybrid_refine(
+                    seed_map,
+                    source_spectrum,
+                    target_spectrum,
+                    rows,
+                    settings,
+                    heat_engine(source),
+                    heat_engine(target),
+                    np.asarray(source.aligned, dtype=np.float64),
+                )
+                found, refinement = hybrid.indices, f"zoomout:{hybrid.seed}"
+            cols = torch.from_numpy(found).to(self.device)
+            score = self._score_fn(query, self.features(chosen))
+            index = torch.arange(cols.shape[0], device=self.device)
+            value = score(index, cols[:, None])[:, 0].float().cpu().numpy()
+            evaluations += extra + int(cols.shape[0])
+        distance = value / self.pipeline.target_scale
         return MatchResult(
-            indices=found.cpu().numpy().astype(np.int64),
+            indices=found,
             distance=distance.astype(np.float32),
             evaluations=int(evaluations),
+            refinement=refinement,
         )
 
     @torch.no_grad()
@@ -430,8 +713,8 @@ class MatchingModel:
         """Predicted cross-shape geodesics ``(N, M)`` (unit-area units) between query points
         of X and candidate points of Y (the matrix the search minimizes over)."""
         self._check(target, "target")
-        query = self._query_features(source, queries, None)
-        cols = check_indices(candidates, target.n_points, "candidates")
+        query = self._query_features(source, parse_query(queries, "queries", allow_all=False))
+        cols = parse_indices(candidates, target.n_points, "candidates")
         rows = torch.arange(query[0].shape[0], device=self.device)
         cand = torch.from_numpy(cols).to(self.device).expand(rows.shape[0], cols.size)
         out = self._score_fn(query, self.features(target))(rows, cand)
@@ -453,32 +736,21 @@ def ensemble_score_fn(
 
     def score(rows: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
         m, c = cand.shape
-        total = None
+        total: torch.Tensor | None = None
         for net, q, t in zip(networks, query, target, strict=True):
             diff = q.index_select(0, rows)[:, None, :] - t[cand]
             out = net.head(diff.reshape(m * c, -1), inplace=True).reshape(m, c)
             total = out if total is None else total + out
+        assert total is not None  # an ensemble has at least one network
         return total * scale
 
     return score
 
 
-def check_indices(values: ArrayLike, n_points: int, what: str) -> NDArray:
-    """``values`` as a non-empty ``(N,)`` int64 array of indices in ``[0, n_points)``."""
-    array = np.asarray(values)
-    if array.ndim != 1 or array.size == 0:
-        raise ArrayShapeError(f"{what} must be a non-empty 1-d list of indices")
-    integral = np.issubdtype(array.dtype, np.integer) or (
-        np.issubdtype(array.dtype, np.floating)
-        and np.isfinite(array).all()
-        and np.all(array == np.round(array))
-    )
-    if not integral:
-        raise InputError(f"{what} must be integers")
-    array = array.astype(np.int64)
-    bad = (array < 0) | (array >= n_points)
-    if bad.any():
-        raise IndexOutOfRangeError(
-            f"{what}[{int(np.argmax(bad))}] = {int(array[bad][0])} is outside [0, {n_points})"
-        )
-    return array
+__all__ = [
+    "MAX_PAIRS_PER_CALL",
+    "MatchResult",
+    "MatchingModel",
+    "MatchingShape",
+    "ensemble_score_fn",
+]

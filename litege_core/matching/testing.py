@@ -71,3 +71,11 @@ def save_tiny_matching_bundle(directory: str | Path, seed: int = 0, name: str = 
         pipeline=bundle.pipeline,
         search=bundle.search,
     )
+
+
+__all__ = [
+    "TINY_COMPONENTS",
+    "TINY_WIDTH",
+    "save_tiny_matching_bundle",
+    "tiny_matching_bundle",
+]

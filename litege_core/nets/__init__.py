@@ -7,9 +7,12 @@
   place where the legacy factor 1.42 is applied.
 * :class:`TNet`, :func:`tnet_loss`, :func:`rotation_from_6d`, :func:`rotation_angle`,
   :func:`rotate_points`, :func:`align_points` — orientation for the matching pipeline.
+* :class:`FoldedGeodesicNet`, :class:`FoldedShapeMlp` — the trained network folded into affine
+  maps for inference.
 * :func:`state_to_tensors` / :func:`load_state` — weights as flat tensor dicts (for bundles).
 """
 
+from litege_core.nets.folded import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.geodesic import (
     MATCHING_DESCRIPTOR_DIM,
     MATCHING_WIDTH,
@@ -41,6 +44,8 @@ __all__ = [
     "REGRESSION_DESCRIPTOR_DIM",
     "REGRESSION_WIDTH",
     "TARGET_SCALE",
+    "FoldedGeodesicNet",
+    "FoldedShapeMlp",
     "GeodesicNet",
     "OutputKind",
     "TNet",

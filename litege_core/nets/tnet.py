@@ -202,7 +202,9 @@ class TNet(nn.Module):
 
     @property
     def _reference(self) -> torch.Tensor:
-        return self.fc[-1].weight
+        last = self.fc[-1]
+        assert isinstance(last, nn.Linear)
+        return last.weight
 
     def _point_features(self, points: torch.Tensor) -> torch.Tensor:
         """``(B, N, 3)`` → ``(B, C)`` max-pooled per-point features.
@@ -212,7 +214,7 @@ class TNet(nn.Module):
         """
         batch, n_points, _ = points.shape
         rows = points.reshape(batch * n_points, 3)
-        layers = list(self.point_mlp)
+        layers: list[Any] = list(self.point_mlp)  # (conv, norm, activation) triples
         for conv, norm, act in zip(layers[0::3], layers[1::3], layers[2::3], strict=True):
             rows = act(norm(functional.linear(rows, conv.weight.squeeze(-1), conv.bias)))
         return rows.reshape(batch, n_points, -1).amax(dim=1)

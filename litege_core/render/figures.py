@@ -9,7 +9,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from PIL import Image, ImageDraw, ImageFont
+
+from litege_core.errors import MissingDependencyError
+
+try:
+    from PIL import Image, ImageDraw, ImageFont
+except ImportError as exc:
+    raise MissingDependencyError(
+        "PNG figures need Pillow: pip install 'litege[render]'", module="PIL"
+    ) from exc
 
 from litege_core.render.colormap import isoline_mask, nice_step, nice_ticks, viridis
 from litege_core.render.raster import (
@@ -77,6 +85,7 @@ def render_surface(
     camera: Camera | None = None,
     ssaa: int = 2,
     background: tuple[float, float, float] = BACKGROUND,
+    up_axis: int | None = None,
 ) -> Image.Image:
     """A shaded rendering of a mesh (``faces`` given) or point cloud.
 
@@ -91,10 +100,12 @@ def render_surface(
             :data:`~litege_core.render.raster.VIEWS` or a direction towards the viewer;
             ``camera``: an explicit camera of that size (overrides ``view``).
         ssaa: supersampling factor (anti-aliasing).
+        up_axis: the shape's up axis (0 = x, 1 = y, 2 = z) the named views turn with;
+            default :func:`~litege_core.render.raster.detect_up_axis` (y-up and z-up files).
     """
     points = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     ssaa = max(int(ssaa), 1)
-    base_camera = camera or fit_camera(points, size, view)
+    base_camera = camera or fit_camera(points, size, view, up_axis=up_axis)
     cam = base_camera.scaled(ssaa)
     if faces is not None:
         tris = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -102,6 +113,7 @@ def render_surface(
         normals = frags.interpolate(vertex_normals(points, tris), fill=0.0)
     else:
         frags = rasterize_points(cam, points, _point_radius(cam, points))
+        assert frags.normals is not None  # point splats always carry normals
         normals = frags.normals
     mask = frags.mask
     diagonal = float(np.linalg.norm(np.ptp(points, axis=0))) or 1.0
@@ -219,9 +231,10 @@ def heatmap_figure(
     size: tuple[int, int] = (640, 480),
     view: str | ArrayLike = "three_quarter",
     ssaa: int = 2,
+    up_axis: int | None = None,
 ) -> Image.Image:
     """Geodesic distance heatmap with isolines, optional source marker and path, and a
-    colour bar labelled with ``units``."""
+    colour bar labelled with ``units``; ``up_axis`` as in :func:`render_surface`."""
     values = np.asarray(distances, dtype=np.float64).reshape(-1)
     finite = values[np.isfinite(values)]
     vmin = 0.0
@@ -247,6 +260,7 @@ def heatmap_figure(
         size=size,
         view=view,
         ssaa=ssaa,
+        up_axis=up_axis,
     )
     bar = colorbar(surface.height, vmin, vmax, f"distance ({units})", isoline_step=step, width=130)
     figure = side_by_side([surface, bar], gap=0)
@@ -268,10 +282,16 @@ def match_figure(
     size: tuple[int, int] = (480, 400),
     view: str | ArrayLike = "three_quarter",
     ssaa: int = 2,
+    up_axis: int | None = None,
 ) -> Image.Image:
-    """Two shapes side by side, each with its per-vertex colours (colour transfer)."""
-    left = render_surface(x_vertices, x_faces, colors=x_colors, size=size, view=view, ssaa=ssaa)
-    right = render_surface(y_vertices, y_faces, colors=y_colors, size=size, view=view, ssaa=ssaa)
+    """Two shapes side by side, each with its per-vertex colours (colour transfer); each
+    shape's up axis is detected on its own unless ``up_axis`` is given."""
+    left = render_surface(
+        x_vertices, x_faces, colors=x_colors, size=size, view=view, ssaa=ssaa, up_axis=up_axis
+    )
+    right = render_surface(
+        y_vertices, y_faces, colors=y_colors, size=size, view=view, ssaa=ssaa, up_axis=up_axis
+    )
     figure = side_by_side([titled(left, x_title), titled(right, y_title)], gap=12)
     return titled(figure, title, subtitle) if title else figure
 
@@ -285,3 +305,20 @@ def parse_size(text: str) -> tuple[int, int]:
     if not (16 <= width <= 8192 and 16 <= height <= 8192):
         raise ValueError(f"size must be between 16 and 8192 pixels a side, got {text!r}")
     return width, height
+
+
+__all__ = [
+    "BACKGROUND",
+    "NEUTRAL",
+    "PATH_COLOR",
+    "TEXT",
+    "Overlay",
+    "colorbar",
+    "font",
+    "heatmap_figure",
+    "match_figure",
+    "parse_size",
+    "render_surface",
+    "side_by_side",
+    "titled",
+]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from litege_core.synth.implicit import Blend, Ellipsoid, RoundCone, blend
+from litege_core.synth.implicit import Blend, Ellipsoid, RoundCone, as_vec3s, blend
 from litege_core.synth.skeleton import Skeleton, SkeletonBuilder
 
 Vec = tuple[float, float, float]
@@ -74,8 +74,7 @@ def _rotation_to(axis: np.ndarray) -> tuple[tuple[float, float, float], ...]:
     b = np.cross(helper, a)
     b /= np.linalg.norm(b)
     c = np.cross(a, b)
-    m = np.stack([a, b, c], axis=1)
-    return tuple(tuple(float(v) for v in row) for row in m)
+    return as_vec3s(np.stack([a, b, c], axis=1))
 
 
 def _arm() -> Blend:
@@ -134,3 +133,26 @@ def body() -> Blend:
     )
     arm, leg = _arm(), _leg()
     return blend([trunk, blend([neck], 0.0), head, arm, _mirror(arm), leg, _mirror(leg)], 0.05)
+
+
+__all__ = [
+    "ANKLE",
+    "ARM_DROP",
+    "COLLAR",
+    "ELBOW",
+    "FOOT",
+    "HAND",
+    "HAND_TIP",
+    "HEAD",
+    "HEAD_TIP",
+    "HIP",
+    "KNEE",
+    "NECK",
+    "SHOULDER",
+    "SPINE",
+    "TOE",
+    "WRIST",
+    "Vec",
+    "body",
+    "skeleton",
+]

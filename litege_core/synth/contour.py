@@ -23,10 +23,10 @@ def _kuhn_tetrahedra() -> list[list[tuple[int, int, int]]]:
     tets = []
     for perm in _PERMUTATIONS:
         corner = [0, 0, 0]
-        path = [tuple(corner)]
+        path = [(0, 0, 0)]
         for axis in perm:
             corner[axis] = 1
-            path.append(tuple(corner))
+            path.append((corner[0], corner[1], corner[2]))
         tets.append(path)
     return tets
 
@@ -164,3 +164,9 @@ def cut_positive_half(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArr
     on_cut = np.zeros(len(all_points), dtype=bool)
     on_cut[n:] = True
     return all_points[used], remap[new_faces], on_cut[used]
+
+
+__all__ = [
+    "cut_positive_half",
+    "marching_tetrahedra",
+]

@@ -185,3 +185,16 @@ def generate_shape(
         params=params,
         joints=joints,
     )
+
+
+__all__ = [
+    "BACKOFF",
+    "MODE_WEIGHTS",
+    "GeneratedShape",
+    "apply_pose",
+    "families",
+    "generate_shape",
+    "pose_modes",
+    "shape_rest",
+    "symmetry_map",
+]

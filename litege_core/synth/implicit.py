@@ -93,7 +93,7 @@ class Ellipsoid:
         """The same ellipsoid reflected through the plane ``x = 0``."""
         m = np.diag([-1.0, 1.0, 1.0]) @ np.asarray(self.axes, dtype=np.float64)
         m[:, 0] *= -1.0  # keep a proper rotation: flip the first local axis back
-        return Ellipsoid(_mirror(self.center), self.radii, tag, _as_tuple(m))
+        return Ellipsoid(_mirror(self.center), self.radii, tag, as_vec3s(m))
 
 
 Primitive = RoundCone | Ellipsoid
@@ -168,5 +168,20 @@ def _mirror(p: tuple[float, float, float]) -> tuple[float, float, float]:
     return (-p[0], p[1], p[2])
 
 
-def _as_tuple(m: NDArray) -> tuple[tuple[float, float, float], ...]:
-    return tuple(tuple(float(v) for v in row) for row in m)
+def as_vec3s(m: NDArray) -> tuple[tuple[float, float, float], ...]:
+    """The rows of an ``(N, 3)`` array as tuples of Python floats (frames, centres)."""
+    return tuple((float(row[0]), float(row[1]), float(row[2])) for row in m)
+
+
+__all__ = [
+    "Blend",
+    "Ellipsoid",
+    "Primitive",
+    "RoundCone",
+    "as_vec3s",
+    "blend",
+    "dominant_tags",
+    "field_gradient",
+    "project_to_surface",
+    "smooth_min",
+]

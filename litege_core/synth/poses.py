@@ -259,3 +259,21 @@ def sample_pose(
         value = offsets[j] + noise[j] * scale
         anatomical[j] = np.clip(value, np.minimum(lo, offsets[j]), np.maximum(hi, offsets[j]))
     return Pose(mode, to_rotation_vectors(category, skeleton, anatomical), np.zeros(3))
+
+
+__all__ = [
+    "BIPED_LIMITS",
+    "BIPED_MODES",
+    "LIMITS",
+    "MODES",
+    "NOISE_STD",
+    "QUADRUPED_LIMITS",
+    "QUADRUPED_MODES",
+    "Limits",
+    "Pose",
+    "joint_frames",
+    "mode_offsets",
+    "posture_offsets",
+    "sample_pose",
+    "to_rotation_vectors",
+]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from litege_core.synth.implicit import Blend, Ellipsoid, RoundCone, blend
+from litege_core.synth.implicit import Blend, Ellipsoid, RoundCone, as_vec3s, blend
 from litege_core.synth.skeleton import Skeleton, SkeletonBuilder
 
 Vec = tuple[float, float, float]
@@ -90,7 +90,7 @@ def _leg(points: tuple[Vec, ...], toe: Vec, radii: tuple[float, ...], tag: str) 
     center = 0.5 * (paw + tip) + np.array([0.0, 0.01, 0.0])
     parts.append(
         Ellipsoid(
-            tuple(center.tolist()),  # type: ignore[arg-type]
+            as_vec3s(center[None])[0],
             (radii[3] * 1.25, 0.04, 0.5 * float(np.linalg.norm(tip - paw)) + radii[3]),
             tag,
         )
@@ -110,10 +110,10 @@ def _ear() -> Ellipsoid:
     frame = np.stack([axis, across, thin], axis=1)
     center = base + 0.55 * length * axis
     return Ellipsoid(
-        tuple(center.tolist()),  # type: ignore[arg-type]
+        as_vec3s(center[None])[0],
         (0.6 * length, 0.062, 0.032),
         "ear_l",
-        tuple(tuple(float(v) for v in row) for row in frame),
+        as_vec3s(frame),
     )
 
 
@@ -162,3 +162,28 @@ def body() -> Blend:
     )
     legs = [front_l, _mirror_blend(front_l, "_r"), hind_l, _mirror_blend(hind_l, "_r")]
     return blend([trunk, blend([neck], 0.0), head_all, tail, *legs], 0.08)
+
+
+__all__ = [
+    "CHEST_TIP",
+    "CHIN",
+    "EAR",
+    "EAR_TIP",
+    "FRONT_LEG",
+    "FRONT_TOE",
+    "HEAD",
+    "HIND_LEG",
+    "HIND_TOE",
+    "HIP",
+    "JAW",
+    "MUZZLE",
+    "NECK",
+    "NOSE",
+    "SHOULDER",
+    "SPINE",
+    "TAIL_LENGTH",
+    "TAIL_SEGMENTS",
+    "Vec",
+    "body",
+    "skeleton",
+]

@@ -158,3 +158,16 @@ def _segment_hits_triangle(a: NDArray, b: NDArray, tri: NDArray, eps: float = 1e
     v = inv * np.einsum("ij,ij->i", d, q)
     t = inv * np.einsum("ij,ij->i", e2, q)
     return ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
+
+
+__all__ = [
+    "aspect_ratios",
+    "edges_with_counts",
+    "euler_characteristic",
+    "is_closed_manifold",
+    "mesh_report",
+    "self_intersections",
+    "self_intersects",
+    "triangle_angles",
+    "unit_area",
+]

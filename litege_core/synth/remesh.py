@@ -35,8 +35,8 @@ class _HalfMesh:
         self.n = len(vertices)
         self.faces: list[list[int] | None] = [list(f) for f in faces.tolist()]
         self.vf: list[set[int]] = [set() for _ in range(capacity)]
-        for fi, f in enumerate(self.faces):
-            for v in f:
+        for fi, face in enumerate(faces.tolist()):
+            for v in face:
                 self.vf[v].add(fi)
         self.bnd = np.zeros(capacity, dtype=bool)
         self.bnd[: len(vertices)] = boundary
@@ -113,9 +113,9 @@ class _HalfMesh:
             keep, drop, target = b, a, self.P[b].copy()
         else:
             keep, drop, target = a, b, 0.5 * (self.P[a] + self.P[b])
-        opposite = set()
+        opposite: set[int] = set()
         for fi in shared:
-            opposite.update(self.faces[fi])  # type: ignore[arg-type]
+            opposite.update(self.faces[fi] or ())
         opposite -= {a, b}
         na, nb = self.neighbors(a), self.neighbors(b)
         if (na & nb) != opposite:
@@ -438,3 +438,11 @@ def mirror_half(
     mirror_faces = mirror_index[faces][:, ::-1]
     sym = np.concatenate([mirror_index, interior])
     return all_vertices, np.concatenate([faces, mirror_faces]), sym
+
+
+__all__ = [
+    "NormalFn",
+    "ProjectFn",
+    "mirror_half",
+    "remesh_half",
+]

@@ -391,3 +391,19 @@ def quadruped_proportions(
 def _farthest(points: NDArray, origin: NDArray) -> NDArray:
     """The point of ``(N, 3)`` points farthest from ``origin``."""
     return points[np.argmax(np.linalg.norm(points - origin, axis=1))]
+
+
+__all__ = [
+    "BIPED_FACTORS",
+    "BIPED_FAMILIES",
+    "FACTORS",
+    "FAMILIES",
+    "QUADRUPED_FACTORS",
+    "QUADRUPED_FAMILIES",
+    "Family",
+    "bone_scales",
+    "family",
+    "mean_factors",
+    "quadruped_proportions",
+    "sample_factors",
+]

@@ -154,3 +154,10 @@ def point_segment_distance(points: NDArray, a: NDArray, b: NDArray) -> NDArray:
     t = np.clip(t, 0.0, 1.0)
     closest = a[None] + t[..., None] * ab[None]
     return np.linalg.norm(points[:, None, :] - closest, axis=2)
+
+
+__all__ = [
+    "Skeleton",
+    "SkeletonBuilder",
+    "point_segment_distance",
+]

@@ -194,3 +194,16 @@ def axis_angle_to_matrix(rotvec: NDArray) -> NDArray:
     c = np.cos(theta)[..., None]
     eye = np.broadcast_to(np.eye(3), K.shape)
     return eye + s * K + (1.0 - c) * (K @ K)
+
+
+__all__ = [
+    "attach_to_bones",
+    "axis_angle_to_matrix",
+    "blend",
+    "bone_frames",
+    "bone_heat_weights",
+    "cotangent_laplacian",
+    "pose_maps",
+    "scale_maps",
+    "sparsify",
+]

@@ -205,3 +205,20 @@ def rebuild(category: str) -> tuple[NDArray, NDArray, NDArray]:
     if len(arrays[0]) < 1000:
         raise ComputationError("template build produced too few vertices")
     return arrays
+
+
+__all__ = [
+    "ANATOMIES",
+    "CATEGORIES",
+    "GENERATOR_VERSION",
+    "MAX_INFLUENCES",
+    "SHAPE_HEAT_SCALE",
+    "TARGET_VERTICES",
+    "Anatomy",
+    "Template",
+    "build_mesh",
+    "cache_dir",
+    "check_category",
+    "rebuild",
+    "template",
+]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from litege_core.train.command import add_train_parser, run_training
+from litege_core.train.command import run_training
 from litege_core.train.config import TrainConfig, load_config
 
 _LAZY = {
@@ -37,7 +37,6 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "RunResult",
     "TrainConfig",
-    "add_train_parser",
     "load_config",
     "prepare_run",
     "run_training",

@@ -7,7 +7,7 @@ the view's transform, so the network learns distances on the mesh *as seen throu
 canonical frame* (spec §1.2, §3.3, §7.2).
 
 * view 0 (``clean``): ``clean_samples`` area-weighted samples of the mesh, no rotation — what
-  :func:`litege_core.describe.describe_shape` does with a mesh;
+  :func:`litege_core.learned.describe.describe_shape` does with a mesh;
 * augmented views: ``n`` area-weighted samples (``log n`` uniform in ``[min_points,
   max_points]``), optionally a part cut away by two planes, optionally Gaussian noise of
   ``σ·√area`` (σ in unit-area units), optionally a uniform random rotation of everything.

@@ -15,11 +15,10 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.canonical import canonicalize_bbox
-from litege_core.datasets import GeodesicDataset
+from litege_core.datasets import shape_mesh
 from litege_core.descriptor import UdfPcaBasis, VoxelGrid, fit_basis
 from litege_core.errors import InputError
 from litege_core.sampling import sample_surface
@@ -31,18 +30,24 @@ VARIANCE_AT = 50  # explained variance reported at this many components
 
 
 def canonical_meshes(
-    arrays: dict[str, NDArray], faces: NDArray, n_samples: int
+    arrays: dict[str, NDArray], faces: NDArray | None, n_samples: int
 ) -> Iterator[tuple[NDArray, NDArray]]:
     """Yield ``(canonical vertices (V, 3), faces)`` of every shape of a split, each
-    canonicalized from ``n_samples`` area-weighted samples seeded by the shape's seed."""
-    for vertices, seed in zip(arrays["vertices"], arrays["seed"], strict=True):
-        verts = np.asarray(vertices, dtype=np.float64)
-        points = sample_surface(verts, faces, n_samples, int(seed)).points
-        yield canonicalize_bbox(points).apply(verts), faces
+    canonicalized from ``n_samples`` area-weighted samples seeded by the shape's seed.
+    ``faces`` is the shared triangulation (``None`` for a collection split, whose shapes
+    carry their own faces)."""
+    for index, seed in enumerate(arrays["seed"]):
+        verts, shape_faces = shape_mesh(arrays, index, faces)
+        points = sample_surface(verts, shape_faces, n_samples, int(seed)).points
+        yield canonicalize_bbox(points).apply(verts), shape_faces
 
 
 def fit_training_basis(
-    settings: BasisConfig, arrays: dict[str, NDArray], faces: NDArray, category: str, seed: int
+    settings: BasisConfig,
+    arrays: dict[str, NDArray],
+    faces: NDArray | None,
+    category: str,
+    seed: int,
 ) -> UdfPcaBasis:
     """Fit a basis on the training split (see the module docstring); logs the number of
     informative voxels and the explained variance at 50 components."""
@@ -95,8 +100,9 @@ def fit_mismatch(basis: UdfPcaBasis, settings: BasisConfig) -> str:
 def prepare_basis(
     settings: BasisConfig,
     run_dir: Path,
-    dataset: GeodesicDataset,
     train_arrays: dict[str, NDArray],
+    faces: NDArray | None,
+    category: str,
     seed: int,
 ) -> tuple[UdfPcaBasis, str]:
     """The run's basis and where it came from.
@@ -104,7 +110,9 @@ def prepare_basis(
     Order: ``settings.path`` when that file exists (differences from the fit settings are
     logged); else ``run_dir/basis.safetensors`` when it exists (a resumed or repeated run; it
     must match the grid and threshold of the settings); else a new fit on ``train_arrays``
-    saved there. A basis with more components than ``settings.n_components`` is truncated.
+    saved there (``faces``: the shared triangulation, ``None`` when each shape of the split
+    carries its own). A basis with more components than ``settings.n_components`` is
+    truncated.
 
     Returns:
         ``(basis, source)`` with ``source`` the file the basis was read from or saved to.
@@ -132,9 +140,7 @@ def prepare_basis(
     else:
         if settings.path:
             LOG.info("basis %s does not exist: fitting one on the train split", settings.path)
-        basis = fit_training_basis(
-            settings, train_arrays, dataset.faces, dataset.spec.category, seed
-        )
+        basis = fit_training_basis(settings, train_arrays, faces, category, seed)
         path = run_dir / BASIS_FILE
         path.parent.mkdir(parents=True, exist_ok=True)
         basis.save(path)

@@ -13,6 +13,11 @@ Unknown tables or keys, values of the wrong type and values out of range raise
 :class:`~litege_core.errors.InputError`. Relative paths are taken relative to the current
 working directory (run from the repository root). ``configs/geodesic-*.toml`` are examples.
 
+Every training config (this one, the T-Net's :class:`~litege_core.train.tnet.TNetTrainConfig`
+and the matching network's :class:`~litege_core.train.matching.MatchingTrainConfig`) is a
+:class:`ConfigRoot`: one strict TOML reader, ``from_dict`` / ``to_dict`` / ``replace`` /
+``content_hash`` and the run directory ``output.dir``.
+
 Units: ``augment.noise_sigma`` is in unit-area units (multiplied by ``√area`` of each shape);
 learning rates are Adam step sizes; everything else is a count or a probability.
 """
@@ -27,7 +32,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 from litege_core.errors import InputError
 
@@ -50,6 +55,9 @@ class DataConfig:
 
     Attributes:
         dataset: directory of a built geodesic dataset (``litege data build``).
+        extra_datasets: more dataset directories trained on together with ``dataset``
+            (template or collection datasets, merged by
+            :func:`~litege_core.train.data.load_training_arrays`).
         views_per_shape: ``K`` views per training shape: view 0 is the clean mesh described
             from ``clean_samples`` area-weighted samples, views 1..K−1 are augmented.
         clean_samples: samples of the clean view (2000, as ``describe_shape`` uses for meshes).
@@ -63,6 +71,7 @@ class DataConfig:
     """
 
     dataset: str = ""
+    extra_datasets: tuple[str, ...] = ()
     views_per_shape: int = 4
     clean_samples: int = 2000
     val_augmented_views: int = 1
@@ -72,8 +81,14 @@ class DataConfig:
     max_val_shapes: int = 0
     view_chunk: int = 64
 
+    @property
+    def datasets(self) -> list[str]:
+        """``dataset`` followed by ``extra_datasets``."""
+        return [self.dataset, *self.extra_datasets]
+
     def __post_init__(self) -> None:
         _check(bool(self.dataset), "data.dataset (the dataset directory) is required")
+        _check(all(self.extra_datasets), "data.extra_datasets must name directories")
         _check(self.views_per_shape >= 1, "data.views_per_shape must be at least 1")
         _check(self.clean_samples >= 4, "data.clean_samples must be at least 4")
         _check(self.val_augmented_views >= 0, "data.val_augmented_views must be ≥ 0")
@@ -229,9 +244,68 @@ class OutputConfig:
         return getattr(torch, self.weights_dtype)
 
 
+class ConfigRoot:
+    """Base of the training configurations: a frozen dataclass whose fields are the TOML tables
+    (each a frozen dataclass with ``dir`` in the ``output`` table), read strictly.
+
+    Subclasses set :attr:`WHAT` (used in error messages), :attr:`REQUIRED_TABLES` (tables a
+    document must have) and may override :meth:`check` for checks across tables.
+    """
+
+    WHAT: ClassVar[str] = "a training config"
+    REQUIRED_TABLES: ClassVar[tuple[str, ...]] = ()
+    __dataclass_fields__: ClassVar[dict[str, Any]]  # every subclass is a dataclass
+    output: Any
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Self:
+        """Build from nested dicts (a parsed TOML document); strict about keys and types."""
+        if isinstance(data, dict):
+            for name in cls.REQUIRED_TABLES:
+                if name not in data:
+                    raise InputError(f"{cls.WHAT} needs a [{name}] table")
+        config = cls(**parse_tables(cls, data, cls.WHAT))
+        config.check()
+        return config
+
+    @classmethod
+    def load(cls, path: str | Path) -> Self:
+        """Read a TOML config file."""
+        return cls.from_dict(read_toml(path))
+
+    def check(self) -> None:
+        """Checks that involve several tables (each table checks its own values)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/TOML-safe nested dict (tuples as lists); ``from_dict(to_dict())`` is equal."""
+        data: dict[str, Any] = json.loads(json.dumps(dataclasses.asdict(self)))
+        return data
+
+    def replace(self, **tables: dict[str, Any]) -> Self:
+        """A copy with some keys of some tables changed: ``replace(train={"epochs": 2})``."""
+        data = self.to_dict()
+        for name, values in tables.items():
+            if name not in data:
+                raise InputError(f"unknown config table {name!r}")
+            data[name] = {**data[name], **values}
+        return self.from_dict(data)
+
+    def content_hash(self) -> str:
+        """SHA-256 of the canonical JSON of the config."""
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+    @property
+    def run_dir(self) -> Path:
+        """The run directory, ``output.dir``."""
+        return Path(self.output.dir)
+
+
 @dataclass(frozen=True)
-class TrainConfig:
-    """The whole training configuration (see the module docstring)."""
+class TrainConfig(ConfigRoot):
+    """The whole training configuration of the geodesic network (see the module docstring)."""
+
+    WHAT: ClassVar[str] = "a training config"
+    REQUIRED_TABLES: ClassVar[tuple[str, ...]] = ("data",)
 
     data: DataConfig
     augment: AugmentConfig = field(default_factory=AugmentConfig)
@@ -240,43 +314,11 @@ class TrainConfig:
     train: OptimConfig = field(default_factory=OptimConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
-    # ------------------------------------------------------------------ conversion
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
-        """Build from nested dicts (a parsed TOML document); strict about keys and types."""
-        if isinstance(data, dict) and "data" not in data:
-            raise InputError("the config needs a [data] table with the dataset directory")
-        return cls(**parse_tables(cls, data, "a training config"))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON/TOML-safe nested dict; ``from_dict(to_dict())`` gives an equal config."""
-        return dataclasses.asdict(self)
-
-    def replace(self, **sections: dict[str, Any]) -> TrainConfig:
-        """A copy with some keys of some tables changed: ``replace(train={"epochs": 2})``."""
-        data = self.to_dict()
-        for name, values in sections.items():
-            if name not in data:
-                raise InputError(f"unknown config table {name!r}")
-            data[name] = {**data[name], **values}
-        return TrainConfig.from_dict(data)
-
-    def content_hash(self) -> str:
-        """SHA-256 of the canonical JSON of the config."""
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
-
-    # ------------------------------------------------------------------ derived values
-
     def resolve_device(self) -> torch.device:
         """``train.device`` as a torch device (``auto``: CUDA if available, else CPU)."""
         from litege_core.device import resolve_device
 
         return resolve_device(self.train.device)
-
-    @property
-    def run_dir(self) -> Path:
-        return Path(self.output.dir)
 
 
 def parse_tables(config_cls: type, data: Any, what: str) -> dict[str, Any]:
@@ -294,7 +336,7 @@ def parse_tables(config_cls: type, data: Any, what: str) -> dict[str, Any]:
 
 def parse_table(cls: type, name: str, values: Any) -> Any:
     """One table → its dataclass, checking key names and value types (``bool``, ``int``,
-    ``float``, ``str`` and ``tuple[int, ...]`` fields)."""
+    ``float``, ``str``, ``tuple[int, ...]`` and ``tuple[str, ...]`` fields)."""
     if not isinstance(values, dict):
         raise InputError(f"[{name}] must be a table, got {type(values).__name__}")
     hints = typing.get_type_hints(cls)
@@ -309,6 +351,10 @@ def parse_table(cls: type, name: str, values: Any) -> Any:
             )
             if not ok:
                 raise InputError(f"{name}.{key} must be an array of integers, got {value!r}")
+            checked[key] = tuple(value)
+        elif hints[key] == tuple[str, ...]:
+            if not (isinstance(value, list | tuple) and all(isinstance(v, str) for v in value)):
+                raise InputError(f"{name}.{key} must be an array of strings, got {value!r}")
             checked[key] = tuple(value)
         else:
             checked[key] = _typed(f"{name}.{key}", hints[key], value)
@@ -349,12 +395,13 @@ def _typed(key: str, kind: type, value: Any) -> Any:
 
 def load_config(path: str | Path) -> TrainConfig:
     """Read a TOML training config (see the module docstring)."""
-    return TrainConfig.from_dict(read_toml(path))
+    return TrainConfig.load(path)
 
 
 __all__ = [
     "AugmentConfig",
     "BasisConfig",
+    "ConfigRoot",
     "DataConfig",
     "NetworkConfig",
     "OptimConfig",

@@ -17,6 +17,15 @@ view's frame) and the canonical distance scale is ``T.scale``.
     n_points    (Nv,) int64        points of the view's cloud
     distances   (Ns, R, V) float16/32  raw geodesic rows (as stored by the dataset)
     sources     (Ns, R) int64      vertex index of every row
+    vertex_counts (Ns,) int64      vertices of each shape (None: all V, template datasets)
+
+**Collection datasets** (shapes with their own triangulations, see
+:mod:`litege_core.datasets.storage`) are padded to the split's largest vertex count ``V``:
+``vertices`` and ``distances`` hold zeros beyond ``vertex_counts[shape]``, targets are drawn only
+among a shape's own vertices, and the coordinate statistics skip the padding. Template
+datasets keep ``vertex_counts = None`` and draw exactly the batches they always did.
+:func:`load_training_arrays` merges several dataset directories (of either kind) into one
+split.
 
 **Batches** (:class:`PairSampler`). A step draws ``B`` views, ``R_b`` distinct source rows and
 ``T_b`` random target vertices per view, and gathers everything by tensor indexing: the
@@ -33,9 +42,10 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -69,10 +79,16 @@ class ViewTables:
     n_points: torch.Tensor
     distances: torch.Tensor
     sources: torch.Tensor
+    vertex_counts: torch.Tensor | None = None
 
     @property
     def n_views(self) -> int:
         return int(self.descriptors.shape[0])
+
+    @property
+    def is_padded(self) -> bool:
+        """Whether shapes have their own vertex counts (collection datasets)."""
+        return self.vertex_counts is not None
 
     @property
     def n_shapes(self) -> int:
@@ -85,6 +101,7 @@ class ViewTables:
 
     @property
     def n_vertices(self) -> int:
+        """``V``, the vertex axis length (the largest shape's count for a collection)."""
         return int(self.vertices.shape[1])
 
     @property
@@ -93,7 +110,17 @@ class ViewTables:
 
     def to(self, device: torch.device | str) -> ViewTables:
         """The same tables on ``device``."""
-        return ViewTables(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+        moved: dict[str, Any] = {}  # each field's tensor (or None) on `device`
+        for f in fields(self):
+            value = getattr(self, f.name)
+            moved[f.name] = None if value is None else value.to(device)
+        return ViewTables(**moved)
+
+    def view_vertex_counts(self) -> torch.Tensor:
+        """``(Nv,)`` int64 vertices of each view's shape (on the tables' device)."""
+        if self.vertex_counts is None:
+            return torch.full((self.n_views,), self.n_vertices, device=self.device)
+        return self.vertex_counts[self.shape]
 
 
 def dataset_fingerprint(directory: str | Path) -> dict[str, object]:
@@ -104,9 +131,18 @@ def dataset_fingerprint(directory: str | Path) -> dict[str, object]:
         "path": str(directory),
         "name": dataset.spec.name,
         "category": dataset.spec.category,
+        "kind": dataset.kind,
         "manifest_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
         "counts": dict(dataset.manifest["counts"]),
     }
+
+
+def datasets_fingerprint(directories: Sequence[str | Path]) -> dict[str, object]:
+    """Provenance of several datasets trained on together: each one's fingerprint and a
+    SHA-256 over their manifest hashes (in order)."""
+    parts = [dataset_fingerprint(d) for d in directories]
+    digest = hashlib.sha256("".join(str(p["manifest_sha256"]) for p in parts).encode())
+    return {"datasets": parts, "manifest_sha256": digest.hexdigest()}
 
 
 def load_split_arrays(
@@ -120,6 +156,95 @@ def load_split_arrays(
     if not np.isfinite(arrays["distances"]).all():
         raise ArtifactError(f"split {split!r} of {dataset.directory} has non-finite distances")
     return arrays
+
+
+SEED_STRIDE = 10_000_000
+"""Seeds of the ``k``-th merged dataset are offset by ``k · SEED_STRIDE`` (view streams of
+different datasets never coincide)."""
+
+
+def to_collection_arrays(arrays: dict[str, NDArray], faces: NDArray) -> dict[str, NDArray]:
+    """A template split in the collection layout: ``faces (S, F, 3)`` int32 repeated,
+    ``n_vertices`` / ``n_faces`` constant."""
+    n_shapes, n_vertices = arrays["vertices"].shape[:2]
+    out = dict(arrays)
+    out["faces"] = np.broadcast_to(np.asarray(faces, np.int32), (n_shapes, *faces.shape)).copy()
+    out["n_vertices"] = np.full(n_shapes, n_vertices, dtype=np.int64)
+    out["n_faces"] = np.full(n_shapes, faces.shape[0], dtype=np.int64)
+    return out
+
+
+def load_training_arrays(
+    directories: str | Path | Sequence[str | Path], split: str, max_shapes: int = 0
+) -> tuple[dict[str, NDArray], NDArray | None]:
+    """One split of one or several datasets as ``(arrays, faces)``.
+
+    * one template dataset: its arrays and shared faces (exactly :func:`load_split_arrays`);
+    * several template datasets with the same triangulation: concatenated, shared faces;
+    * otherwise (any collection, or different triangulations): the collection layout
+      (``faces`` / ``n_vertices`` / ``n_faces`` per shape, padded), ``faces`` ``None``.
+
+    Datasets with different numbers of source rows keep the first ``min R`` rows (the
+    shared / farthest-point sources come first). Seeds of dataset ``k`` are offset by
+    ``k · SEED_STRIDE`` and family indices by the family counts of the datasets before it.
+    ``max_shapes`` (0: all) applies to each dataset. A dataset without shapes in ``split``
+    is skipped; none at all is an :class:`InputError`.
+    """
+    from litege_core.datasets.storage import concatenate_collection
+
+    if isinstance(directories, str | Path):
+        directories = [directories]
+    if not directories:
+        raise InputError("no dataset directory given")
+    loaded: list[tuple[dict[str, NDArray], NDArray | None]] = []
+    family_offset = 0
+    for k, directory in enumerate(directories):
+        dataset = GeodesicDataset(directory)
+        n_families = len(dataset.spec.families)
+        if not dataset.shard_names(split):
+            family_offset += n_families
+            continue
+        arrays = load_split_arrays(dataset, split, max_shapes)
+        if k:
+            arrays["seed"] = arrays["seed"] + k * SEED_STRIDE
+            arrays["family"] = arrays["family"] + family_offset
+        family_offset += n_families
+        loaded.append((arrays, dataset.faces))
+    if not loaded:
+        raise InputError(f"no dataset of {[str(d) for d in directories]} has a {split!r} split")
+    if len(loaded) == 1:
+        return loaded[0]
+    n_rows = min(a["sources"].shape[1] for a, _ in loaded)
+    trimmed = []
+    for arrays, faces in loaded:
+        arrays = dict(arrays)
+        arrays["sources"] = arrays["sources"][:, :n_rows]
+        arrays["distances"] = arrays["distances"][:, :n_rows]
+        trimmed.append((arrays, faces))
+    first_faces = trimmed[0][1]
+    if first_faces is not None and all(
+        f is not None and np.array_equal(f, first_faces) for _, f in trimmed
+    ):
+        keys = trimmed[0][0].keys()
+        dtype = np.result_type(*(a["distances"].dtype for a, _ in trimmed))
+        merged = {k: np.concatenate([a[k] for a, _ in trimmed]) for k in keys}
+        merged["distances"] = np.concatenate([a["distances"].astype(dtype) for a, _ in trimmed])
+        return merged, first_faces
+    parts = [a if f is None else to_collection_arrays(a, f) for a, f in trimmed]
+    dtype = np.result_type(*(a["distances"].dtype for a in parts))
+    parts = [{**a, "distances": a["distances"].astype(dtype)} for a in parts]
+    return concatenate_collection(parts), None
+
+
+def shape_meshes(
+    arrays: dict[str, NDArray], faces: NDArray | None = None
+) -> Iterator[tuple[NDArray, NDArray]]:
+    """Yield ``(vertices (V_s, 3) float64, faces (F_s, 3) int64)`` of every shape of a split,
+    unpadded (collection layout) or on the shared ``faces`` (template layout)."""
+    from litege_core.datasets.reader import shape_mesh
+
+    for index in range(arrays["vertices"].shape[0]):
+        yield shape_mesh(arrays, index, faces)
 
 
 def make_views(
@@ -146,7 +271,7 @@ def make_views(
 
 def build_view_tables(
     arrays: dict[str, NDArray],
-    faces: NDArray,
+    faces: NDArray | None,
     basis: UdfPcaBasis,
     *,
     n_views: int,
@@ -160,8 +285,9 @@ def build_view_tables(
 
     Args:
         arrays: a split as returned by :func:`load_split_arrays` (vertices ``(S, V, 3)``,
-            sources ``(S, R)``, distances ``(S, R, V)``, area ``(S,)``, seed ``(S,)``).
-        faces: ``(F, 3)`` shared triangulation.
+            sources ``(S, R)``, distances ``(S, R, V)``, area ``(S,)``, seed ``(S,)``; for a
+            collection also faces ``(S, F, 3)``, n_vertices ``(S,)``, n_faces ``(S,)``).
+        faces: ``(F, 3)`` shared triangulation (``None`` for a collection split).
         basis: the UDF-PCA basis (descriptor size ``E``).
         n_views: views per shape (view 0 clean).
         clean_samples: samples of the clean view.
@@ -172,13 +298,16 @@ def build_view_tables(
     """
     if n_views < 1:
         raise InputError("n_views must be at least 1")
+    padded = "n_vertices" in arrays
+    if not padded and faces is None:
+        raise InputError("a template split needs the dataset's shared faces")
     raw_vertices = np.asarray(arrays["vertices"], dtype=np.float64)
     n_shapes, n_vertices = raw_vertices.shape[:2]
     if n_shapes == 0:
         raise InputError("cannot build training tables from an empty split")
     engine = basis.engine(device)
     n_total = n_shapes * n_views
-    canonical = np.empty((n_total, n_vertices, 3), dtype=np.float32)
+    canonical = (np.zeros if padded else np.empty)((n_total, n_vertices, 3), dtype=np.float32)
     scale = np.empty(n_total, dtype=np.float64)
     kind = np.empty(n_total, dtype=np.int64)
     n_points = np.empty(n_total, dtype=np.int64)
@@ -193,10 +322,12 @@ def build_view_tables(
             residuals.append(result.residual)
             pending.clear()
 
+    meshes = shape_meshes(arrays, faces)
     for s in range(n_shapes):
+        shape_vertices, shape_faces = next(meshes)
         views = make_views(
-            raw_vertices[s],
-            faces,
+            shape_vertices,
+            shape_faces,
             float(arrays["area"][s]),
             n_views,
             clean_samples,
@@ -207,7 +338,8 @@ def build_view_tables(
         for j, view in enumerate(views):
             index = s * n_views + j
             transform = canonicalize_bbox(view.points)
-            canonical[index] = transform.apply(raw_vertices[s] @ view.rotation.T)
+            n_s = shape_vertices.shape[0]
+            canonical[index, :n_s] = transform.apply(shape_vertices @ view.rotation.T)
             scale[index] = transform.scale
             kind[index] = view.kind
             n_points[index] = view.points.shape[0]
@@ -225,8 +357,31 @@ def build_view_tables(
         n_points=torch.from_numpy(n_points).to(device),
         distances=torch.from_numpy(np.ascontiguousarray(arrays["distances"])).to(device),
         sources=torch.from_numpy(arrays["sources"].astype(np.int64)).to(device),
+        vertex_counts=(
+            torch.from_numpy(np.asarray(arrays["n_vertices"], dtype=np.int64)).to(device)
+            if padded
+            else None
+        ),
     )
     return tables
+
+
+def _draw_targets(
+    n_vertices: int,
+    views: torch.Tensor,
+    n_targets: int,
+    generator: torch.Generator,
+    view_counts: torch.Tensor | None,
+) -> torch.Tensor:
+    """``(B, T)`` int64 target vertices of ``views`` (CPU): uniform over all ``n_vertices``
+    for template tables (the original ``randint`` stream), over each view's own shape's
+    vertices otherwise (``view_counts``: ``(Nv,)`` CPU vertex counts per view)."""
+    if view_counts is None:
+        return torch.randint(n_vertices, (views.shape[0], n_targets), generator=generator)
+    per_view = view_counts[views]  # (B,)
+    uniform = torch.rand(views.shape[0], n_targets, generator=generator, dtype=torch.float64)
+    targets = (uniform * per_view[:, None]).long()
+    return torch.minimum(targets, per_view[:, None] - 1)
 
 
 # --------------------------------------------------------------------------- batches
@@ -317,6 +472,7 @@ class PairSampler:
         self.sources_per_view = sources_per_view
         self.targets_per_view = targets_per_view
         self.generator = torch.Generator().manual_seed(seed)
+        self._view_counts = tables.view_vertex_counts().cpu() if tables.is_padded else None
 
     def draw(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(views (B,), rows (B, R_b), targets (B, T_b))`` int64 on the tables' device."""
@@ -327,7 +483,7 @@ class PairSampler:
         else:
             views = torch.randint(t.n_views, (b,), generator=g)
         rows = torch.rand(b, t.n_rows, generator=g).argsort(dim=1)[:, : self.sources_per_view]
-        targets = torch.randint(t.n_vertices, (b, self.targets_per_view), generator=g)
+        targets = _draw_targets(t.n_vertices, views, self.targets_per_view, g, self._view_counts)
         device = t.device
         return views.to(device), rows.to(device), targets.to(device)
 
@@ -365,15 +521,22 @@ def validation_pairs(
     generator = torch.Generator().manual_seed(seed)
     n_sources = min(n_sources, tables.n_rows)
     rows = torch.rand(tables.n_views, tables.n_rows, generator=generator).argsort(dim=1)
-    targets = torch.randint(tables.n_vertices, (tables.n_views, n_targets), generator=generator)
+    counts = tables.view_vertex_counts().cpu() if tables.is_padded else None
+    views = torch.arange(tables.n_views)
+    targets = _draw_targets(tables.n_vertices, views, n_targets, generator, counts)
     device = tables.device
     return ValidationPairs(tables, rows[:, :n_sources].to(device), targets.to(device))
 
 
 def coordinate_statistics(tables: ViewTables) -> tuple[NDArray, NDArray]:
     """Per-axis mean and population std ``(3,)`` float64 of all canonical training vertices
-    of all views (the network's coordinate normalization, spec §3.3)."""
-    points = tables.vertices.reshape(-1, 3).to(torch.float64)
+    of all views (the network's coordinate normalization, spec §3.3); padding excluded."""
+    if tables.vertex_counts is None:
+        points = tables.vertices.reshape(-1, 3).to(torch.float64)
+    else:
+        counts = tables.view_vertex_counts()
+        mask = torch.arange(tables.n_vertices, device=tables.device)[None] < counts[:, None]
+        points = tables.vertices[mask].to(torch.float64)
     return points.mean(dim=0).cpu().numpy(), points.std(dim=0, correction=0).cpu().numpy()
 
 
@@ -385,8 +548,12 @@ __all__ = [
     "build_view_tables",
     "coordinate_statistics",
     "dataset_fingerprint",
+    "datasets_fingerprint",
     "gather_pairs",
     "load_split_arrays",
+    "load_training_arrays",
     "make_views",
+    "shape_meshes",
+    "to_collection_arrays",
     "validation_pairs",
 ]

@@ -27,7 +27,7 @@ import platform
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch
@@ -43,10 +43,10 @@ from litege_core.matching.frame import MatchingPipeline, align_shapes
 from litege_core.matching.model import ensemble_score_fn
 from litege_core.matching.search import coarse_to_fine_search
 from litege_core.metrics import auc
-from litege_core.nets import GeodesicNet, TNet
-from litege_core.predictor import FoldedGeodesicNet
+from litege_core.nets import FoldedGeodesicNet, GeodesicNet, TNet
+from litege_core.nets.geodesic import OutputKind
 from litege_core.shape import Shape
-from litege_core.train.config import AugmentConfig, parse_tables, read_toml
+from litege_core.train.config import AugmentConfig, ConfigRoot
 from litege_core.train.data import dataset_fingerprint, load_split_arrays
 from litege_core.train.matching_data import (
     REJECT_ANGLE,
@@ -118,9 +118,11 @@ class MatchingOutputConfig:
 
 
 @dataclass(frozen=True)
-class MatchingTrainConfig:
+class MatchingTrainConfig(ConfigRoot):
     """A matching training run (TOML tables ``data``, ``augment``, ``basis``, ``network``,
     ``train``, ``output``; see ``configs/matching-quadrupeds.toml``)."""
+
+    WHAT: ClassVar[str] = "a matching training config"
 
     data: MatchingDataConfig = field(default_factory=MatchingDataConfig)
     augment: AugmentConfig = field(default_factory=AugmentConfig)
@@ -128,12 +130,6 @@ class MatchingTrainConfig:
     network: MatchingNetworkConfig = field(default_factory=MatchingNetworkConfig)
     train: MatchingOptimConfig = field(default_factory=MatchingOptimConfig)
     output: MatchingOutputConfig = field(default_factory=MatchingOutputConfig)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> MatchingTrainConfig:
-        config = cls(**parse_tables(cls, data, "a matching training config"))
-        config.check()
-        return config
 
     def check(self) -> None:
         t = self.train
@@ -155,16 +151,10 @@ class MatchingTrainConfig:
         if not 0 < t.eta_min <= t.lr:
             raise InputError("need 0 < train.eta_min ≤ train.lr")
 
-    def replace(self, **tables: dict[str, Any]) -> MatchingTrainConfig:
-        data = {f.name: asdict(getattr(self, f.name)) for f in fields(self)}
-        for name, values in tables.items():
-            data[name] = {**data[name], **values}
-        return MatchingTrainConfig.from_dict(data)
-
 
 def load_matching_config(path: str | Path) -> MatchingTrainConfig:
     """Read a TOML matching training config (``configs/matching-*.toml``)."""
-    return MatchingTrainConfig.from_dict(read_toml(path))
+    return MatchingTrainConfig.load(path)
 
 
 # --------------------------------------------------------------------------- preparation
@@ -269,7 +259,8 @@ class PassResult:
 
 def _new_network(config: MatchingTrainConfig, basis: UdfPcaBasis, tables: MatchingTables, seed):
     torch.manual_seed(seed)
-    net = GeodesicNet(config.network.width, basis.n_components, config.network.output)
+    output = cast(OutputKind, config.network.output)  # GeodesicNet checks the value
+    net = GeodesicNet(config.network.width, basis.n_components, output)
     flat = tables.vertices.reshape(-1, 3)
     net.set_coord_normalization(flat.mean(0).cpu().numpy(), flat.std(0).cpu().numpy())
     return net.to(tables.vertices.device)
@@ -352,6 +343,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
     dataset = GeodesicDataset(config.data.dataset)
+    assert dataset.shared_sources is not None, "a matching dataset has shared sources"
     n_shared = int(dataset.shared_sources.size)
     train_arrays = load_split_arrays(dataset, "train", config.data.max_train_shapes)
     val_arrays = load_split_arrays(dataset, "val", config.data.max_val_shapes)
@@ -366,7 +358,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     seconds["basis"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    common = dict(
+    common: dict[str, Any] = dict(
         basis=basis,
         tnet=tnet,
         pipeline=pipeline,
@@ -476,3 +468,21 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         metrics=metrics,
         weights_dtype=dtype,
     )
+
+
+__all__ = [
+    "MatchingBasisConfig",
+    "MatchingDataConfig",
+    "MatchingNetworkConfig",
+    "MatchingOptimConfig",
+    "MatchingOutputConfig",
+    "MatchingTrainConfig",
+    "PassResult",
+    "aligned_training_meshes",
+    "calibrated_pipeline",
+    "load_matching_config",
+    "prepare_matching_basis",
+    "train_matching",
+    "train_pass",
+    "validation_metrics",
+]

@@ -243,3 +243,16 @@ def validation_set(
     )
     pairs = view_pairs(tables, n_view_pairs, generator)
     return ValidationSet(pairs=pairs, batch=batch)
+
+
+__all__ = [
+    "REJECT_ANGLE",
+    "MatchingBatch",
+    "MatchingTables",
+    "ValidationSet",
+    "build_matching_tables",
+    "misalignment",
+    "sample_batch",
+    "validation_set",
+    "view_pairs",
+]

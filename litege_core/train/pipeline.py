@@ -3,7 +3,12 @@
 :func:`prepare_run` does everything before the first step (once per run: the tables are
 built in memory, deterministically from the config, and rebuilt identically on resume);
 :func:`train_geodesic` trains (optionally resuming from a checkpoint) and exports the best
-model with :func:`~litege_core.bundle.save_bundle` into ``RUN_DIR/bundle``.
+model with :func:`~litege_core.learned.bundle.save_bundle` into ``RUN_DIR/bundle``.
+
+Launched by ``torchrun`` (``WORLD_SIZE > 1``), :func:`train_geodesic` joins the process group
+and trains data-parallel (:mod:`~litege_core.train.distributed`): rank 0 fits or reads the
+basis first, then every rank builds the same tables; rank 0 writes the log file, checkpoints
+and the bundle, whose manifest every rank returns.
 """
 
 from __future__ import annotations
@@ -13,17 +18,24 @@ import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
 
 import litege_core
-from litege_core.bundle import save_bundle
 from litege_core.datasets import GeodesicDataset
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import InputError
+from litege_core.learned import (
+    ModelBundle,
+    load_bundle,
+    load_shipped,
+    save_bundle,
+    shipped_bundles,
+)
 from litege_core.nets import GeodesicNet
+from litege_core.nets.geodesic import OutputKind
 from litege_core.train.basis import prepare_basis
 from litege_core.train.config import TrainConfig
 from litege_core.train.data import (
@@ -33,8 +45,15 @@ from litege_core.train.data import (
     build_view_tables,
     coordinate_statistics,
     dataset_fingerprint,
-    load_split_arrays,
+    datasets_fingerprint,
+    load_training_arrays,
     validation_pairs,
+)
+from litege_core.train.distributed import (
+    DistributedContext,
+    convert_sync_batchnorm,
+    init_distributed,
+    revert_sync_batchnorm,
 )
 from litege_core.train.trainer import Trainer, TrainState, evaluate, seed_everything
 
@@ -73,32 +92,80 @@ class RunResult:
     prepared: PreparedRun
 
 
-def prepare_run(config: TrainConfig) -> PreparedRun:
-    """Load the dataset, prepare the basis, build the tables, create network and trainer."""
+def load_init_bundle(init: str | Path) -> ModelBundle:
+    """The bundle a run is warm-started from: a shipped model name or a bundle directory."""
+    path = Path(init)
+    if path.is_dir():
+        return load_bundle(path)
+    if str(init) in shipped_bundles():
+        return load_shipped(str(init))
+    raise InputError(
+        f"--init {init!r} is neither a bundle directory nor a shipped model {shipped_bundles()}"
+    )
+
+
+def prepare_run(
+    config: TrainConfig,
+    init: str | Path | None = None,
+    distributed: DistributedContext | None = None,
+) -> PreparedRun:
+    """Load the dataset, prepare the basis, build the tables, create network and trainer.
+
+    With ``init`` (a shipped model name or a bundle directory) the run is warm-started: the
+    bundle's basis replaces the configured one and its network (weights, coordinate
+    normalization, width) is the starting point; the optimizer and schedule start fresh.
+    With ``distributed`` the run is this rank's part of a data-parallel run: its device is
+    the context's, the network's BatchNorm layers are synchronized across ranks.
+    """
+    init_bundle = None if init is None else load_init_bundle(init)
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
-    device = config.resolve_device()
+    device = config.resolve_device() if distributed is None else distributed.device
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     dataset = GeodesicDataset(config.data.dataset)
-    fingerprint = dataset_fingerprint(config.data.dataset)
-    train_arrays = load_split_arrays(dataset, "train", config.data.max_train_shapes)
-    val_arrays = load_split_arrays(dataset, "val", config.data.max_val_shapes)
+    datasets = config.data.datasets
+    fingerprint = (
+        dataset_fingerprint(datasets[0]) if len(datasets) == 1 else datasets_fingerprint(datasets)
+    )
+    train_arrays, train_faces = load_training_arrays(
+        datasets, "train", config.data.max_train_shapes
+    )
+    val_arrays, val_faces = load_training_arrays(datasets, "val", config.data.max_val_shapes)
     if len(val_arrays["seed"]) == 0:
-        raise InputError(f"dataset {config.data.dataset} has no validation shapes")
+        raise InputError(f"datasets {datasets} have no validation shapes")
     seconds["load"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    basis, basis_source = prepare_basis(
-        config.basis, run_dir, dataset, train_arrays, config.train.seed
-    )
+    if init_bundle is not None:
+        basis = init_bundle.basis
+        basis_source = f"init bundle {init_bundle.name} ({init_bundle.content_hash[:12]})"
+    else:
+
+        def basis_for_run() -> tuple[UdfPcaBasis, str]:
+            return prepare_basis(
+                config.basis,
+                run_dir,
+                train_arrays,
+                train_faces,
+                dataset.spec.category,
+                config.train.seed,
+            )
+
+        if distributed is None:
+            basis, basis_source = basis_for_run()
+        else:  # rank 0 first: a basis it fits is saved in the run directory for the others
+            if distributed.is_main:
+                basis, basis_source = basis_for_run()
+            distributed.barrier()
+            if not distributed.is_main:
+                basis, basis_source = basis_for_run()
     seconds["basis"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    common = dict(
-        faces=dataset.faces,
+    common: dict[str, Any] = dict(
         basis=basis,
         clean_samples=config.data.clean_samples,
         augment=config.augment,
@@ -106,10 +173,15 @@ def prepare_run(config: TrainConfig) -> PreparedRun:
         chunk=config.data.view_chunk,
     )
     train = build_view_tables(
-        train_arrays, n_views=config.data.views_per_shape, seed=config.train.seed, **common
+        train_arrays,
+        faces=train_faces,
+        n_views=config.data.views_per_shape,
+        seed=config.train.seed,
+        **common,
     )
     val_tables = build_view_tables(
         val_arrays,
+        faces=val_faces,
         n_views=1 + config.data.val_augmented_views,
         seed=config.train.seed + _VAL_SEED_OFFSET,
         **common,
@@ -135,10 +207,27 @@ def prepare_run(config: TrainConfig) -> PreparedRun:
     )
 
     seed_everything(config.train.seed)
-    network = GeodesicNet(config.network.width, basis.n_components, config.network.output)
-    mean, std = coordinate_statistics(train)
-    network.set_coord_normalization(mean, std)
+    if init_bundle is not None:
+        network = init_bundle.network.float().train()
+        mean = network.coord_mean.double().cpu().numpy()
+        std = network.coord_std.double().cpu().numpy()
+        if (network.width, network.output) != (config.network.width, config.network.output):
+            LOG.info(
+                "warm start: the init bundle's network (width %d, output %s) replaces the "
+                "configured one (width %d, output %s)",
+                network.width,
+                network.output,
+                config.network.width,
+                config.network.output,
+            )
+    else:
+        output = cast(OutputKind, config.network.output)  # checked by NetworkConfig
+        network = GeodesicNet(config.network.width, basis.n_components, output)
+        mean, std = coordinate_statistics(train)
+        network.set_coord_normalization(mean, std)
     network.to(device)
+    if distributed is not None:
+        convert_sync_batchnorm(network, device)
     sampler = PairSampler(
         train,
         config.train.batch_views,
@@ -147,7 +236,11 @@ def prepare_run(config: TrainConfig) -> PreparedRun:
         config.train.seed,
     )
     provenance = {"dataset": fingerprint["manifest_sha256"], "basis_hash": basis.content_hash}
-    trainer = Trainer(config, network, sampler, val, run_dir / CHECKPOINT_DIR, provenance)
+    if init_bundle is not None:
+        provenance["init_bundle"] = init_bundle.content_hash
+    trainer = Trainer(
+        config, network, sampler, val, run_dir / CHECKPOINT_DIR, provenance, distributed
+    )
     return PreparedRun(
         config=config,
         device=device,
@@ -191,6 +284,7 @@ def export(prepared: PreparedRun, state: TrainState, seconds_total: float) -> di
         "config_hash": config.content_hash(),
         "dataset": prepared.fingerprint,
         "basis_source": prepared.basis_source,
+        "init_bundle": prepared.trainer.provenance.get("init_bundle"),
         "n_train_shapes": prepared.train.n_shapes,
         "n_train_views": prepared.train.n_views,
         "n_val_views": prepared.validation.tables.n_views,
@@ -249,6 +343,7 @@ def train_geodesic(
     config: TrainConfig,
     *,
     resume: str | Path | None = None,
+    init: str | Path | None = None,
     max_epochs: int | None = None,
     export_bundle: bool = True,
 ) -> RunResult:
@@ -257,6 +352,8 @@ def train_geodesic(
     Args:
         config: the run configuration.
         resume: a ``last.safetensors`` checkpoint to continue from.
+        init: warm start from this bundle (shipped name or directory; see
+            :func:`prepare_run`). A resumed run must be given the same ``init``.
         max_epochs: stop after this many epochs in this call (no export unless the run is
             finished); ``None``: train to the end.
         export_bundle: write ``RUN_DIR/bundle`` when training is finished.
@@ -264,10 +361,17 @@ def train_geodesic(
     start = time.perf_counter()
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(run_dir / LOG_FILE)
+    distributed = init_distributed(config.resolve_device())  # None unless under torchrun
+    main = distributed is None or distributed.is_main
+    handler: logging.Handler = (
+        logging.FileHandler(run_dir / LOG_FILE) if main else logging.NullHandler()
+    )
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     LOG.addHandler(handler)
-    if LOG.level == logging.NOTSET or LOG.level > logging.INFO:
+    level = LOG.level
+    if not main:  # the other ranks only report problems
+        LOG.setLevel(logging.WARNING)
+    elif LOG.level == logging.NOTSET or LOG.level > logging.INFO:
         LOG.setLevel(logging.INFO)
     try:
         LOG.info(
@@ -281,7 +385,7 @@ def train_geodesic(
             config.train.schedule,
             config.train.seed,
         )
-        prepared = prepare_run(config)
+        prepared = prepare_run(config, init, distributed)
         if resume is not None:
             changed = prepared.trainer.load_checkpoint(resume)
             LOG.info(
@@ -291,15 +395,28 @@ def train_geodesic(
                 prepared.trainer.state.step,
                 f" (changed: {', '.join(changed)})" if changed else "",
             )
+        elif init is not None:
+            prepared.trainer.start_from_baseline()
         state = prepared.trainer.fit(max_epochs)
+        if distributed is not None:
+            revert_sync_batchnorm(prepared.network)  # a plain network to export and return
         finished = state.stopped_early or state.epoch >= config.train.epochs
         manifest = None
         if export_bundle and finished:
-            manifest = export(prepared, state, time.perf_counter() - start)
+            if main:
+                manifest = export(prepared, state, time.perf_counter() - start)
+            if distributed is not None:
+                manifest = distributed.broadcast(manifest)
+        if distributed is not None:  # every rank done with its collectives before teardown
+            distributed.barrier()
         return RunResult(state, manifest, run_dir, prepared)
     finally:
         LOG.removeHandler(handler)
         handler.close()
+        if not main:
+            LOG.setLevel(level)
+        if distributed is not None:
+            distributed.close()
 
 
 __all__ = [

@@ -41,8 +41,6 @@ summary; :func:`load_tnet` reads it back, :func:`predict_rotation` applies it to
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import json
 import logging
 import math
@@ -51,7 +49,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 import torch
@@ -72,7 +70,7 @@ from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
 from litege_core.nets.tnet import CUBE_ROTATIONS, POINT_LOSS_WEIGHT, PREALIGN_MODES, pca_frames
 from litege_core.sampling import as_points, poisson_disk_subsample, sample_surface
-from litege_core.train.config import _check, parse_tables, read_toml
+from litege_core.train.config import ConfigRoot, _check
 from litege_core.variants import broken_mesh
 
 LOG = logging.getLogger("litege.train.tnet")
@@ -218,8 +216,10 @@ class TNetOutputConfig:
 
 
 @dataclass(frozen=True)
-class TNetTrainConfig:
+class TNetTrainConfig(ConfigRoot):
     """The whole T-Net training configuration (TOML tables of the same names)."""
+
+    WHAT: ClassVar[str] = "a T-Net training config"
 
     data: TNetDataConfig = field(default_factory=TNetDataConfig)
     augment: TNetAugmentConfig = field(default_factory=TNetAugmentConfig)
@@ -228,35 +228,10 @@ class TNetTrainConfig:
     report: TNetReportConfig = field(default_factory=TNetReportConfig)
     output: TNetOutputConfig = field(default_factory=TNetOutputConfig)
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> TNetTrainConfig:
-        """Build from nested dicts (a parsed TOML document); strict about keys and types."""
-        return cls(**parse_tables(cls, data, "a T-Net training config"))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-safe nested dict (tuples as lists); ``from_dict(to_dict())`` is equal."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
-    def replace(self, **sections: dict[str, Any]) -> TNetTrainConfig:
-        """A copy with some keys changed: ``replace(train={"steps": 10})``."""
-        data = self.to_dict()
-        for name, values in sections.items():
-            if name not in data:
-                raise InputError(f"unknown config table {name!r}")
-            data[name] = {**data[name], **values}
-        return TNetTrainConfig.from_dict(data)
-
-    def content_hash(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
-
-    @property
-    def run_dir(self) -> Path:
-        return Path(self.output.dir)
-
 
 def load_tnet_config(path: str | Path) -> TNetTrainConfig:
     """Read a TOML T-Net training config (``configs/tnet-*.toml``)."""
-    return TNetTrainConfig.from_dict(read_toml(path))
+    return TNetTrainConfig.load(path)
 
 
 # --------------------------------------------------------------------------- shapes
@@ -623,7 +598,7 @@ def predict_rotation(net: TNet, points: ArrayLike) -> NDArray:
         keep = np.random.default_rng(0).choice(cloud.shape[0], PREDICT_MAX_POINTS, replace=False)
         cloud = cloud[np.sort(keep)]
     cloud = cloud - cloud.mean(axis=0)
-    reference = net.fc[-1].weight
+    reference = next(net.parameters())
     was_training = net.training
     net.eval()
     try:

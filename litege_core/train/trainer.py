@@ -32,6 +32,20 @@ from ``last`` reproduces an uninterrupted run bit for bit on the same machine an
 rescaled to mean 100 (normalized by the validation ground-truth mean), mean and median; the
 mean selects the checkpoint and drives early stopping (it is the validation L1 up to the
 constant 1.42 / GT mean, except for the clipping of negative residual targets).
+
+**Time budget.** ``fit(deadline=...)`` (a :func:`time.monotonic` instant) stops the run at a
+wall-clock budget: the deadline is checked every :data:`BUDGET_CHECK_STEPS` steps, an epoch
+cut short there is validated and checkpointed like a full one (it counts as an epoch, with
+fewer steps), and no new epoch starts after the deadline (``TrainState.stopped_by_budget``).
+The best checkpoint is exported as usual. A run stopped by its budget can be resumed, but it
+no longer reproduces an uninterrupted run bit for bit (its epochs hold fewer steps).
+
+**Data parallel** (``torchrun``; :mod:`~litege_core.train.distributed`). With a
+:class:`~litege_core.train.distributed.DistributedContext` every rank draws the same global
+batch and trains on its share of the views through DistributedDataParallel (synchronized
+BatchNorm), so a step equals one process's step on the global batch up to floating-point
+reduction order. Rank 0 alone validates (the report is broadcast), writes checkpoints and
+logs; time-budget checks are agreed by all ranks.
 """
 
 from __future__ import annotations
@@ -55,6 +69,7 @@ from litege_core.metrics import geodesic_error
 from litege_core.nets import GeodesicNet, geodesic_from_residual, load_state, state_to_tensors
 from litege_core.train.config import TrainConfig
 from litege_core.train.data import PairBatch, PairSampler, ValidationPairs, gather_pairs
+from litege_core.train.distributed import DistributedContext
 
 LOG = logging.getLogger("litege.train")
 CHECKPOINT_FORMAT = "litege-train-checkpoint"
@@ -63,6 +78,7 @@ LAST = "last.safetensors"
 BEST = "best.safetensors"
 _HEADER_KEY = "litege_checkpoint"
 VAL_CHUNK_PAIRS = 1 << 15  # head rows per validation call
+BUDGET_CHECK_STEPS = 10  # steps between two looks at the clock of a time-budgeted run
 
 #: config keys that must not change when a run is resumed (the rest may: epochs, patience,
 #: learning rates, device, output).
@@ -108,6 +124,20 @@ def pair_outputs(
     shape_emb = net.shape_embedding(descriptors)  # (B, n)
     emb = net.point_embedding(points, shape_emb)  # (B, R + T, n)
     return net.head(emb[:, :n_sources, None, :], emb[:, None, n_sources:, :])
+
+
+class PairForward(torch.nn.Module):
+    """:func:`pair_outputs` as a module's ``forward``: DistributedDataParallel synchronizes
+    gradients of what runs through ``forward``, so this is what a data-parallel run wraps."""
+
+    def __init__(self, net: GeodesicNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(
+        self, descriptors: torch.Tensor, points: torch.Tensor, n_sources: int
+    ) -> torch.Tensor:
+        return pair_outputs(self.net, descriptors, points, n_sources)
 
 
 def training_loss(net: GeodesicNet, batch: PairBatch) -> torch.Tensor:
@@ -251,7 +281,8 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> list[str]:
     """Raise InputError when ``config`` changes a key of :data:`RESUME_FIXED` relative to the
     checkpoint's config; return the names of the other keys that changed."""
     current = config.to_dict()
-    fixed, changed = [], []
+    fixed: list[str] = []
+    changed: list[str] = []
     for section, values in current.items():
         for key, value in values.items():
             if saved.get(section, {}).get(key) == value:
@@ -295,6 +326,7 @@ class TrainState:
     best_epoch: int = 0
     bad_epochs: int = 0
     stopped_early: bool = False
+    stopped_by_budget: bool = False  # fit() reached its wall-clock deadline
     seconds: float = 0.0  # epochs including validation
     step_seconds: float = 0.0  # optimizer steps only
     history: list[dict[str, Any]] = field(default_factory=list)
@@ -311,6 +343,9 @@ class Trainer:
         checkpoint_dir: where ``last.safetensors`` and ``best.safetensors`` go.
         provenance: JSON-safe fingerprints stored in (and checked against) checkpoints, e.g.
             ``{"dataset": ..., "basis_hash": ...}``.
+        distributed: this rank's place in a data-parallel run (``None``: one process). The
+            network's BatchNorm layers must already be synchronized
+            (:func:`~litege_core.train.distributed.convert_sync_batchnorm`).
     """
 
     def __init__(
@@ -321,6 +356,7 @@ class Trainer:
         validation: ValidationPairs,
         checkpoint_dir: str | Path,
         provenance: dict[str, Any] | None = None,
+        distributed: DistributedContext | None = None,
     ) -> None:
         self.config = config
         self.net = network
@@ -330,6 +366,15 @@ class Trainer:
         self.provenance = provenance or {}
         self.optimizer = torch.optim.Adam(network.parameters(), lr=config.train.lr)
         self.state = TrainState()
+        self.distributed = distributed
+        self._ddp: torch.nn.Module | None = None  # built at the first step (after a resume)
+        if distributed is not None:
+            distributed.local_slice(config.train.batch_views)  # divisible, or InputError
+
+    @property
+    def is_main(self) -> bool:
+        """Whether this process validates, checkpoints and logs (rank 0, or the only one)."""
+        return self.distributed is None or self.distributed.is_main
 
     # ----------------------------------------------------------------- checkpoints
     def _header(self, optim_meta: dict) -> dict[str, Any]:
@@ -385,6 +430,18 @@ class Trainer:
             },
         )
 
+    def start_from_baseline(self) -> float:
+        """Score the starting network (a warm start) as epoch 0's best, so the exported model
+        is never worse on this validation set than the one the run started from. Returns
+        the starting validation error."""
+        report = self._validate()
+        self.state.best_error = report.mean
+        self.state.best_epoch = 0
+        if self.is_main:
+            self._save_best()
+        LOG.info("warm start: validation error %.3f before training", report.mean)
+        return report.mean
+
     def load_best(self) -> None:
         """Load the best-validation weights into the network (no-op before any epoch)."""
         path = self.checkpoint_dir / BEST
@@ -394,41 +451,105 @@ class Trainer:
             load_state(self.net, {k: v.to(device) for k, v in tensors.items()})
 
     # ----------------------------------------------------------------- loop
-    def train_epoch(self) -> float:
-        """One epoch of ``steps_per_epoch`` steps; returns the mean training loss."""
+    def _validate(self) -> ValidationReport:
+        """:func:`evaluate` on rank 0, broadcast to the other ranks."""
+        if self.distributed is None:
+            return evaluate(self.net, self.validation)
+        report = evaluate(self.net, self.validation) if self.is_main else None
+        shared = self.distributed.broadcast(report)
+        if shared is None:  # pragma: no cover - rank 0 always has a report
+            raise RuntimeError("no validation report from rank 0")
+        return shared
+
+    def _deadline_passed(self, deadline: float) -> bool:
+        """Whether the time budget is spent (on any rank: all ranks stop together)."""
+        passed = time.monotonic() >= deadline
+        return passed if self.distributed is None else self.distributed.any(passed)
+
+    def _step_loss(self) -> torch.Tensor:
+        """The loss of the next batch (this rank's share of it in a data-parallel run)."""
+        if self.distributed is None:
+            return training_loss(self.net, self.sampler.sample())
+        if self._ddp is None:
+            from litege_core.train.distributed import wrap_ddp
+
+            self._ddp = wrap_ddp(PairForward(self.net), self.distributed)
+        views, rows, targets = self.sampler.draw()  # the global batch, the same on every rank
+        share = self.distributed.local_slice(views.shape[0])
+        batch = gather_pairs(self.sampler.tables, views[share], rows[share], targets[share])
+        outputs = self._ddp(batch.descriptors, batch.points, batch.target.shape[1])
+        return torch.nn.functional.l1_loss(outputs, batch.target)
+
+    def train_epoch(self, deadline: float | None = None) -> float:
+        """One epoch of ``steps_per_epoch`` steps; returns the mean training loss.
+
+        With ``deadline`` (a :func:`time.monotonic` instant) the epoch ends early, after a
+        multiple of :data:`BUDGET_CHECK_STEPS` steps, once the deadline has passed (so it takes at
+        least ``min(BUDGET_CHECK_STEPS, steps_per_epoch)`` steps)."""
         opt = self.config.train
         self.net.train()
         total = torch.zeros((), dtype=torch.float64, device=self.net.coord_mean.device)
+        steps = 0
         for _ in range(opt.steps_per_epoch):
+            if (
+                deadline is not None
+                and steps
+                and steps % BUDGET_CHECK_STEPS == 0
+                and self._deadline_passed(deadline)
+            ):
+                break
             lr = cosine_lr(self.state.step, self.config)
             for group in self.optimizer.param_groups:
                 group["lr"] = lr
-            batch = self.sampler.sample()
-            loss = training_loss(self.net, batch)
+            loss = self._step_loss()
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
             total += loss.detach()
             self.state.step += 1
-        return float(total) / opt.steps_per_epoch
+            steps += 1
+        if self.distributed is not None:  # equal shares: the mean of the ranks' means
+            total = self.distributed.mean(total)
+        return float(total) / steps
 
-    def fit(self, max_epochs: int | None = None) -> TrainState:
-        """Train until ``epochs`` are done or early stopping triggers.
+    def fit(self, max_epochs: int | None = None, *, deadline: float | None = None) -> TrainState:
+        """Train until ``epochs`` are done, early stopping triggers or the deadline passes.
 
         Args:
             max_epochs: stop after this many epochs *in this call* (the schedule still spans
                 the configured ``epochs``; used to interrupt and resume).
+            deadline: a :func:`time.monotonic` instant: the wall-clock budget of this call
+                (see the module docstring); the epoch running then is cut short after its
+                current chunk of :data:`BUDGET_CHECK_STEPS` steps, validated and checkpointed,
+                and ``state.stopped_by_budget`` is set.
         """
+        try:
+            return self._fit(max_epochs, deadline)
+        finally:
+            # The DistributedDataParallel wrapper holds the process group and Gloo's pending
+            # work: dropped here (rebuilt at the next step) so that destroying the group
+            # really frees them, instead of their threads dying at interpreter exit (SIGABRT).
+            self._ddp = None
+
+    def _fit(self, max_epochs: int | None, deadline: float | None) -> TrainState:
         opt = self.config.train
         run = 0
+        self.state.stopped_by_budget = False
         while self.state.epoch < opt.epochs and not self.state.stopped_early:
             if max_epochs is not None and run >= max_epochs:
                 break
+            if deadline is not None and self._deadline_passed(deadline):
+                self.state.stopped_by_budget = True
+                break
             start = time.perf_counter()
             lr = cosine_lr(self.state.step, self.config)
-            loss = self.train_epoch()
+            step_before = self.state.step
+            loss = self.train_epoch(deadline)
+            steps = self.state.step - step_before
+            if steps < opt.steps_per_epoch:  # cut short by the deadline
+                self.state.stopped_by_budget = True
             train_seconds = time.perf_counter() - start
-            report = evaluate(self.net, self.validation)
+            report = self._validate()
             self.state.epoch += 1
             improved = report.mean < self.state.best_error
             if improved:
@@ -455,9 +576,10 @@ class Trainer:
             self.state.history.append(record.to_dict())
             if opt.patience and self.state.bad_epochs >= opt.patience:
                 self.state.stopped_early = True
-            if improved:
+            if improved and self.is_main:
                 self._save_best()
-            self.save_checkpoint()
+            if self.is_main:
+                self.save_checkpoint()
             LOG.info(
                 "epoch %d/%d step %d loss %.5f val %.3f (median %.3f, clean %.3f, aug %.3f) "
                 "lr %.2e %.1f s (%.1f steps/s)%s%s",
@@ -471,11 +593,19 @@ class Trainer:
                 report.by_kind.get("augmented", {}).get("mean", float("nan")),
                 lr,
                 seconds,
-                opt.steps_per_epoch / train_seconds,
+                steps / train_seconds,
                 " [best]" if improved else "",
                 " [early stop]" if self.state.stopped_early else "",
             )
             run += 1
+            if self.state.stopped_by_budget:
+                LOG.info(
+                    "time budget reached: epoch %d stopped after %d of %d steps",
+                    self.state.epoch,
+                    steps,
+                    opt.steps_per_epoch,
+                )
+                break
         return self.state
 
 
@@ -487,8 +617,10 @@ def seed_everything(seed: int) -> None:
 
 __all__ = [
     "BEST",
+    "BUDGET_CHECK_STEPS",
     "LAST",
     "EpochRecord",
+    "PairForward",
     "TrainState",
     "Trainer",
     "ValidationReport",

@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
+from service.store.lru import CacheUsage
+
 
 @dataclass(frozen=True)
 class StoreHealth:
@@ -61,8 +63,37 @@ class ArtifactStore(Protocol):
         """
         ...
 
+    def usage(self) -> dict[str, CacheUsage]:
+        """The process memory this store holds: its bounded caches by name (empty for a
+        store that holds nothing in this process)."""
+        ...
+
     def close(self) -> None:
         """Release connections; the store must not be used afterwards."""
+        ...
+
+
+@runtime_checkable
+class SharedStore(ArtifactStore, Protocol):
+    """A store shared between processes (Redis), as the tiered store needs it: writes it
+    missed during an outage are replayed, and what it lost is refilled."""
+
+    @property
+    def available(self) -> bool:
+        """Whether the last contact succeeded (no I/O)."""
+        ...
+
+    @property
+    def generation(self) -> int:
+        """Changes each time the store comes back after an outage."""
+        ...
+
+    def try_delete(self, keys: Sequence[str]) -> int | None:
+        """Delete ``keys``; how many existed, or ``None`` when it could not be done."""
+        ...
+
+    def exists_many(self, keys: Sequence[str]) -> list[bool] | None:
+        """Whether each key exists, or ``None`` when the store cannot be asked now."""
         ...
 
 
@@ -81,4 +112,4 @@ def check_ttl(ttl_s: float | None) -> None:
         raise ValueError(f"ttl_s must be positive seconds or None, got {ttl_s!r}")
 
 
-__all__ = ["ArtifactStore", "StoreHealth", "as_bytes", "check_ttl"]
+__all__ = ["ArtifactStore", "SharedStore", "StoreHealth", "as_bytes", "check_ttl"]

@@ -17,17 +17,24 @@ costs at most one socket timeout per backoff period, never one per request. Othe
 (``OOM``, ``WRONGTYPE``, ...) are counted, logged on ``litege.store`` and reported as a
 miss / failed write; they do not mark the store unavailable. Nothing is raised to callers.
 
+Restarts. redis-py reconnects pooled connections silently, so a Redis restarted between two
+requests is not an outage to the caller, yet it may come back empty. Every new connection
+therefore also reads the server's ``run_id`` (``INFO server``); :attr:`RedisStore.generation`
+changes when it differs from the last one seen, as it does when the store comes back after an
+outage, and the tiered store then refills Redis from its local tier.
+
 Needs Redis >= 6.2 (``GETEX``); on an older server every read with a TTL is a counted error.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import enum
 import logging
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import TypeVar
+from typing import Final, Literal, TypeVar
 from urllib.parse import urlsplit, urlunsplit
 
 import redis
@@ -36,6 +43,7 @@ from redis.backoff import NoBackoff
 from redis.retry import Retry
 
 from service.store.base import StoreHealth, as_bytes, check_ttl
+from service.store.lru import CacheUsage
 
 logger = logging.getLogger("litege.store")
 
@@ -48,7 +56,13 @@ UNREACHABLE_ERRORS: tuple[type[BaseException], ...] = (
 
 _LOG_EVERY_S = 10.0  # at most one WARNING per this many seconds for non-connection errors
 _T = TypeVar("_T")
-_SKIPPED = object()  # result of an operation not attempted (backing off) or failed
+
+
+class _Skipped(enum.Enum):
+    SKIPPED = enum.auto()
+
+
+_SKIPPED: Final = _Skipped.SKIPPED  # result of an operation not attempted (backing off) or failed
 
 
 def redact_url(url: str) -> str:
@@ -115,6 +129,7 @@ class RedisStore:
             retry=Retry(NoBackoff(), 0),  # redis-py's default would retry 3x with sleeps
             health_check_interval=0,
             decode_responses=False,
+            redis_connect_func=self._on_connect,
         )
         self._lock = threading.Lock()
         # Reachability state (guarded by _lock). _epoch changes at every state change or
@@ -126,6 +141,8 @@ class RedisStore:
         self._backoff_s = 0.0
         self._last_error = ""
         self._last_logged = -float("inf")
+        self._generation = 0  # see :attr:`generation`
+        self._run_id: str | None = None  # the server process last connected to
         self._counts = dict.fromkeys(
             (
                 "hits",
@@ -136,11 +153,43 @@ class RedisStore:
                 "connection_errors",
                 "skipped",
                 "reconnects",
+                "restarts",
             ),
             0,
         )
 
     # -- reachability state machine -----------------------------------------------------------
+
+    def _on_connect(self, connection: redis.connection.AbstractConnection) -> None:
+        """Handshake of every new connection, plus ``INFO server``: a new ``run_id`` means
+        the server restarted (possibly empty) even if no request saw it go away, because
+        redis-py silently reconnects pooled connections."""
+        connection.on_connect()
+        try:
+            connection.send_command("INFO", "server")
+            info = connection.read_response()
+        except redis.exceptions.ResponseError:  # INFO not allowed (ACL): no restart detection
+            return
+        text = info.decode("utf-8", "replace") if isinstance(info, bytes) else str(info)
+        run_id = next(
+            (
+                line.split(":", 1)[1].strip()
+                for line in text.splitlines()
+                if line.startswith("run_id:")
+            ),
+            None,
+        )
+        with self._lock:
+            restarted = None not in (run_id, self._run_id) and run_id != self._run_id
+            if run_id is not None:
+                self._run_id = run_id
+            if restarted:
+                self._generation += 1
+                self._counts["restarts"] += 1
+        if restarted:
+            logger.warning(
+                "redis at %s restarted (new run_id); it may have lost its data", self.url
+            )
 
     def _count(self, name: str, n: int = 1) -> None:
         with self._lock:
@@ -171,6 +220,7 @@ class RedisStore:
             self._down_since_wall = None
             self._backoff_s = 0.0
             self._retry_at = 0.0
+            self._generation += 1
             self._counts["reconnects"] += 1
         logger.warning("redis at %s is reachable again after %.1f s", self.url, outage_s)
 
@@ -223,7 +273,7 @@ class RedisStore:
             exc,
         )
 
-    def _run(self, what: str, fn: Callable[[], _T]) -> _T | object:
+    def _run(self, what: str, fn: Callable[[], _T]) -> _T | Literal[_Skipped.SKIPPED]:
         """``fn()``, or ``_SKIPPED`` if backing off or it failed (never raises Redis errors)."""
         epoch = self._admit()
         if epoch is None:
@@ -253,7 +303,7 @@ class RedisStore:
             self._count("misses")
             return None
         self._count("hits")
-        return result  # type: ignore[return-value]
+        return result  # type: ignore[return-value]  # redis-py: sync replies typed Awaitable | Any
 
     def get_many(self, keys: Sequence[str]) -> list[bytes | None]:
         """The values of ``keys`` in order, in one round trip (pipelined GETEX, or MGET)."""
@@ -276,7 +326,7 @@ class RedisStore:
             self._count("misses", len(keys))
             return [None] * len(keys)
         values: list[bytes | None] = []
-        for value in result:  # type: ignore[union-attr]
+        for value in result:  # type: ignore[union-attr]  # redis-py: sync replies typed Awaitable | Any
             if isinstance(value, Exception):  # e.g. WRONGTYPE on one key
                 self._on_redis_error("GETEX", value)
                 value = None
@@ -314,16 +364,45 @@ class RedisStore:
 
     def delete(self, keys: Sequence[str]) -> int:
         """Delete ``keys`` with one ``DEL``; the number that existed (0 when unreachable)."""
+        return self.try_delete(keys) or 0
+
+    def try_delete(self, keys: Sequence[str]) -> int | None:
+        """Like :meth:`delete`, but ``None`` when the ``DEL`` was not done (unreachable)."""
         keys = list(keys)
         if not keys:
             return 0
         result = self._run("DEL", lambda: self._client.delete(*keys))
-        return 0 if result is _SKIPPED else int(result)  # type: ignore[call-overload]
+        return None if result is _SKIPPED else int(result)  # type: ignore[arg-type]  # redis-py: sync replies typed Awaitable | Any
+
+    def exists_many(self, keys: Sequence[str]) -> list[bool] | None:
+        """Whether each key exists (one pipelined round trip of ``EXISTS``, TTLs untouched);
+        ``None`` when unreachable."""
+        keys = list(keys)
+        if not keys:
+            return []
+
+        def pipelined() -> list[object]:
+            with self._client.pipeline(transaction=False) as pipe:
+                for key in keys:
+                    pipe.exists(key)
+                return pipe.execute()
+
+        result = self._run("EXISTS pipeline", pipelined)
+        if result is _SKIPPED:
+            return None
+        return [bool(n) for n in result]
+
+    @property
+    def generation(self) -> int:
+        """Counts the store coming back after an outage and the server restarting: a change
+        means Redis may have lost what it held and missed writes meanwhile."""
+        with self._lock:
+            return self._generation
 
     def memory_usage(self, key: str) -> int | None:
         """Bytes Redis uses for ``key`` (``MEMORY USAGE``), ``None`` if absent/unreachable."""
         result = self._run("MEMORY USAGE", lambda: self._client.memory_usage(key))
-        return None if result is _SKIPPED or result is None else int(result)  # type: ignore[call-overload]
+        return None if result is _SKIPPED or result is None else int(result)  # type: ignore[arg-type]  # redis-py: sync replies typed Awaitable | Any
 
     def health(self) -> StoreHealth:
         """PINGs Redis, except while backing off (then reports the outage without I/O)."""
@@ -368,12 +447,17 @@ class RedisStore:
     def stats(self) -> dict[str, float]:
         """hits, misses, writes, write_failures (keys), errors (all Redis errors),
         connection_errors, skipped (calls answered without I/O while backing off),
-        reconnects, available (1/0), backoff_s. No items/bytes/evictions: Redis is shared."""
+        reconnects, restarts (new server run_id seen), available (1/0), backoff_s. No
+        items/bytes/evictions: Redis is shared."""
         with self._lock:
             out: dict[str, float] = {k: float(v) for k, v in self._counts.items()}
             out["available"] = 1.0 if self._down_since is None else 0.0
             out["backoff_s"] = self._backoff_s
         return out
+
+    def usage(self) -> dict[str, CacheUsage]:
+        """Nothing in this process: Redis bounds itself (``maxmemory``)."""
+        return {}
 
     def close(self) -> None:
         """Close the connection pool."""

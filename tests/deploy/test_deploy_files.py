@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import importlib.util
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -272,6 +273,35 @@ def test_gpu_overlay_renders_and_a_drain_blocking_budget_is_caught():
     assert any("nvidia.com/gpu" in p for p in vd.check_gpu_render(rendered, "litege:0.1.0-gpu"))
 
 
+def test_gpu_overlay_runs_the_gpu_image_as_shipped_and_after_the_documented_retargeting():
+    """kubectl kustomize of deploy/gpu: the CUDA image for api and grpc, also when the base
+    image was pointed at a registry first (the CPU image once ran there with cuda)."""
+    rendered = vd.kustomize_build(vd.K8S_GPU)
+    for name in ("litege-api", "litege-grpc"):
+        assert _container(rendered, name)["image"] == "litege:0.1.0-gpu"
+    base = vd.kustomize_build(vd.K8S_BASE)
+    assert _container(base, "litege-api")["image"] == "litege:0.1.0-cpu"
+
+    registry = "registry.example.com/litege"
+    only_base = vd.gpu_images_after_retargeting(registry)
+    assert set(only_base.values()) == {"litege:0.1.0-gpu"}, only_base
+    both = vd.gpu_images_after_retargeting(registry, gpu_too=True)
+    assert set(both.values()) == {f"{registry}:0.1.0-gpu"}, both
+    assert vd.check_gpu_image_survives_a_retargeted_base() == []
+
+
+def test_a_tag_only_gpu_image_override_is_caught(tmp_path, monkeypatch):
+    """Without the overlay's own image (only `images: newTag`), a base retargeted to a registry
+    renders the CPU image in the GPU overlay: the check names it."""
+    copy_dir = tmp_path / "deploy"
+    shutil.copytree(vd.DEPLOY_DIR, copy_dir)
+    patch = copy_dir / "gpu" / "deployments-gpu.yaml"
+    patch.write_text(patch.read_text().replace("          image: litege:0.1.0-gpu\n", ""))
+    monkeypatch.setattr(vd, "DEPLOY_DIR", copy_dir)
+    problems = vd.check_gpu_image_survives_a_retargeted_base()
+    assert any("registry.example.com/litege:0.1.0-cpu" in p for p in problems), problems
+
+
 def test_compose_gpu_override_needs_a_device_reservation():
     base = vd.load_compose(vd.COMPOSE_FILE)
     gpu = vd.load_compose(vd.COMPOSE_GPU_FILE)
@@ -301,6 +331,10 @@ DOCKERFILE_BREAKAGES: dict[str, tuple[Callable[[str], str], str]] = {
         lambda t: t.replace("HEALTHCHECK", "# HEALTHCHECK").replace('    CMD ["python"', "#"),
         "HEALTHCHECK",
     ),
+    "/docs assets left out": (
+        lambda t: t.replace("COPY --from=viewer /src/service/static/docs service/", "# "),
+        "service/static/docs",
+    ),
 }
 
 
@@ -312,6 +346,46 @@ def test_dockerfile_checks_catch(breakage, tmp_path):
     assert vd.check_dockerfile(vd.DOCKERFILES["cpu"], "cpu") == []
     problems = vd.check_dockerfile(broken, "cpu")
     assert any(expected in p for p in problems), problems
+
+
+# --------------------------------------------------------------------------------------------
+# LITEGE_* names: exactly the service's Settings fields
+# --------------------------------------------------------------------------------------------
+
+
+def test_every_settings_field_is_a_known_setting_and_nothing_else():
+    from service.settings import Settings
+
+    names = {f"LITEGE_{field.upper()}" for field in Settings.model_fields}
+    assert {"LITEGE_MATCHING_MODEL", "LITEGE_STATE_CACHE_BYTES"} <= names
+    assert names == vd.SETTINGS
+    assert vd.unknown_settings(names) == []
+    assert vd.SECRET_SETTINGS <= vd.SETTINGS
+    assert vd.unknown_settings(["LITEGE_NOT_A_SETTING", "PATH", *names]) == ["LITEGE_NOT_A_SETTING"]
+
+
+def test_every_setting_is_documented_for_deployments(tmp_path):
+    assert vd.undocumented_settings() == []
+    for name in ("LITEGE_MATCHING_CACHE_BYTES", "LITEGE_WRITE_BEHIND_BYTES"):
+        assert name in (vd.K8S_BASE / "configmap.yaml").read_text()
+        assert name in (vd.DOCKER_DIR / "README.md").read_text()
+    assert "LITEGE_BODY_READ_TIMEOUT_S" in (vd.DOCKER_DIR / "README.md").read_text()
+    stale = tmp_path / "README.md"
+    stale.write_text((vd.DOCKER_DIR / "README.md").read_text().replace("LITEGE_WRITE_BEHIND", "X"))
+    problems = vd.undocumented_settings([stale])
+    assert len(problems) == 1 and "LITEGE_WRITE_BEHIND_BYTES" in problems[0], problems
+
+
+@pytest.mark.parametrize("name", ["LITEGE_MATCHING_MODEL", "LITEGE_STATE_CACHE_BYTES"])
+def test_a_deployment_may_set_settings_a_hand_written_list_missed(name, tmp_path):
+    dockerfile = tmp_path / "Dockerfile"
+    text = vd.DOCKERFILES["cpu"].read_text()
+    dockerfile.write_text(text.replace("LITEGE_DEVICE=cpu", f"LITEGE_DEVICE=cpu \\\n    {name}=1"))
+    assert f"{name}=1" in dockerfile.read_text()
+    assert vd.check_dockerfile(dockerfile, "cpu") == []
+    base = vd.load_compose(vd.COMPOSE_FILE)
+    _set(_api(base), "environment", {**_api(base)["environment"], name: "1"})
+    assert vd.check_compose(base, vd.load_compose(vd.COMPOSE_GPU_FILE)) == []
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,16 +1,17 @@
 """`litege geodesic` and `litege path`: round trips through files, and errors with exit code 2."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
 import trimesh
 
-from litege_core.bundle import load_bundle, save_bundle, shipped_bundles
 from litege_core.cli import main
 from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.io import load_shape, save_shape
+from litege_core.learned import Predictor, load_bundle, save_bundle, shipped_bundles
 from litege_core.nets import GeodesicNet
-from litege_core.predictor import Predictor
 from litege_core.shape import Shape
 
 K = 3
@@ -134,8 +135,8 @@ def test_path_round_trip(tmp_path, bundle_dir, mesh_file, capsys):
     polyline = np.load(out)
     shape = load_shape(mesh_file)
     assert polyline.dtype == np.float32 and polyline.ndim == 2 and polyline.shape[1] == 3
-    np.testing.assert_allclose(polyline[0], shape.vertices[200], rtol=1e-6)
-    np.testing.assert_allclose(polyline[-1], shape.vertices[3], rtol=1e-6)
+    np.testing.assert_allclose(polyline[0], shape.vertices[3], rtol=1e-6)  # source → target
+    np.testing.assert_allclose(polyline[-1], shape.vertices[200], rtol=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -233,3 +234,58 @@ def test_bad_files_bundles_and_devices(tmp_path, bundle_dir, mesh_file, capsys):
         == 2
     )
     assert "cannot write" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method", ["heat", "exact", "graph"])
+def test_geodesic_with_a_classical_method(tmp_path, method, mesh_file, capsys):
+    """--method picks the engine; the answer says which one ran and matches the library."""
+    from litege_core.engines import ClassicalSolver
+
+    mesh = mesh_file
+    out = tmp_path / "d.npy"
+    assert (
+        main(["geodesic", str(mesh), "--sources", "0,5", "--method", method, "-o", str(out)]) == 0
+    )
+    report = json.loads(capsys.readouterr().out)
+    solver = ClassicalSolver(load_shape(mesh), method)
+    assert report["method"] == method and report["engine"] == solver.engine
+    np.testing.assert_allclose(np.load(out), solver.distances([0, 5]), rtol=1e-6)
+
+
+def test_exact_method_refuses_a_large_mesh_and_a_cloud(tmp_path, mesh_file, capsys):
+    mesh = mesh_file
+    args = ["geodesic", str(mesh), "--sources", "0", "--method", "exact", "-o", str(tmp_path / "d")]
+    assert main([*args, "--max-exact-vertices", "10"]) == 2
+    assert "method-size-limit" in capsys.readouterr().err
+    cloud = tmp_path / "cloud.xyz"
+    np.savetxt(cloud, np.random.default_rng(0).normal(size=(50, 3)))
+    out = str(tmp_path / "x.npy")
+    assert main(["geodesic", str(cloud), "--sources", "0", "--method", "exact", "-o", out]) == 2
+    assert "point cloud" in capsys.readouterr().err
+
+
+def test_path_with_the_exact_method(tmp_path, mesh_file, capsys):
+    mesh = mesh_file
+    out = tmp_path / "p.npy"
+    assert (
+        main(
+            [
+                "path",
+                str(mesh),
+                "--source",
+                "0",
+                "--target",
+                "7",
+                "--method",
+                "exact",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    report = json.loads(capsys.readouterr().out)
+    assert report["engine"] == "exact-mmp" and report["segments"] == [[0, "exact-mmp"]]
+    points = np.load(out)
+    assert points.shape == (report["n_points"], 3)
+    assert report["length"] == pytest.approx(report["distance"], rel=1e-5)

@@ -93,3 +93,28 @@ def test_match_unknown_model_is_a_clear_error(files, tmp_path, capsys):
     )
     assert code == 2
     assert "unknown matching model" in capsys.readouterr().err
+
+
+def test_match_reports_frames_and_refines_on_request(tmp_path, capsys):
+    """--frames and --refine reach the model; the answer says which frame and refinement ran."""
+    import json
+
+    import numpy as np
+
+    from litege_core.cli import main
+    from litege_core.io import save_shape
+    from litege_core.shape import Shape
+    from litege_core.synth import generate_shape
+
+    files = []
+    for family, seed in (("dog", 2_000_001), ("cat", 2_000_002)):
+        shape = generate_shape("quadruped", family, seed)
+        path = tmp_path / f"{family}.ply"
+        save_shape(Shape.from_arrays(shape.vertices, shape.faces), path)
+        files.append(str(path))
+    out = tmp_path / "m.npy"
+    argv = ["match", *files, "--queries", "0,5,9", "--frames", "tnet", "--refine", "zoomout"]
+    assert main([*argv, "-o", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["frames"] == ["tnet", "tnet"] and report["refinement"]
+    assert np.load(out).shape == (3,)

@@ -1,15 +1,10 @@
-import enum
-
 import pytest
 
 from litege_core.enums import ParsableEnum
 from litege_core.errors import ArrayShapeError, InputError
 
 
-class Colour(ParsableEnum):
-    _noun = enum.nonmember("colour")
-    _error = enum.nonmember(ArrayShapeError)
-
+class Colour(ParsableEnum, noun="colour", error=ArrayShapeError):
     RED = "red"
     BLUE = "blue"
 

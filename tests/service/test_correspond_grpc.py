@@ -130,7 +130,10 @@ def test_batches_answered_in_order_equal_the_library(client, pair, reference):
         assert answer["model"] == MODEL and answer["n_queries"] == len(want.indices)
         assert (answer["source_shape_id"], answer["target_shape_id"]) == tuple(pair["ids"])
         np.testing.assert_array_equal(answer["matches"], want.indices)
-        np.testing.assert_allclose(answer["distances"], want.distance, atol=1e-5, rtol=0)
+        unit_area = answer["distances_unit_area"]
+        np.testing.assert_allclose(unit_area, want.distance, atol=1e-5, rtol=0)
+        in_target_units = want.distance / pair["prepared"][1].transform.scale
+        np.testing.assert_allclose(answer["distances"], in_target_units, rtol=1e-5, atol=1e-6)
 
 
 def test_distances_only_when_asked(client, pair, stub, pb2):
@@ -140,6 +143,7 @@ def test_distances_only_when_asked(client, pair, stub, pb2):
     request = _request(pb2, 9, [4, 5], source_shape_id=src, target_shape_id=tgt)
     raw = list(stub.Correspond(iter([request]), timeout=30))
     assert len(raw) == 1 and raw[0].batch_id == 9 and len(raw[0].distances) == 0
+    assert len(raw[0].distances_unit_area) == 0
 
 
 def test_later_messages_inherit_or_replace_the_pair(stub, pb2, pair, reference):

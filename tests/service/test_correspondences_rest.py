@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from typing import Any
 
 import httpx
 import numpy as np
@@ -19,6 +20,7 @@ from service.errors import UnknownModelError
 from service.problems import PROBLEM_BASE_URI
 from service.runtime import Runtime
 from service.settings import Settings
+from service.store import artifact_key
 
 SEED = 3
 MODEL = "tiny"
@@ -94,7 +96,7 @@ def test_all_queries_match_the_library(client, pair, reference):
     assert got["model"] == MODEL and got["n_queries"] == n
     assert got["matches"].shape == (n,)
     np.testing.assert_array_equal(got["matches"], expected.indices)
-    np.testing.assert_allclose(got["distances"], expected.distance, atol=1e-5, rtol=0)
+    assert_distances(got, expected, pair["prepared"][1])
     default = client.correspondences(src, tgt)  # queries default to "all"
     np.testing.assert_array_equal(default["matches"], expected.indices)
 
@@ -105,7 +107,8 @@ def test_index_queries_without_distances(service, client, pair, reference):
     got = client.correspondences(src, tgt, queries)
     expected = reference.match(*pair["prepared"], np.array(queries))
     np.testing.assert_array_equal(got["matches"], expected.indices)
-    assert got["distances"] is None and got["n_queries"] == len(queries)
+    assert got["distances"] is None and got["distances_unit_area"] is None
+    assert got["n_queries"] == len(queries)
     raw = _post(service, {"source_shape_id": src, "target_shape_id": tgt, "queries": [7]})
     assert raw.status_code == 200 and raw.json()["distances"] is None
     assert set(raw.json()) == {
@@ -115,6 +118,7 @@ def test_index_queries_without_distances(service, client, pair, reference):
         "n_queries",
         "matches",
         "distances",
+        "distances_unit_area",
     }
 
 
@@ -124,7 +128,31 @@ def test_xyz_queries_match_the_library(client, pair, reference):
     got = client.correspondences(src, tgt, points, return_distance=True, model=MODEL)
     expected = reference.match(*pair["prepared"], query_points=points)
     np.testing.assert_array_equal(got["matches"], expected.indices)
-    np.testing.assert_allclose(got["distances"], expected.distance, atol=1e-5, rtol=0)
+    assert_distances(got, expected, pair["prepared"][1])
+
+
+def assert_distances(got: dict, expected: Any, target: Any) -> None:
+    """``distances_unit_area`` are the library's; ``distances`` the same in the target's
+    input units."""
+    np.testing.assert_allclose(got["distances_unit_area"], expected.distance, atol=1e-5, rtol=0)
+    in_target_units = expected.distance / target.transform.scale
+    np.testing.assert_allclose(got["distances"], in_target_units, rtol=1e-5, atol=1e-6)
+
+
+def test_distances_are_in_the_target_input_units(client, pair, test_shape):
+    """A target twice as large (same shape otherwise): the same matches and unit-area
+    distances, and twice the input-unit distances."""
+    src, tgt = pair["ids"]
+    target = test_shape(2)
+    big = client.register_arrays(target.vertices * 2.0, target.faces)["shape_id"]
+    queries = [0, 5, 100, 300]
+    small_answer = client.correspondences(src, tgt, queries, return_distance=True)
+    big_answer = client.correspondences(src, big, queries, return_distance=True)
+    np.testing.assert_array_equal(big_answer["matches"], small_answer["matches"])
+    np.testing.assert_allclose(
+        big_answer["distances_unit_area"], small_answer["distances_unit_area"], rtol=1e-4
+    )
+    np.testing.assert_allclose(big_answer["distances"], 2 * small_answer["distances"], rtol=1e-4)
 
 
 def test_point_cloud_target_and_reverse_direction(client, pair, test_shape, reference):
@@ -150,14 +178,14 @@ def test_each_shape_is_prepared_once(service, client, test_shape):
     before = prepared_count(service)
     first = client.correspondences(*ids, [0, 1, 2])
     assert prepared_count(service) == before + 2
-    hits = counter(service, "litege_cache_requests_total", tier="matching_state", result="hit")
+    live = {"tier": "matching_state"}
+    hits = counter(service, "litege_cache_requests_total", **live, result="hit")
+    misses = counter(service, "litege_cache_requests_total", **live, result="miss")
     second = client.correspondences(*ids, "all")
     again = client.correspondences(ids[1], ids[0], [9])  # reverse: same prepared shapes
     assert prepared_count(service) == before + 2, "a second request must not recompute"
-    assert (
-        counter(service, "litege_cache_requests_total", tier="matching_state", result="hit")
-        == hits + 4
-    )
+    assert counter(service, "litege_cache_requests_total", **live, result="hit") >= hits + 4
+    assert counter(service, "litege_cache_requests_total", **live, result="miss") == misses
     np.testing.assert_array_equal(second["matches"][:3], first["matches"])
     assert again["n_queries"] == 1
 
@@ -184,7 +212,7 @@ def test_prepared_state_is_restored_from_the_store(service, client, pair):
 def test_redis_store_survives_an_api_restart(live_service_factory, shared_redis_url, test_shape):
     model = MatchingModel.tiny_random(SEED)
     a, b = test_shape(7), test_shape(8)
-    keys = [f"litege:{model.content_hash}:{s.content_hash}:matching" for s in (a, b)]
+    keys = [artifact_key(s.content_hash, model.content_hash, "matching") for s in (a, b)]
     redis_client = redis.Redis.from_url(shared_redis_url)
     redis_client.delete(*keys)  # a previous run's copies
 
@@ -234,12 +262,14 @@ BAD_BODIES: dict[str, tuple[dict, int, str]] = {
     "unknown source id": ({"source_shape_id": UNKNOWN}, 404, "shape-not-found"),
     "unknown target id": ({"target_shape_id": UNKNOWN}, 404, "shape-not-found"),
     "index out of range": ({"queries": [0, 10**6]}, 422, "index-out-of-range"),
-    "negative index": ({"queries": [-1]}, 422, "invalid-request"),
+    "negative index": ({"queries": [-1]}, 422, "index-out-of-range"),
     "NaN point": ({"queries": [[float("nan"), 0, 0]]}, 422, "non-finite-coordinates"),
-    "empty query list": ({"queries": []}, 422, "invalid-request"),
-    "points not triples": ({"queries": [[0.0, 1.0]]}, 422, "invalid-request"),
-    "queries not 'all'": ({"queries": "some"}, 422, "invalid-request"),
-    "fractional index": ({"queries": [1.5]}, 422, "invalid-request"),
+    "absurd point": ({"queries": [[1e40, 0, 0]]}, 422, "coordinate-out-of-range"),
+    "empty query list": ({"queries": []}, 422, "bad-array-shape"),
+    "points not triples": ({"queries": [[0.0, 1.0]]}, 422, "bad-array-shape"),
+    "queries not 'all'": ({"queries": "some"}, 422, "bad-array-shape"),
+    "fractional index": ({"queries": [1.5]}, 422, "bad-array-shape"),
+    "integral float index": ({"queries": [1.0]}, 422, "bad-array-shape"),
     "id not a string": ({"source_shape_id": 5}, 422, "invalid-request"),
     "missing target": ({"target_shape_id": DROP}, 422, "invalid-request"),
     "return_distance not a bool": ({"return_distance": "maybe"}, 422, "invalid-request"),
@@ -291,7 +321,8 @@ def test_openapi_documents_the_operation(service):
     operation = schema["paths"]["/correspondences"]["post"]
     assert operation["requestBody"]["content"]["application/json"]
     response = schema["components"]["schemas"]["CorrespondenceResponse"]
-    assert "unit-area" in response["properties"]["distances"]["description"]
+    assert "input units" in response["properties"]["distances"]["description"]
+    assert "unit-area" in response["properties"]["distances_unit_area"]["description"]
 
 
 def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, tmp_path):

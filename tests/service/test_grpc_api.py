@@ -22,10 +22,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from litege_core.bundle import load_shipped
 from litege_core.errors import MissingDependencyError
 from litege_core.io import load_shape
-from litege_core.predictor import Predictor
+from litege_core.learned import Predictor, load_shipped
 from service import grpc_stubs
 from service.errors import OverloadedError
 from service.grpc_client import GrpcCallError, GrpcClient
@@ -348,8 +347,8 @@ def test_path_runs_from_source_to_target(
     assert path["converged"] is True
     np.testing.assert_allclose(points[0], mesh.vertices[0], atol=1e-6)
     np.testing.assert_allclose(points[-1], mesh.vertices[300], atol=1e-6)
-    library = predictor.path(registered["state"], 0, 300)  # traced target → source
-    np.testing.assert_allclose(points, np.asarray(library.points)[::-1], atol=1e-5)
+    library = predictor.path(registered["state"], 0, 300)  # also source → target
+    np.testing.assert_allclose(points, np.asarray(library.points), atol=1e-5)
     assert path["predicted_distance"] == pytest.approx(library.predicted_distance, abs=1e-5)
     assert path["length"] > 0 and path["predicted_distance"] > 0 and path["n_steps"] >= 0
     assert isinstance(path["converged"], bool)
@@ -636,11 +635,15 @@ def test_expired_deadline_reaches_the_runtime(
 
 
 class _FailingRuntime:
-    """A runtime whose geodesic raises (error mapping only)."""
+    """A runtime whose geodesic raises (error mapping only); everything else is the real
+    runtime's (settings, metrics, the shared concurrency limit)."""
 
     def __init__(self, runtime: Runtime, exc: Exception) -> None:
-        self.settings = runtime.settings
+        self._runtime = runtime
         self.exc = exc
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._runtime, name)
 
     async def geodesic(self, *args: Any, **kwargs: Any) -> Any:
         raise self.exc

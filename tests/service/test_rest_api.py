@@ -3,17 +3,22 @@ responses, and every bad input giving its RFC 9457 problem while the cache stays
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
+import threading
+import time
 
+import grpc
 import httpx
 import msgpack
 import numpy as np
 import pytest
 
-from litege_core.bundle import load_shipped
-from litege_core.predictor import Predictor
+from litege_core.learned import Predictor, load_shipped
+from service import grpc_stubs
 from service.client import LiteGEClient, ProblemError
+from service.errors import OverloadedError
 from service.problems import PROBLEM_BASE_URI
 
 PROBLEM_JSON = "application/problem+json"
@@ -212,10 +217,13 @@ def test_oversized_upload_is_refused_before_parsing(service, client, registered)
     ("body", "status", "code"),
     [
         ({"sources": [10**7]}, 422, "index-out-of-range"),
-        ({"sources": [-1]}, 422, "invalid-request"),
-        ({"sources": [[0.0, 1.0]]}, 422, "invalid-request"),
-        ({"sources": []}, 422, "invalid-request"),
-        ({"sources": [0], "targets": "some"}, 422, "invalid-request"),
+        ({"sources": [-1]}, 422, "index-out-of-range"),
+        ({"sources": [[0.0, 1.0]]}, 422, "bad-array-shape"),
+        ({"sources": []}, 422, "bad-array-shape"),
+        ({"sources": [0], "targets": "some"}, 422, "bad-array-shape"),
+        ({"sources": "all"}, 422, "invalid-input"),
+        ({"sources": [1.0]}, 422, "bad-array-shape"),
+        ({"sources": [[1e154, 0, 0]]}, 422, "coordinate-out-of-range"),
         ({"sources": [[float("nan"), 0, 0]]}, 422, "non-finite-coordinates"),
         ({"sources": [0], "model": "fish"}, 422, "unknown-model"),
         ({"sources": [0], "extra": 1}, 422, "invalid-request"),
@@ -306,3 +314,142 @@ def test_openapi_documents_both_upload_kinds(service):
         "application/octet-stream"
         in (schema["paths"]["/geodesic"]["post"]["responses"]["200"]["content"])
     )
+
+
+# --------------------------------------------------------------------------- failures and limits
+
+
+def _client_port(response: httpx.Response) -> int:
+    """The local port of the connection that carried ``response``."""
+    return response.extensions["network_stream"].get_extra_info("client_addr")[1]
+
+
+def test_an_internal_error_keeps_the_connection_open(
+    service, registered, monkeypatch, caplog: pytest.LogCaptureFixture
+):
+    async def broken(*args, **kwargs):
+        raise RuntimeError("secret /path/to/weights")
+
+    body = {"shape_id": registered, "sources": [0], "targets": [1]}
+    with httpx.Client(base_url=service.base_url) as http:
+        with monkeypatch.context() as patch:
+            patch.setattr(service.runtime, "geodesic", broken)
+            failed = http.post("/geodesic", json=body)
+            first_port = _client_port(failed)
+        problem = assert_problem(failed, 500, "internal-error")
+        assert "secret" not in failed.text and problem["instance"] == "/geodesic"
+        again = http.post("/geodesic", json=body)
+        assert again.status_code == 200
+        assert _client_port(again) == first_port, "the keep-alive connection was closed"
+    assert any("secret" in (r.exc_text or "") for r in caplog.records)
+
+
+def test_a_503_is_logged_without_a_traceback(
+    service, registered, monkeypatch, caplog: pytest.LogCaptureFixture
+):
+    async def overloaded(*args, **kwargs):
+        raise OverloadedError("the compute queue is full", retry_after_s=2.5)
+
+    monkeypatch.setattr(service.runtime, "geodesic", overloaded)
+    with httpx.Client(base_url=service.base_url) as http:
+        response = http.post("/geodesic", json={"shape_id": registered, "sources": [0]})
+    assert_problem(response, 503, "overloaded")
+    assert response.headers["retry-after"] == "3"  # whole seconds, rounded up
+    logged = [r for r in caplog.records if r.name == "litege.http" and r.levelno >= 30]
+    assert logged and not any(r.exc_info for r in logged)
+
+
+class Gate:
+    """A compute job that holds the service's worker until opened."""
+
+    def __init__(self, service) -> None:
+        self.service = service
+        self.entered = threading.Event()
+        self.opened = threading.Event()
+
+    def __enter__(self) -> Gate:
+        def hold(jobs):
+            self.entered.set()
+            self.opened.wait(30)
+            return jobs
+
+        self.service.runtime.batcher.handlers["hold"] = hold
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.opened.set()
+        del self.service.runtime.batcher.handlers["hold"]
+
+
+def test_one_concurrency_limit_for_rest_and_grpc(live_service_factory, mesh_bytes, thread_pool):
+    service = live_service_factory(grpc=True, max_concurrency=1)
+    with LiteGEClient(service.base_url) as client:
+        shape_id = client.register_file(mesh_bytes(1, "obj"), file_format="obj")["shape_id"]
+    pb2, pb2_grpc = grpc_stubs.load_stubs()
+    with grpc.insecure_channel(service.grpc_target) as channel:
+        stub = pb2_grpc.LiteGEStub(channel)
+        request = pb2.GeodesicRequest(shape_id=shape_id, source_indices=pb2.Indices(values=[0]))
+        with Gate(service) as gate:
+            service.call(_submit_in_background(service, "hold"))
+            assert gate.entered.wait(30)
+            held = thread_pool.submit(stub.Geodesic, request, timeout=60)  # takes the slot
+            _wait_for(lambda: service.runtime.admission.in_flight == 1)
+            refused = httpx.post(
+                f"{service.base_url}/geodesic", json={"shape_id": shape_id, "sources": [0]}
+            )
+            assert_problem(refused, 429, "overloaded")
+            assert int(refused.headers["retry-after"]) >= 1
+        assert held.result(60).rows == 1
+        with Gate(service) as gate:
+            service.call(_submit_in_background(service, "hold"))
+            assert gate.entered.wait(30)
+            body = {"shape_id": shape_id, "sources": [0]}
+            held_rest = thread_pool.submit(httpx.post, f"{service.base_url}/geodesic", json=body)
+            _wait_for(lambda: service.runtime.admission.in_flight == 1)
+            with pytest.raises(grpc.RpcError) as caught:
+                stub.Geodesic(request, timeout=60)
+            assert caught.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+            assert dict(caught.value.trailing_metadata())["retry-after-ms"]
+        assert held_rest.result(60).status_code == 200
+
+
+_BACKGROUND: list[asyncio.Future] = []
+
+
+async def _submit_in_background(service, kind: str) -> None:
+    _BACKGROUND.append(asyncio.ensure_future(service.runtime.batcher.submit(kind, None)))
+
+
+def _wait_for(condition) -> None:
+    for _ in range(3000):
+        if condition():
+            return
+        time.sleep(0.01)
+    raise AssertionError("condition never met")
+
+
+def test_a_geodesic_larger_than_one_job_runs_in_row_blocks(
+    service, client, registered, reference, monkeypatch
+):
+    predictor, state = reference
+    runtime = service.runtime
+    handler = runtime.batcher.handlers["geodesic"]
+    jobs: list[int] = []
+
+    def counting(batch):
+        jobs.append(len(batch))
+        return handler(batch)
+
+    monkeypatch.setattr(runtime, "geodesic_chunk_pairs", 3 * state.n_points)
+    monkeypatch.setitem(runtime.batcher.handlers, "geodesic", counting)
+    sources = list(range(0, 70, 7))  # 10 sources: 4 row blocks of at most 3
+    got = client.geodesic(registered, sources, "all")
+    np.testing.assert_allclose(got, predictor.distances(state, sources), rtol=1e-5, atol=1e-6)
+    assert len(jobs) == 1 + 4  # the whole request (answered "split"), then its blocks
+    jobs.clear()
+    points = state.vertices[:100:10] + 1e-4  # 10 xyz sources × 214 xyz targets: 2 blocks
+    targets = state.vertices[::3] + 1e-4
+    got = client.geodesic(registered, points, targets)
+    expected = predictor.distances(state, points, targets)
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
+    assert len(jobs) == 1 + 2

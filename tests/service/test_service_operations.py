@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from service.client import LiteGEClient, ProblemError
+from service.store import artifact_key, geometry_key
 
 
 def metric(text: str, name: str, **labels: str) -> float:
@@ -38,8 +39,8 @@ def test_state_survives_an_api_restart(live_service_factory, private_redis, mesh
     first.stop()
     keys = {k.decode() for k in private_redis.client().keys("litege:*")}
     assert keys == {
-        f"litege:{bundle_hash(first)}:{shape_id}:arrays",
-        f"litege:{bundle_hash(first)}:{shape_id}:record",
+        geometry_key(shape_id),
+        artifact_key(shape_id, bundle_hash(first), "record"),
     }
     second = live_service_factory(redis_url=private_redis.url)
     with LiteGEClient(second.base_url) as client:
@@ -59,8 +60,8 @@ def test_evicted_record_is_recomputed_and_lost_arrays_say_upload_again(
     with LiteGEClient(service.base_url) as client:
         shape_id = client.register_file(mesh_bytes(2, "ply"), file_format="ply")["shape_id"]
         before = client.geodesic(shape_id, [1], [2, 3, 4])
-        record_key = f"litege:{bundle_hash(service)}:{shape_id}:record"
-        arrays_key = f"litege:{bundle_hash(service)}:{shape_id}:arrays"
+        record_key = artifact_key(shape_id, bundle_hash(service), "record")
+        arrays_key = geometry_key(shape_id)
 
         # Redis evicts the record; the process forgets its live state (restart, LRU).
         redis_client.delete(record_key)
@@ -111,7 +112,7 @@ def test_redis_outage_degrades_and_recovers(live_service_factory, private_redis,
             client.geodesic(kept, [0], [1])  # traffic drives the reconnect attempts
             time.sleep(0.2)
         after = client.register_file(mesh_bytes(4, "obj"), file_format="obj")["shape_id"]
-        key = f"litege:{bundle_hash(service)}:{after}:arrays"
+        key = geometry_key(after)
         assert private_redis.client().exists(key)
         assert metric(client.metrics(), "litege_store_degraded") == 0
 

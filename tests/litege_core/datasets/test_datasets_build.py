@@ -7,8 +7,8 @@ import trimesh
 from litege_core.datasets import DatasetSpec, GeodesicDataset, build_dataset, preset, verify_dataset
 from litege_core.datasets.build import extra_sources
 from litege_core.datasets.storage import MANIFEST
+from litege_core.engines import compute_distances
 from litege_core.errors import ArtifactError, InputError
-from litege_core.geodesics import compute_distances
 from litege_core.shape import Shape
 
 SPHERE = trimesh.creation.icosphere(subdivisions=2)
@@ -133,7 +133,6 @@ def test_refuses_to_mix_specs(tmp_path):
 
 
 def test_exact_engine_rows(tmp_path):
-    pytest.importorskip("litege_core.geodesics")
     spec = toy_spec(n_shapes={"train": 0, "val": 0, "test": 1})
     build_dataset(spec, tmp_path, EllipsoidFactory(), progress=False)
     test = GeodesicDataset(tmp_path).load_split("test")

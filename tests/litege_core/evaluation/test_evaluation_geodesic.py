@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from litege_core.engines import compute_distances, surface_point_distances
 from litege_core.evaluation.geodesic import (
     SETTINGS,
     EvalShape,
@@ -10,7 +11,6 @@ from litege_core.evaluation.geodesic import (
     unit_area,
 )
 from litege_core.evaluation.speed import batch_query_table
-from litege_core.geodesics import compute_distances, surface_point_distances
 from litege_core.sampling import farthest_point_sampling
 from litege_core.shape import Shape
 
@@ -84,3 +84,43 @@ def test_batch_query_table(blob, toy_predictor):
     rows = batch_query_table(toy_predictor, clouds, counts=(1, 4), runs=1)
     assert [r["shapes"] for r in rows] == [1, 4]
     assert all(r["median_ms"] > 0 for r in rows)
+
+
+def test_frame_selection_rows(eval_shape, toy_predictor):
+    from litege_core.evaluation.geodesic import register_in_frame
+
+    item = make_input(eval_shape, "cloud_300", seed=0)
+    plain = toy_predictor.register(item.shape)
+    state, choice = register_in_frame(toy_predictor, item.shape, "pca")
+    assert choice.index == 0 and state.transform.allclose(plain.transform)
+    np.testing.assert_array_equal(
+        toy_predictor.distances(state, item.source_index),
+        toy_predictor.distances(plain, item.source_index),
+    )
+    selected, choice = register_in_frame(toy_predictor, item.shape, "signs")
+    assert choice.scores.shape == (4,) and selected.residual == pytest.approx(choice.scores.min())
+    results = evaluate([eval_shape], toy_predictor, settings=("cloud_300",), frames=("signs",))
+    assert {r.method for r in results} >= {"LiteGE", "LiteGE (frame: signs)"}
+
+
+def test_real_sets_skip_cleanly_without_the_data(tmp_path):
+    from litege_core.evaluation.geodesic import REAL_SETS, real_shape_paths
+
+    assert real_shape_paths(tmp_path / "missing", "tosca") == []
+    (tmp_path / "leopard").mkdir()
+    (tmp_path / "leopard" / "leopard.obj").write_text("")
+    assert [p.name for p in real_shape_paths(tmp_path, "leopard")] == ["leopard.obj"]
+    assert REAL_SETS["faust"].model == "humans"
+    with pytest.raises(Exception, match="unknown real set"):
+        real_shape_paths(tmp_path, "smal")
+
+
+def test_generated_held_out_shapes_and_row_cache(tmp_path):
+    from litege_core.evaluation.geodesic import HELD_OUT_SEED_OFFSET, generated_eval_shapes
+
+    first = generated_eval_shapes("quadruped", 1, 3, cache_dir=tmp_path)
+    assert first[0].name.endswith(str(HELD_OUT_SEED_OFFSET)) and first[0].gt.shape[0] == 3
+    assert Shape.from_arrays(first[0].vertices, first[0].faces).area == pytest.approx(1.0)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+    again = generated_eval_shapes("quadruped", 1, 3, cache_dir=tmp_path)  # from the cache
+    np.testing.assert_array_equal(first[0].gt, again[0].gt)

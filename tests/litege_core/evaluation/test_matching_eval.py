@@ -133,7 +133,7 @@ def test_match_errors_look_up_rows(symmetric_toy):
 
 
 def test_surface_point_rows_close_to_exact(blob):
-    from litege_core.geodesics import compute_distances, insert_surface_points
+    from litege_core.engines import compute_distances, insert_surface_points
     from litege_core.sampling import sample_surface
     from litege_core.variants import SurfaceLocation
 
@@ -302,3 +302,71 @@ def test_cli_rejects_unknown_setting(tiny_bundle_dir, capsys):
 
     assert main(["eval", "matching", "--model", str(tiny_bundle_dir), "--settings", "bogus"]) == 2
     assert "bogus" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- issue 15
+
+
+def test_litege_variants_parse_name_and_label():
+    from litege_core.errors import InputError
+    from litege_core.evaluation.matching import LiteGEVariant, method_label
+
+    default = LiteGEVariant.parse("auto")
+    assert default == LiteGEVariant() and default.name == "litege"
+    variant = LiteGEVariant.parse("judged+mirror-vote+zoomout")
+    assert (variant.frames, variant.side, variant.refine) == ("judged", "network", "zoomout")
+    assert variant.name == "litege[judged+mirror-vote+zoomout]"
+    assert LiteGEVariant.parse("zoomout").name == "litege[zoomout]"
+    assert method_label("litege[tnet]") == "LiteGE [tnet]"
+    assert method_label("nn[judged]") == "NN (aligned) [judged]"
+    assert method_label("zoomout") == "ZoomOut (pyFM)"
+    assert LiteGEVariant.parse("judged+zoomout-hybrid").refine == "zoomout-hybrid"
+    for bad in ("tnet+judged", "pca", "judged+icp", "zoomout+zoomout-hybrid"):
+        with pytest.raises(InputError):
+            LiteGEVariant.parse(bad)
+
+
+def test_derived_mirror_rows_on_a_symmetric_and_an_asymmetric_toy(symmetric_toy):
+    from litege_core.evaluation.matching_data import derived_mirror_rows
+
+    vertices, faces, mirror = symmetric_toy
+    rows = np.random.default_rng(0).permutation(len(vertices))  # rows cover every vertex
+    found = derived_mirror_rows(vertices + np.array([3.0, 0.0, 0.0]), faces, rows)  # x = mean x
+    np.testing.assert_array_equal(rows[found], mirror[rows])
+    lopsided = vertices.copy()
+    lopsided[:, 0] += 1.5 * np.maximum(lopsided[:, 0], 0) + 1.0 * lopsided[:, 1]
+    assert derived_mirror_rows(lopsided, faces, rows) is None
+
+
+@pytest.mark.evaldata
+@pytest.mark.skipif(not (EVAL_DATA / "tosca_5k").is_dir(), reason="no ../shared/eval-data")
+def test_tosca_pairs_have_a_derived_mirror_far_from_the_truth():
+    (pair,) = eval_data_pairs("tosca", EVAL_DATA, n_pairs=1, n_queries=30, seed=0)
+    assert pair.mirror is not None and pair.mirror.shape == pair.truth.shape
+    err, mirrored = pair.errors(pair.mirror)  # answering the mirror: flipped where it is far
+    assert np.median(err) > 0.05 and np.all(mirrored < 0.02)
+
+
+def test_evaluation_variants_rows_and_refinement_notes(tiny_bundle_dir):
+    from litege_core.evaluation.matching import load_matching_model, run_matching_evaluation
+
+    pytest.importorskip("pyFM")
+    model = load_matching_model(str(tiny_bundle_dir))
+    results = run_matching_evaluation(
+        model,
+        settings=["template", "cloud500"],
+        real=[],
+        eval_data="absent",
+        n_pairs=1,
+        n_queries=4,
+        baselines=["nn"],
+        variants=["tnet", "tnet+mirror-vote", "tnet+zoomout"],
+    )
+    rows = {(r.setting, r.method): r for r in results}
+    for method in ("litege[tnet]", "litege[tnet+mirror-vote]", "litege[tnet+zoomout]"):
+        assert rows[("template", method)].pairs == 1, method
+        assert rows[("template", method)].flip_rate is not None
+    assert rows[("template", "nn[tnet]")].pairs == 1
+    assert rows[("cloud500", "litege[tnet]")].pairs == 1
+    refined = rows[("cloud500", "litege[tnet+zoomout]")]
+    assert refined.pairs == 0 and refined.note == "refinement needs meshes"

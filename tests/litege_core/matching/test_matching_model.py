@@ -9,6 +9,7 @@ import torch
 from litege_core.errors import (
     ArrayShapeError,
     ArtifactError,
+    CoordinateRangeError,
     IndexOutOfRangeError,
     InputError,
     NonFiniteError,
@@ -128,6 +129,25 @@ def test_bad_queries_raise_precise_errors(model, prepared):
         model.match(x, y, [0], query_points=[[0.0, 0.0, 0.0]])
     with pytest.raises(InputError):
         model.match(x, y, [0.5])
+    with pytest.raises(ArrayShapeError, match="integers"):  # the one rule: 1.0 is no index
+        model.match(x, y, [1.0, 2.0])
+    with pytest.raises(CoordinateRangeError):
+        model.match(x, y, [[1e40, 0.0, 0.0]])
+
+
+def test_xyz_queries_are_snapped_onto_the_mesh_surface(model, shapes, prepared):
+    """The rule of the geodesic predictor: a point off a mesh is moved to its closest surface
+    point before it is embedded, so lifting a query along the normal changes nothing."""
+    import trimesh
+
+    x, y = prepared
+    mesh = trimesh.Trimesh(shapes[0].vertices, shapes[0].faces, process=False)
+    rows = [3, 500, 1200]
+    lifted = shapes[0].vertices[rows] + 0.01 * mesh.vertex_normals[rows]
+    np.testing.assert_array_equal(
+        model.match(x, y, lifted).indices, model.match(x, y, rows).indices
+    )
+    assert x.faces is not None and MatchingShape.from_arrays(x.to_arrays()).faces is not None
 
 
 def test_shapes_prepared_by_another_model_are_refused(prepared):

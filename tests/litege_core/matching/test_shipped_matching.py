@@ -8,7 +8,7 @@ a measurement of the shipped model (stated beside it) with headroom for other ma
 import numpy as np
 import pytest
 
-from litege_core.geodesics import compute_distances
+from litege_core.engines import compute_distances
 from litege_core.matching import MatchingModel, shipped_matching_bundles
 from litege_core.synth import families, generate_shape
 from litege_core.variants import random_rotation

@@ -11,9 +11,9 @@ import torch
 import trimesh
 from PIL import Image
 
-from litege_core.bundle import save_bundle
 from litege_core.cli import main
 from litege_core.descriptor import VoxelGrid, fit_basis
+from litege_core.learned import save_bundle
 from litege_core.matching.testing import save_tiny_matching_bundle
 from litege_core.nets import GeodesicNet
 from litege_core.synth import generate_shape

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from litege_core.datasets import DatasetSpec, GeodesicDataset, build_dataset
-from litege_core.geodesics import compute_distances
+from litege_core.engines import compute_distances
 from litege_core.shape import Shape
 from litege_core.train.basis import fit_training_basis
 from litege_core.train.config import BasisConfig, TrainConfig

@@ -12,11 +12,11 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import litege_core.train.tnet as tnet_module
+from litege_core.cli.train import add_train_parser
 from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, state_to_tensors
 from litege_core.nets.tnet import CUBE_ROTATIONS
 from litege_core.sampling import sample_surface
-from litege_core.train import add_train_parser
 from litege_core.train.tnet import (
     PREDICT_MAX_POINTS,
     TNetTrainConfig,

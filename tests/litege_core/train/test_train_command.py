@@ -3,9 +3,9 @@ import json
 
 import pytest
 
-from litege_core.bundle import load_bundle
+from litege_core.cli.train import add_train_parser
 from litege_core.errors import ArtifactError
-from litege_core.train import add_train_parser
+from litege_core.learned import load_bundle
 from litege_core.train.pipeline import train_geodesic
 
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from safetensors.numpy import save as st_save
 
 from litege_core.errors import ArtifactError, InputError
-from service.store import FORMAT_TAG, artifact_key, decode_arrays, encode_arrays
+from service.store import FORMAT_TAG, artifact_key, decode_arrays, encode_arrays, geometry_key
 from service.store.codec import SUPPORTED_DTYPES
 
 DTYPES = ["float64", "float32", "int64", "uint8", "bool", "int32", "float16", "complex64"]
@@ -186,8 +186,12 @@ def test_arbitrary_bytes_decode_or_raise_artifact_error(data: bytes) -> None:
 # -- keys --------------------------------------------------------------------------------------
 
 
-def test_artifact_key_format() -> None:
-    assert artifact_key("b1a2", "shape-7", "record") == "litege:b1a2:shape-7:record"
+def test_key_layout_geometry_once_per_shape_artifacts_per_bundle_beside_it() -> None:
+    assert geometry_key("shape-7") == "litege:{shape-7}:geometry"
+    assert artifact_key("shape-7", "b1a2", "record") == "litege:{shape-7}:b1a2:record"
+    # the Redis Cluster hash tag (the part in braces) is the shape id for all of them
+    for key in (geometry_key("s"), artifact_key("s", "b", "record"), artifact_key("s", "m", "x")):
+        assert key[key.index("{") + 1 : key.index("}")] == "s"
 
 
 @pytest.mark.parametrize(
@@ -205,8 +209,17 @@ def test_artifact_key_format() -> None:
         ("b", "s\u00a0", "a"),  # unicode whitespace
         ("b", 7, "a"),
         (None, "s", "a"),
+        ("s{x}", "b", "a"),  # braces would move the hash tag
+        ("s", "b}", "a"),
+        ("s", "b", "{a"),
     ],
 )
 def test_artifact_key_rejects_bad_parts(parts: tuple) -> None:
     with pytest.raises(InputError):
         artifact_key(*parts)
+
+
+@pytest.mark.parametrize("shape_id", ["", "a:b", "a b", "{a}", "a}", None, 7])
+def test_geometry_key_rejects_bad_shape_ids(shape_id: object) -> None:
+    with pytest.raises(InputError):
+        geometry_key(shape_id)  # type: ignore[arg-type]

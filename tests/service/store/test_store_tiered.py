@@ -92,7 +92,7 @@ def test_remote_outage_degrades_but_keeps_serving_the_local_tier(private_redis, 
     remote = RedisStore(
         private_redis.url, default_ttl_s=60.0, backoff_initial_s=1.0, clock=fake_clock
     )
-    store = TieredStore(InMemoryStore(1000, clock=fake_clock), remote)
+    store = TieredStore(InMemoryStore(1000, clock=fake_clock), remote, flush_interval_s=None)
     assert store.put_many({"hot": b"h"}) is True
     private_redis.kill()
 
@@ -105,6 +105,7 @@ def test_remote_outage_degrades_but_keeps_serving_the_local_tier(private_redis, 
     assert health.available and health.degraded and "unreachable" in health.detail
     stats = store.stats()
     assert stats["remote_available"] == 0.0 and stats["write_failures"] == 1
+    assert stats["pending_writes"] == 2  # "new", and the delete of "hot"
 
     private_redis.start()
     fake_clock.advance(1.0)
@@ -115,16 +116,21 @@ def test_remote_outage_degrades_but_keeps_serving_the_local_tier(private_redis, 
 
 def test_make_store_without_redis_is_one_memory_store() -> None:
     for url in (None, ""):
-        store = make_store(url, memory_bytes=1234, hot_bytes=10, ttl_s=5.0)
-        assert isinstance(store, InMemoryStore)
+        store = make_store(url, memory_bytes=1234, hot_bytes=10, ttl_s=5.0, write_behind_bytes=9)
+        assert isinstance(store, InMemoryStore) and set(store.usage()) == {"memory"}
         assert store.max_bytes == 1234 and store.default_ttl_s == 5.0
         assert store.health().backend == "memory"
 
 
 def test_make_store_with_redis_is_tiered(shared_redis_url: str, key_prefix: str) -> None:
-    store = make_store(shared_redis_url, memory_bytes=1234, hot_bytes=100, ttl_s=30.0)
+    store = make_store(
+        shared_redis_url, memory_bytes=1234, hot_bytes=100, ttl_s=30.0, write_behind_bytes=50
+    )
     assert isinstance(store, TieredStore)
     assert store.local.max_bytes == 100 and store.local.default_ttl_s == 30.0
+    usage = store.usage()
+    assert set(usage) == {"hot", "write_behind"}
+    assert usage["hot"].max_bytes == 100 and usage["write_behind"].max_bytes == 50
     assert isinstance(store.remote, RedisStore) and store.remote.default_ttl_s == 30.0
     assert store.put_many({f"{key_prefix}k": b"v"})
     assert store.get(f"{key_prefix}k") == b"v"
@@ -135,7 +141,7 @@ def test_make_store_with_redis_is_tiered(shared_redis_url: str, key_prefix: str)
 def test_make_store_does_not_connect(private_redis) -> None:
     url = private_redis.url
     private_redis.kill()
-    store = make_store(url, memory_bytes=10, hot_bytes=10, ttl_s=None)  # no exception
+    store = make_store(url, memory_bytes=10, hot_bytes=10, ttl_s=None, write_behind_bytes=10)
     assert store.get("k") is None
     assert store.health().degraded
     store.close()

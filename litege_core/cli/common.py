@@ -1,0 +1,124 @@
+"""Helpers shared by the ``litege`` sub-commands: argument groups, index lists, the model a
+command runs, and output files. Heavy imports (torch, the model) happen inside functions."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+from litege_core.errors import InputError
+
+if TYPE_CHECKING:
+    from litege_core.learned import Predictor
+
+SHAPE_KINDS = ("mesh", "point_cloud")
+SHAPE_FILE_HELP = "mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)"
+
+
+def parse_indices(text: str, what: str) -> list[int]:
+    """``"0,17,42"`` → ``[0, 17, 42]``; anything else is an :class:`InputError` naming
+    the ``--what`` flag."""
+    items = [item.strip() for item in text.split(",")]
+    try:
+        return [int(item) for item in items]
+    except ValueError:
+        raise InputError(
+            f"--{what} must be comma-separated integer indices, got {text!r}"
+        ) from None
+
+
+def split_list(text: str | None, allowed: Sequence[str], what: str) -> list[str]:
+    """``"a,b"`` → ``["a", "b"]`` checked against ``allowed`` (``""`` → none)."""
+    items = [item.strip() for item in (text or "").split(",") if item.strip()]
+    unknown = [item for item in items if item not in allowed]
+    if unknown:
+        raise InputError(f"--{what}: unknown {unknown}; expected a subset of {list(allowed)}")
+    return items
+
+
+def predictor(args: argparse.Namespace) -> Predictor:
+    """The geodesic :class:`~litege_core.learned.Predictor` of ``--model``/``--bundle`` on
+    ``--device`` (see :func:`add_bundle_arguments`)."""
+    from pathlib import Path
+
+    from litege_core.device import resolve_device
+    from litege_core.learned import DEFAULT_MODEL, Predictor, load_bundle, load_shipped
+
+    device = resolve_device(args.device)
+    if args.bundle is not None:
+        bundle = load_bundle(args.bundle, device)
+    elif args.model is not None and Path(args.model).is_dir():  # --model takes a path too
+        bundle = load_bundle(args.model, device)
+    else:
+        bundle = load_shipped(args.model or DEFAULT_MODEL, device)
+    return Predictor(bundle, device)
+
+
+def save_npy(path: str, array: Any) -> None:
+    """Write ``array`` to exactly ``path`` (``np.save`` would append ``.npy``)."""
+    import numpy as np
+
+    try:
+        with open(path, "wb") as handle:
+            np.save(handle, array)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror}") from exc
+
+
+def write_json(path: str, data: Any) -> None:
+    """Write ``data`` as indented JSON to ``path``; failures are :class:`InputError`."""
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            json.dump(data, handle, indent=2)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror}") from exc
+
+
+def print_json(data: Any) -> None:
+    """A command's summary on stdout."""
+    print(json.dumps(data, indent=2))
+
+
+def add_device_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+
+
+def add_kind_argument(parser: argparse.ArgumentParser, flag: str = "--kind") -> None:
+    parser.add_argument(flag, choices=SHAPE_KINDS, default=None)
+
+
+def add_bundle_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--model NAME`` or ``--bundle DIR`` of a geodesic model, and ``--device``."""
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument(
+        "--model", default=None, help="shipped model name or bundle directory (default: quadrupeds)"
+    )
+    which.add_argument("--bundle", default=None, help="model bundle directory")
+    add_device_argument(parser)
+
+
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """A shape file, its kind, the geodesic model, the descriptor seed and ``-o FILE.npy``."""
+    parser.add_argument("file", help=SHAPE_FILE_HELP)
+    add_kind_argument(parser)
+    add_bundle_arguments(parser)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the descriptor samples")
+    parser.add_argument("-o", "--output", required=True, help="output .npy file")
+
+
+__all__ = [
+    "SHAPE_FILE_HELP",
+    "SHAPE_KINDS",
+    "add_bundle_arguments",
+    "add_device_argument",
+    "add_kind_argument",
+    "add_model_arguments",
+    "parse_indices",
+    "predictor",
+    "print_json",
+    "save_npy",
+    "split_list",
+    "write_json",
+]

@@ -1,0 +1,124 @@
+"""``litege data build``, ``litege data merge`` and ``litege data verify``: ground-truth
+geodesic datasets.
+
+``litege data build --shard I/N`` builds worker ``I``'s share of the shard files (``N``
+processes or machines over one directory, e.g. the pods of a Kubernetes Indexed Job on a
+shared volume); the worker that finds every share built merges ``manifest.json`` (unless
+``--no-merge``), and ``litege data merge DIR`` does the same explicitly (optionally waiting
+for the other workers). See ``docs/scaling.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from litege_core.cli.common import print_json
+
+
+def cmd_data_build(args: argparse.Namespace) -> int:
+    from litege_core.datasets import build_dataset, preset
+    from litege_core.datasets.build import merge_dataset, missing_shards
+    from litege_core.datasets.factories import factory_for
+    from litege_core.datasets.spec import WorkShare
+
+    spec = preset(args.preset, args.category)
+    directory = args.out or f"data/{spec.name}"
+    share = None if args.shard is None else WorkShare.parse(args.shard)
+    manifest = build_dataset(
+        spec,
+        directory,
+        factory_for(args.category),
+        workers=args.workers,
+        solver=args.solver,
+        part=share,
+    )
+    summary = {
+        "directory": str(directory),
+        "counts": manifest["counts"],
+        "compute_seconds": round(manifest["compute_seconds"], 1),
+    }
+    if share is not None:
+        summary["shard"] = str(share)
+        missing = missing_shards(directory)
+        summary["merged"] = False
+        summary["missing_shards"] = len(missing)
+        if not missing and not args.no_merge:
+            merged = merge_dataset(directory)
+            summary.update(merged=True, dataset_counts=merged["counts"])
+    print_json(summary)
+    return 0
+
+
+def cmd_data_merge(args: argparse.Namespace) -> int:
+    from litege_core.datasets.build import merge_dataset
+
+    manifest = merge_dataset(args.directory, wait_s=args.wait, poll_s=args.poll)
+    print_json(
+        {
+            "directory": str(args.directory),
+            "shards": len(manifest["shards"]),
+            "counts": manifest["counts"],
+            "merged_from": manifest.get("merged_from", []),
+            "compute_seconds": round(manifest["compute_seconds"], 1),
+        }
+    )
+    return 0
+
+
+def cmd_data_verify(args: argparse.Namespace) -> int:
+    from litege_core.datasets import verify_dataset
+
+    print_json(verify_dataset(args.directory))
+    return 0
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``data build``, ``data merge`` and ``data verify``."""
+    data = commands.add_parser("data", help="ground-truth geodesic datasets")
+    data_commands = data.add_subparsers(dest="data_command", required=True)
+    build = data_commands.add_parser("build", help="build or resume a dataset")
+    build.add_argument("--category", choices=["quadruped", "biped"], default="quadruped")
+    build.add_argument("--preset", choices=["small", "large", "full", "matching"], default="small")
+    build.add_argument("--out", default=None, help="directory (default data/CATEGORY-PRESET)")
+    build.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    build.add_argument(
+        "--solver",
+        choices=["exact", "heat"],
+        default="exact",
+        help="ground-truth geodesics: exact MMP (default) or the ~80× faster heat method",
+    )
+    build.add_argument(
+        "--shard",
+        default=None,
+        metavar="I/N",
+        help="build only worker I's share (0 <= I < N) of the shard files, for N workers "
+        "over one directory; resumable and idempotent per worker",
+    )
+    build.add_argument(
+        "--no-merge",
+        action="store_true",
+        help="with --shard: do not merge manifest.json when every share is built",
+    )
+    build.set_defaults(handler=cmd_data_build)
+    merge = data_commands.add_parser(
+        "merge", help="assemble and verify manifest.json of a sharded build"
+    )
+    merge.add_argument("directory")
+    merge.add_argument(
+        "--wait",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="wait up to SECONDS for shards still being built (default: fail at once)",
+    )
+    merge.add_argument(
+        "--poll", type=float, default=30.0, metavar="SECONDS", help="check interval while waiting"
+    )
+    merge.set_defaults(handler=cmd_data_merge)
+    verify = data_commands.add_parser("verify", help="verify a dataset directory")
+    verify.add_argument("directory")
+    verify.set_defaults(handler=cmd_data_verify)
+
+
+__all__ = ["cmd_data_build", "cmd_data_merge", "cmd_data_verify", "register"]

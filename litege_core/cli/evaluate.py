@@ -1,0 +1,142 @@
+"""``litege eval geodesic`` and ``litege eval matching``: a model against the baselines."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from litege_core.cli.common import (
+    add_bundle_arguments,
+    add_device_argument,
+    predictor,
+    split_list,
+    write_json,
+)
+
+
+def cmd_eval_geodesic(args: argparse.Namespace) -> int:
+    from litege_core.evaluation.geodesic import (
+        SETTINGS,
+        evaluate,
+        real_eval_shapes,
+        results_table,
+        synthetic_eval_shapes,
+    )
+
+    model = predictor(args)
+    shapes = []
+    if args.dataset:
+        shapes += synthetic_eval_shapes(args.dataset, args.shapes)
+    eval_root = Path(args.eval_data)
+    real = {
+        "tosca": ("tosca_5k", "TOSCA animals (real)"),
+        "faust": ("faust_5k", "FAUST humans (real)"),
+    }
+    for key in args.real:
+        folder, group = real[key]
+        paths = sorted((eval_root / folder).glob("*.off"))[: args.real_shapes]
+        if not paths:
+            print(f"litege: no {key} shapes under {eval_root / folder}; skipped", file=sys.stderr)
+        shapes += real_eval_shapes(paths, group, args.sources)
+    settings = args.settings.split(",") if args.settings else SETTINGS
+    results = evaluate(shapes, model, settings, seed=args.seed)
+    print(results_table(results))
+    return 0
+
+
+def cmd_eval_matching(args: argparse.Namespace) -> int:
+    from litege_core.evaluation.matching import (
+        load_matching_model,
+        machine_header,
+        results_table,
+        run_matching_evaluation,
+    )
+    from litege_core.evaluation.matching_data import REAL_SETS, SYNTHETIC_SETTINGS
+
+    settings = split_list(args.settings, SYNTHETIC_SETTINGS, "settings")
+    real = split_list(args.real, REAL_SETS, "real")
+    baselines = split_list(args.baselines, ("nn", "zoomout"), "baselines")
+    model = load_matching_model(args.model, args.device)
+
+    def log(message: str) -> None:
+        print(f"litege: {message}", file=sys.stderr, flush=True)
+
+    results = run_matching_evaluation(
+        model,
+        settings=settings,
+        real=real,
+        eval_data=args.eval_data,
+        n_pairs=args.pairs,
+        n_queries=args.queries,
+        baselines=baselines,
+        seed=args.seed,
+        device=args.device,
+        rotate_input=not args.no_rotate,
+        workers=args.workers,
+        log=log,
+    )
+    meta = {
+        "model": f"{model.name} ({model.content_hash[:12]})",
+        "device": str(model.device),
+        "pairs/set": str(args.pairs),
+        "queries/pair": str(args.queries),
+        "seed": str(args.seed),
+    }
+    header = machine_header(meta)
+    print(results_table(results, header))
+    if args.json:
+        write_json(args.json, {"meta": header, "results": [r.to_dict() for r in results]})
+    return 0
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``eval geodesic`` and ``eval matching``."""
+    evaluation = commands.add_parser("eval", help="evaluate a model against baselines")
+    eval_commands = evaluation.add_subparsers(dest="eval_command", required=True)
+
+    geodesic = eval_commands.add_parser("geodesic", help="geodesic error vs baselines")
+    add_bundle_arguments(geodesic)
+    geodesic.add_argument("--seed", type=int, default=0)
+    geodesic.add_argument("--dataset", help="dataset directory whose test split is evaluated")
+    geodesic.add_argument("--shapes", type=int, default=20, help="synthetic shapes to evaluate")
+    geodesic.add_argument("--real", nargs="*", default=[], choices=["tosca", "faust"])
+    geodesic.add_argument("--real-shapes", type=int, default=32)
+    geodesic.add_argument("--eval-data", default="../shared/eval-data")
+    geodesic.add_argument("--sources", type=int, default=16, help="sources per real shape")
+    geodesic.add_argument("--settings", default=None, help="comma-separated subset of settings")
+    geodesic.set_defaults(handler=cmd_eval_geodesic)
+
+    matching = eval_commands.add_parser(
+        "matching", help="matching error, AUC, flips and time vs NN and ZoomOut baselines"
+    )
+    matching.add_argument(
+        "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
+    )
+    add_device_argument(matching)
+    matching.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
+    matching.add_argument("--queries", type=int, default=100, help="query points per pair")
+    matching.add_argument(
+        "--settings",
+        default="template,remesh5k,aniso10k,broken40,cloud8k,cloud500",
+        help="comma-separated synthetic settings ('' for none)",
+    )
+    matching.add_argument(
+        "--real",
+        default="tosca,tosca-landmarks,faust",
+        help="comma-separated real sets, read from --eval-data when present ('' for none)",
+    )
+    matching.add_argument("--eval-data", default="../shared/eval-data")
+    matching.add_argument("--baselines", default="nn,zoomout", help="nn, zoomout ('' for none)")
+    matching.add_argument("--seed", type=int, default=0)
+    matching.add_argument(
+        "--no-rotate", action="store_true", help="keep inputs in their frame (default: random)"
+    )
+    matching.add_argument(
+        "--workers", type=int, default=1, help="processes for ground-truth geodesics"
+    )
+    matching.add_argument("--json", default=None, help="also write the results as JSON")
+    matching.set_defaults(handler=cmd_eval_matching)
+
+
+__all__ = ["cmd_eval_geodesic", "cmd_eval_matching", "register"]

@@ -1,0 +1,145 @@
+"""``litege info``, ``litege geodesic`` and ``litege path``: one shape file in, a summary on
+stdout and (for the last two) a ``.npy`` file out."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from litege_core.cli.common import (
+    add_kind_argument,
+    add_model_arguments,
+    parse_indices,
+    predictor,
+    print_json,
+    save_npy,
+)
+from litege_core.io import load_shape
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    shape = load_shape(args.file, kind=args.kind)
+    report: dict[str, Any] = {
+        "file": str(args.file),
+        "kind": shape.kind.value,
+        "n_points": shape.n_points,
+        "n_faces": shape.n_faces,
+        "content_hash": shape.content_hash,
+        "bbox_min": shape.vertices.min(axis=0).tolist(),
+        "bbox_max": shape.vertices.max(axis=0).tolist(),
+    }
+    if shape.is_mesh:
+        report["area"] = shape.area
+    print_json(report)
+    return 0
+
+
+METHODS = ("learned", "heat", "exact", "graph")
+
+
+def _classical(args: argparse.Namespace, shape: Any) -> Any:
+    from litege_core.engines import ClassicalSolver
+
+    return ClassicalSolver(shape, args.method, max_exact_vertices=args.max_exact_vertices)
+
+
+def cmd_geodesic(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    sources = parse_indices(args.sources, "sources")
+    targets = None if args.targets.strip() == "all" else parse_indices(args.targets, "targets")
+    shape = load_shape(args.file, kind=args.kind)
+    report: dict[str, Any] = {"file": str(args.file), "method": args.method}
+    if args.method == "learned":
+        model = predictor(args)
+        state = model.register(shape, seed=args.seed)
+        distances = model.distances(state, sources, targets).astype(np.float32)
+        report.update(engine="learned", model=model.bundle.name, ood_score=state.ood_score)
+    else:
+        solver = _classical(args, shape)
+        distances = solver.distances(sources, targets)
+        report["engine"] = solver.engine
+    save_npy(args.output, distances)
+    report.update(output=str(args.output), shape=list(distances.shape), units="input")
+    print_json(report)
+    return 0
+
+
+def cmd_path(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    shape = load_shape(args.file, kind=args.kind)
+    report: dict[str, Any] = {"file": str(args.file), "method": args.method}
+    if args.method == "learned":
+        model = predictor(args)
+        state = model.register(shape, seed=args.seed)
+        path = model.path(state, args.source, args.target)
+        points = path.points
+        report.update(
+            engine="learned",
+            model=model.bundle.name,
+            length=path.length,
+            predicted_distance=path.predicted_distance,
+            n_steps=path.n_steps,
+            converged=path.converged,
+            segments=[list(segment) for segment in path.segments],
+        )
+    else:
+        solver = _classical(args, shape)
+        found = solver.path(args.source, args.target)
+        points = found.points
+        report.update(
+            engine=found.engine,
+            length=found.length,
+            distance=found.distance,
+            segments=[list(segment) for segment in found.segments],
+        )
+    save_npy(args.output, np.asarray(points, dtype=np.float32))
+    report.update(output=str(args.output), n_points=int(points.shape[0]))
+    print_json(report)
+    return 0
+
+
+def _add_method_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--method",
+        choices=METHODS,
+        default="learned",
+        help="learned (default: the model), heat (mesh heat method; point-cloud heat on "
+        "clouds), exact (MMP, meshes only) or graph (kNN-graph Dijkstra)",
+    )
+    parser.add_argument(
+        "--max-exact-vertices",
+        type=int,
+        default=20_000,
+        help="refuse --method exact above this many vertices (default 20000)",
+    )
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``info``, ``geodesic`` and ``path``."""
+    info = commands.add_parser("info", help="validate a shape file and print its summary")
+    info.add_argument("file")
+    add_kind_argument(info)
+    info.set_defaults(handler=cmd_info)
+
+    geodesic = commands.add_parser(
+        "geodesic", help="geodesic distances, float32 (S, T), in the input's units"
+    )
+    add_model_arguments(geodesic)
+    geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")
+    geodesic.add_argument("--targets", default="all", help="'all' (default) or i,j,...")
+    _add_method_arguments(geodesic)
+    geodesic.set_defaults(handler=cmd_geodesic)
+
+    path = commands.add_parser(
+        "path", help="geodesic path on the surface, float32 (L, 3) polyline source → target"
+    )
+    add_model_arguments(path)
+    path.add_argument("--source", required=True, type=int, help="source vertex/point index")
+    path.add_argument("--target", required=True, type=int, help="target vertex/point index")
+    _add_method_arguments(path)
+    path.set_defaults(handler=cmd_path)
+
+
+__all__ = ["cmd_geodesic", "cmd_info", "cmd_path", "register"]

@@ -1,0 +1,63 @@
+"""Files written so that a reader never sees half of one: atomic JSON and safetensors writes,
+content hashes, and safetensors reads that report damage as :class:`ArtifactError`.
+
+Shared by datasets (shards, manifests) and model bundles (manifests, weights).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.errors import ArtifactError
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write ``data`` as sorted, indented JSON via a temporary file and a rename."""
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    temporary.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    os.replace(temporary, path)
+
+
+def write_tensors_atomic(path: Path, tensors: dict[str, NDArray]) -> str:
+    """Write ``tensors`` to ``path`` via a temporary file; return the file's SHA-256."""
+    from safetensors.numpy import save_file
+
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    save_file({k: np.ascontiguousarray(v) for k, v in tensors.items()}, str(temporary))
+    os.replace(temporary, path)
+    return file_sha256(path)
+
+
+def read_tensors(path: Path, keys: tuple[str, ...] | None = None) -> dict[str, NDArray]:
+    """Read a safetensors file (optionally only ``keys``), raising ArtifactError on damage."""
+    from safetensors import SafetensorError
+    from safetensors.numpy import load_file
+
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
+    if keys is not None:
+        missing = set(keys) - set(tensors)
+        if missing:
+            raise ArtifactError(f"{path.name} lacks tensors {sorted(missing)}")
+        tensors = {k: tensors[k] for k in keys}
+    return tensors
+
+
+__all__ = ["file_sha256", "read_tensors", "write_json_atomic", "write_tensors_atomic"]

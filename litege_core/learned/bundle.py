@@ -1,0 +1,373 @@
+"""Model bundles: everything a trained LiteGE geodesic model needs, as one versioned artifact.
+
+::
+
+    BUNDLE/manifest.json            name, version, category, pipeline constants, network config,
+                                    training summary, metrics, file hashes, content hash
+    BUNDLE/basis.safetensors        the UDF-PCA basis (voxels, mean, components in float16)
+    BUNDLE/geodesic.safetensors     GeodesicNet weights and coordinate normalization buffers
+
+Loading checks every file hash and the consistency of the pieces (descriptor width of the
+network = number of basis components, canonicalization the bundle was trained with), so a
+network is never paired with the wrong basis or constants (reference-spec §10.6). No pickle.
+Shipped bundles live in ``litege_core/models/NAME/`` (package data).
+
+The format is shared with matching bundles (:mod:`litege_core.matching.bundle`): both are a
+:class:`Bundle`, written by :func:`write_bundle` (basis + weight files + manifest with file hashes
+and a content hash) and opened by :func:`open_bundle` (hashes, kind, format version and basis
+verified). A manifest without a ``kind`` is a geodesic bundle (the key came with matching).
+"""
+
+from __future__ import annotations
+
+import abc
+import hashlib
+import json
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from litege_core.descriptor import UdfPcaBasis
+from litege_core.errors import ArtifactError, InputError
+from litege_core.files import file_sha256, write_json_atomic
+from litege_core.nets import GeodesicNet, load_state, state_to_tensors
+
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+BASIS_FILE = "basis.safetensors"
+NETWORK_FILE = "geodesic.safetensors"
+SHIPPED_DIR = Path(__file__).resolve().parent.parent / "models"
+DEFAULT_MODEL = "quadrupeds"
+GEODESIC = "geodesic"
+"""Kind of a bundle whose manifest has no ``kind`` key."""
+
+
+# --------------------------------------------------------------------------- the shared format
+
+
+class Bundle(abc.ABC):
+    """A loaded, verified bundle directory: a UDF-PCA basis, networks (eval mode, on one
+    device) and the manifest whose ``content_hash`` covers every file and setting."""
+
+    name: str
+    basis: UdfPcaBasis
+    manifest: dict[str, Any]
+    path: Path | None
+
+    @property
+    @abc.abstractmethod
+    def modules(self) -> tuple[torch.nn.Module, ...]:
+        """The bundle's networks (all on :attr:`device`)."""
+
+    @property
+    def content_hash(self) -> str:
+        return str(self.manifest["content_hash"])
+
+    @property
+    def category(self) -> str:
+        return str(self.manifest.get("category", "unknown"))
+
+    @property
+    def kind(self) -> str:
+        return str(self.manifest.get("kind", GEODESIC))
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.modules[0].parameters()).device
+
+
+def _content_hash(file_hashes: dict[str, str], manifest_core: dict[str, Any]) -> str:
+    digest = hashlib.sha256(json.dumps(file_hashes, sort_keys=True).encode())
+    digest.update(json.dumps(manifest_core, sort_keys=True, default=str).encode())
+    return digest.hexdigest()
+
+
+def narrowed_state(module: torch.nn.Module, dtype: torch.dtype) -> dict[str, torch.Tensor]:
+    """State tensors with floating *parameters* cast to ``dtype``. Buffers (BatchNorm running
+    statistics, coordinate normalization) keep float32: a running variance can exceed
+    float16's range. Non-finite values after the cast are an :class:`InputError`."""
+    parameters = {name for name, _ in module.named_parameters()}
+    tensors = {
+        key: value.to(dtype) if key in parameters and value.is_floating_point() else value
+        for key, value in state_to_tensors(module).items()
+    }
+    for key, value in tensors.items():
+        if value.is_floating_point() and not torch.isfinite(value).all():
+            raise InputError(f"weights are not finite in {dtype} (e.g. {key})")
+    return tensors
+
+
+def descriptor_summary(basis: UdfPcaBasis) -> dict[str, Any]:
+    """The manifest's ``descriptor`` entry: what a network must be paired with."""
+    return {
+        "n_components": basis.n_components,
+        "n_voxels": basis.n_voxels,
+        "basis_hash": basis.content_hash,
+    }
+
+
+def check_descriptor_width(
+    networks: Sequence[GeodesicNet], basis: UdfPcaBasis, error: type[Exception] = InputError
+) -> None:
+    """Every network reads ``basis.n_components``-d descriptors (else ``error``)."""
+    if not networks:
+        raise error("a bundle needs at least one network")
+    for net in networks:
+        if net.descriptor_dim != basis.n_components:
+            raise error(
+                f"network expects {net.descriptor_dim}-d descriptors, "
+                f"basis has {basis.n_components} components"
+            )
+
+
+def write_manifest(
+    directory: Path,
+    core: dict[str, Any],
+    filenames: list[str],
+    training: dict[str, Any] | None,
+    metrics: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """Hash ``filenames`` of ``directory`` and write ``manifest.json`` (``core`` + file hashes,
+    training summary, metrics, creation time, content hash); returns the manifest."""
+    files = {f: file_sha256(directory / f) for f in filenames}
+    manifest = {
+        **core,
+        "files": files,
+        "training": training or {},
+        "metrics": metrics or {},
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "content_hash": _content_hash(files, core),
+    }
+    write_json_atomic(directory / MANIFEST, manifest)
+    return manifest
+
+
+def write_bundle(
+    directory: str | os.PathLike,
+    core: dict[str, Any],
+    basis: UdfPcaBasis,
+    weights: Mapping[str, torch.nn.Module],
+    *,
+    weights_dtype: torch.dtype = torch.float32,
+    training: dict[str, Any] | None = None,
+    metrics: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write a bundle directory: ``basis.safetensors``, one safetensors file per entry of
+    ``weights`` (parameters narrowed to ``weights_dtype``) and the manifest (``core`` plus the
+    :func:`descriptor_summary`, file hashes and content hash); returns the manifest."""
+    from safetensors.torch import save_file
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    basis.save(directory / BASIS_FILE)
+    for filename, module in weights.items():
+        save_file(narrowed_state(module, weights_dtype), str(directory / filename))
+    core = {**core, "descriptor": descriptor_summary(basis)}
+    return write_manifest(directory, core, [BASIS_FILE, *weights], training, metrics)
+
+
+def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[str, Any]:
+    """``manifest.json`` of a bundle directory, after checking every listed file's hash.
+
+    Raises:
+        ArtifactError: no or invalid manifest, a missing file or a hash mismatch.
+    """
+    try:
+        manifest = json.loads((directory / MANIFEST).read_text())
+    except FileNotFoundError as exc:
+        raise ArtifactError(f"no {what} at {directory} ({MANIFEST} missing)") from exc
+    except json.JSONDecodeError as exc:
+        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
+    if not isinstance(manifest, dict):
+        raise ArtifactError(f"{directory / MANIFEST} is not a JSON object")
+    for filename, expected in manifest.get("files", {}).items():
+        if not (directory / filename).exists():
+            raise ArtifactError(f"bundle {directory.name} lacks {filename}")
+        if file_sha256(directory / filename) != expected:
+            raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")
+    return manifest
+
+
+def open_bundle(
+    path: str | os.PathLike, kind: str, what: str
+) -> tuple[Path, dict[str, Any], UdfPcaBasis]:
+    """The verified manifest and basis of a bundle directory of ``kind``.
+
+    Raises:
+        ArtifactError: damaged files, another kind or format version, or a basis other than
+            the one the networks were trained with.
+    """
+    directory = Path(path)
+    manifest = read_verified_manifest(directory, what)
+    found = (manifest.get("kind", GEODESIC), manifest.get("format_version"))
+    if found != (kind, FORMAT_VERSION):
+        raise ArtifactError(
+            f"{directory} is not a {what} of format {FORMAT_VERSION} "
+            f"(kind {found[0]!r}, format {found[1]!r})"
+        )
+    basis = UdfPcaBasis.load(directory / BASIS_FILE)
+    if basis.content_hash != manifest.get("descriptor", {}).get("basis_hash"):
+        raise ArtifactError("bundle basis differs from the one it was trained with")
+    return directory, manifest, basis
+
+
+@contextmanager
+def consistent_manifest(what: str) -> Iterator[None]:
+    """Turn a missing key or a bad value while building from a manifest into an
+    :class:`ArtifactError`."""
+    try:
+        yield
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise ArtifactError(f"{what} manifest is inconsistent: {exc}") from exc
+
+
+def load_weights(module: torch.nn.Module, path: Path, device: str | torch.device) -> None:
+    """Load a safetensors weight file into ``module``, move it to ``device``, eval mode."""
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError) as exc:
+        raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
+    load_state(module, tensors)
+    module.to(device).eval()
+
+
+def shipped_directories(kind: str) -> list[Path]:
+    """The bundle directories of ``kind`` shipped inside the package, by name."""
+    if not SHIPPED_DIR.is_dir():
+        return []
+    found = []
+    for directory in sorted(SHIPPED_DIR.iterdir()):
+        manifest = directory / MANIFEST
+        if manifest.is_file() and json.loads(manifest.read_text()).get("kind", GEODESIC) == kind:
+            found.append(directory)
+    return found
+
+
+# --------------------------------------------------------------------------- geodesic bundles
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Constants of the regression pipeline that a bundle was trained with."""
+
+    canonicalization: str = "bbox"
+    bbox_sqrt_area: float = 1.7
+    n_mesh_samples: int = 2000
+    residual: bool = True
+    target_scale: float = 1.42
+
+
+@dataclass(frozen=True, eq=False)
+class ModelBundle(Bundle):
+    """A loaded geodesic bundle: basis, network (eval mode, on ``device``) and manifest."""
+
+    name: str
+    basis: UdfPcaBasis
+    network: GeodesicNet
+    pipeline: PipelineConfig
+    manifest: dict[str, Any] = field(repr=False)
+    path: Path | None = None
+
+    @property
+    def modules(self) -> tuple[torch.nn.Module, ...]:
+        return (self.network,)
+
+
+def save_bundle(
+    directory: str | os.PathLike,
+    *,
+    name: str,
+    category: str,
+    basis: UdfPcaBasis,
+    network: GeodesicNet,
+    pipeline: PipelineConfig = PipelineConfig(),
+    version: str = "0.1.0",
+    training: dict[str, Any] | None = None,
+    metrics: dict[str, Any] | None = None,
+    weights_dtype: torch.dtype = torch.float32,
+) -> dict[str, Any]:
+    """Write a bundle; returns its manifest. ``weights_dtype=torch.float16`` halves the size of
+    the network parameters (buffers stay float32); non-finite weights are refused."""
+    check_descriptor_width([network], basis)
+    core = {
+        "format_version": FORMAT_VERSION,
+        "name": name,
+        "version": version,
+        "category": category,
+        "pipeline": pipeline.__dict__,
+        "network": network.config(),
+    }
+    return write_bundle(
+        directory,
+        core,
+        basis,
+        {NETWORK_FILE: network},
+        weights_dtype=weights_dtype,
+        training=training,
+        metrics=metrics,
+    )
+
+
+def load_bundle(path: str | os.PathLike, device: str | torch.device = "cpu") -> ModelBundle:
+    """Load and verify a bundle directory.
+
+    Raises:
+        ArtifactError: missing or damaged files, hash mismatch, or inconsistent pieces.
+    """
+    directory, manifest, basis = open_bundle(path, GEODESIC, "model bundle")
+    with consistent_manifest("bundle"):
+        network = GeodesicNet.from_config(manifest["network"])
+        pipeline = PipelineConfig(**manifest["pipeline"])
+    check_descriptor_width([network], basis, ArtifactError)
+    load_weights(network, directory / NETWORK_FILE, device)
+    return ModelBundle(manifest["name"], basis, network, pipeline, manifest, directory)
+
+
+def shipped_bundles() -> list[str]:
+    """Names of the geodesic bundles shipped inside the package (matching bundles, kind
+    ``"matching"``, are listed by :func:`litege_core.matching.shipped_matching_bundles`)."""
+    return [directory.name for directory in shipped_directories(GEODESIC)]
+
+
+def load_shipped(name: str = DEFAULT_MODEL, device: str | torch.device = "cpu") -> ModelBundle:
+    """Load a shipped bundle by name (``quadrupeds`` or ``humans``)."""
+    if name not in shipped_bundles():
+        raise InputError(f"unknown model {name!r}; shipped models: {shipped_bundles()}")
+    return load_bundle(SHIPPED_DIR / name, device)
+
+
+__all__ = [
+    "BASIS_FILE",
+    "DEFAULT_MODEL",
+    "FORMAT_VERSION",
+    "GEODESIC",
+    "MANIFEST",
+    "NETWORK_FILE",
+    "SHIPPED_DIR",
+    "Bundle",
+    "ModelBundle",
+    "PipelineConfig",
+    "check_descriptor_width",
+    "consistent_manifest",
+    "descriptor_summary",
+    "load_bundle",
+    "load_shipped",
+    "load_weights",
+    "narrowed_state",
+    "open_bundle",
+    "read_verified_manifest",
+    "save_bundle",
+    "shipped_bundles",
+    "shipped_directories",
+    "write_bundle",
+    "write_manifest",
+]

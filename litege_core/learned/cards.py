@@ -1,0 +1,195 @@
+"""Model cards: the ``MODEL_CARD.md`` of a geodesic or matching bundle, written from its
+manifest (data, configuration, training, metrics), and the card of a bundle trained on a
+user's folder of meshes. Used by ``scripts/ship_model.py`` and ``litege train geodesic
+--meshes``."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import NamedTuple
+
+
+class CardFacts(NamedTuple):
+    """What a model card says that depends on the kind of bundle."""
+
+    title: str
+    intended_use: str
+    targets: str  # what the training targets are, after the dataset counts
+    model: list[str]  # bullet lines on the descriptor, pipeline and networks
+    training: str
+    validation: str
+    limitations: str
+
+
+def _geodesic_facts(manifest: dict) -> CardFacts:
+    training, metrics = manifest["training"], manifest["metrics"]
+    return CardFacts(
+        title=f"`{manifest['name']}` (LiteGE geodesic regression, v{manifest['version']})",
+        intended_use=f"geodesic distances and paths on {manifest['category']} meshes and "
+        "point clouds (300–8K points), any rotation, translation and scale. The out-of-"
+        "distribution score (PCA residual z-score) flags shapes unlike the training family.",
+        targets=", exact MMP ground truth; no SMAL, SURREAL, FAUST or other third-party shapes.",
+        model=[
+            f"- **Descriptor**: {manifest['descriptor']['n_voxels']} informative voxels, "
+            f"{manifest['descriptor']['n_components']} PCA components; pipeline "
+            f"{json.dumps(manifest['pipeline'])}.",
+            f"- **Network**: {json.dumps(manifest['network'])}.",
+        ],
+        training=f"{training.get('steps')} steps × {training.get('pairs_per_step')} pairs, "
+        f"{training.get('epochs')} epochs (best {training.get('best_epoch')}), "
+        f"{training.get('n_train_views')} views of {training.get('n_train_shapes')} shapes, "
+        f"device {training.get('device')} ({training.get('device_name')}), "
+        f"{training.get('seconds', {}).get('total', 0):.0f} s, torch {training.get('torch')}; "
+        f"config hash `{str(training.get('config_hash', ''))[:16]}`.",
+        validation="(held-out val seeds, GT mean = 100): mean "
+        f"{metrics.get('val_mean_error', float('nan')):.2f}, median "
+        f"{metrics.get('val_median_error', float('nan')):.2f} over {metrics.get('val_pairs')} "
+        "pairs.",
+        limitations="Trained on CPU for a few minutes on a small procedural set; see "
+        "BENCHMARKS.md for where the design targets are met and missed.",
+    )
+
+
+def _matching_facts(manifest: dict) -> CardFacts:
+    training, metrics = manifest["training"], manifest["metrics"]
+    return CardFacts(
+        title=f"`{manifest['name']}` matching model (LiteGE shape correspondence, "
+        f"v{manifest['version']})",
+        intended_use=f"dense correspondence between {manifest['category']} shapes of "
+        "different species and poses (meshes, broken meshes, point clouds of 500–8K points), "
+        "any rotation, translation and scale: each query point of X gets the point of Y that "
+        "minimizes the predicted cross-shape geodesic (coarse-to-fine search).",
+        targets="; targets are the mean of the unit-area geodesics between the same template "
+        "vertices on X and on Y; no SMAL, SURREAL, FAUST or other third-party shapes.",
+        model=[
+            "- **Pipeline**: unit-area (mesh) or calibrated Poisson-spacing scale (clouds, broken "
+            f"meshes), T-Net rotation {json.dumps(manifest['tnet'])}; "
+            f"{manifest['descriptor']['n_voxels']} informative voxels, "
+            f"{manifest['descriptor']['n_components']} PCA components; constants "
+            f"{json.dumps(manifest['pipeline'])}.",
+            f"- **Networks**: {json.dumps(manifest['networks'])}; search "
+            f"{json.dumps(manifest['search'])}.",
+        ],
+        training=f"{training.get('train_views')} views ({training.get('rejected_views')} "
+        f"rejected by the 0.66 rad T-Net filter), {len(training.get('first_passes', []))} first "
+        f"passes (chosen: {training.get('chosen_first_pass')}), then a cosine continuation; "
+        f"{sum(training.get('seconds', {}).values()):.0f} s on {training.get('machine')}, "
+        f"torch {training.get('torch')}.",
+        validation="(held-out val seeds, clean meshes, shared-source queries): matching "
+        f"error ×100 {metrics.get('val_match_error_x100', float('nan')):.2f}, AUC@0.2 "
+        f"{metrics.get('val_match_auc', float('nan')):.1f}.",
+        limitations="Trained on CPU for about half an hour on 160 procedural shapes (heat-method "
+        "targets, ~2 % error) at width 200 and 64 components (the 30 MB shipping budget); see "
+        "BENCHMARKS.md for where the design targets are met and missed.",
+    )
+
+
+CARD_FACTS: dict[str, Callable[[dict], CardFacts]] = {
+    "geodesic": _geodesic_facts,
+    "matching": _matching_facts,
+}
+
+
+def _json_block(data: object) -> list[str]:
+    return ["```json", json.dumps(data, indent=1, sort_keys=True), "```"]
+
+
+def model_card(
+    manifest: dict, evaluation: str | None = None, tnet_report: dict | None = None
+) -> str:
+    """The ``MODEL_CARD.md`` of a geodesic or matching bundle, from its manifest, an optional
+    evaluation table (``litege eval geodesic|matching``) and, for matching bundles, an optional
+    T-Net alignment report."""
+    kind = manifest.get("kind", "geodesic")
+    facts = CARD_FACTS[kind](manifest)
+    training = manifest["training"]
+    dataset = training.get("dataset", {})
+    lines = [
+        f"# Model card: {facts.title}",
+        "",
+        f"- **Category**: {manifest['category']}; content hash `{manifest['content_hash'][:16]}`;"
+        f" created {manifest['created']}, shipped at commit `{training.get('commit', 'unknown')}`.",
+        f"- **Intended use**: {facts.intended_use}",
+        f"- **Training data**: procedural `{dataset.get('name')}` shapes generated by "
+        f"`litege_core.synth` ({dataset.get('counts')}){facts.targets} Dataset manifest sha256 "
+        f"`{str(dataset.get('manifest_sha256', ''))[:16]}`.",
+        *facts.model,
+        f"- **Training**: {facts.training}",
+        f"- **Validation** {facts.validation}",
+    ]
+    if tnet_report:
+        title = "T-Net alignment error (rad) of the bundle's own T-Net (`scripts/tnet_report.py`)"
+        lines += ["", f"## {title}", "", *_json_block(tnet_report)]
+    lines += ["", "## Training configuration", "", *_json_block(training.get("config", {}))]
+    if evaluation:
+        lines += ["", f"## Evaluation (`litege eval {kind}`)", "", evaluation.strip()]
+    lines += ["", "## Limitations", "", facts.limitations]
+    return "\n".join(lines) + "\n"
+
+
+def collection_model_card(
+    manifest: dict, comparison: str, collection: dict, credits: str | None = None
+) -> str:
+    """The ``MODEL_CARD.md`` of a geodesic bundle trained on a user's folder of meshes
+    (``litege train geodesic --meshes``): the geodesic card's model and training facts, the
+    collection it was trained on (``collection``: ``meshes``, ``files`` and ``shapes`` per
+    split, ``solver``, ``augmentation``, ``init``), the held-out comparison table (this bundle
+    vs the reference model(s) vs heat vs kNN) and the folder's credits, if any."""
+    facts = _geodesic_facts(manifest)
+    training = manifest["training"]
+    files, shapes = collection.get("files", {}), collection.get("shapes", {})
+    init = collection.get("init")
+    lines = [
+        f"# Model card: {facts.title}",
+        "",
+        f"- **Category**: {manifest['category']}; content hash `{manifest['content_hash'][:16]}`;"
+        f" created {manifest['created']} by `litege train geodesic --meshes`"
+        f" (litege {training.get('litege')}).",
+        "- **Intended use**: geodesic distances and paths on shapes like those of the "
+        "collection below (meshes and point clouds of 300–8K points, any rotation, translation "
+        "and scale). The out-of-distribution score flags shapes unlike the collection.",
+        f"- **Training data**: the mesh files of `{collection.get('meshes')}`, split by file "
+        f"(seed {collection.get('seed')}): {files.get('train')} train / {files.get('val')} val / "
+        f"{files.get('test')} held-out test files; {shapes.get('train')} / {shapes.get('val')} / "
+        f"{shapes.get('test')} augmented remeshes (smooth stretches, isotropic remeshing: "
+        f"`{collection.get('augmentation')}`) with {collection.get('solver')} ground truth; "
+        "training views add rotations, resampling (300–8K points), noise and cuts. Dataset "
+        f"manifest sha256 `{str(training.get('dataset', {}).get('manifest_sha256', ''))[:16]}`.",
+        "- **Starting point**: "
+        + (
+            f"fine-tuned from `{init}`."
+            if init
+            else "trained from scratch (basis fitted on the training files)."
+        ),
+        *facts.model,
+        f"- **Training**: {facts.training}",
+        f"- **Validation** (val files, GT mean = 100): mean "
+        f"{manifest['metrics'].get('val_mean_error', float('nan')):.2f}, median "
+        f"{manifest['metrics'].get('val_median_error', float('nan')):.2f}.",
+        "",
+        "## Held-out comparison (test files, never trained on nor used for selection)",
+        "",
+        "Mean error (median), ground truth rescaled to mean 100 per setting "
+        "(`litege_core.evaluation.geodesic.evaluate_methods`).",
+        "",
+        comparison.strip(),
+        "",
+        "## Training configuration",
+        "",
+        *_json_block(training.get("config", {})),
+    ]
+    if credits:
+        lines += ["", "## Credits of the training meshes", "", credits.strip()]
+    lines += [
+        "",
+        "## Limitations",
+        "",
+        "Trained on a small collection under a time budget: expect it to work on shapes like "
+        "the collection's, and check the out-of-distribution score on anything else. The "
+        "held-out numbers come from a few files only.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["CARD_FACTS", "CardFacts", "collection_model_card", "model_card"]

@@ -1,0 +1,578 @@
+"""The object the service holds: register a shape once, then answer geodesic queries fast.
+
+::
+
+    from litege_core.learned import Predictor, load_shipped
+
+    predictor = Predictor(load_shipped("quadrupeds"))        # once per process
+    state = predictor.register(shape)                        # once per shape (~ms)
+    d = predictor.distances(state, [0, 17, 42])              # (3, N) float32, user's units
+    field = predictor.distance_field(state, 17)              # (N,)
+    path = predictor.path(state, 17, 4242)                   # GeodesicPath, user's frame
+
+**Units and frames.** Every input (xyz query points) and output (distances, path points) is in
+the *user's* frame and units: the shape is canonicalized internally with the bundle's pipeline
+(bounding-box scaling and PCA alignment, reference-spec §1.2) and the predictions are mapped
+back with the registration's :class:`~litege_core.canonical.Transform` (distances are divided
+by its scale). The model is a residual model (spec §3.3)::
+
+    G(s, d) = |head(e_s − e_d)| / 1.42 + ‖s − d‖          (canonical units, then / scale)
+
+and pairs whose two points coincide (a source equal to a target index, or an xyz query that
+projects exactly onto a target vertex) get an exact ``0``.
+
+**What is cached** (:class:`ShapeState`, built by :meth:`Predictor.register`): the canonical
+transform, the UDF-PCA descriptor and its reconstruction residual (out-of-distribution score),
+the canonical vertices and the shape embedding, as tensors on the predictor's device. Point
+features ``f_p`` (the point embedding pushed through the head's first linear layer, see
+:mod:`litege_core.nets.folded`) are computed only for the points a query needs: a query of a
+few points embeds just those; one that needs most of the shape (a distance field, ``"all"``)
+builds the ``(N, 2n)`` table once and keeps it with the state (:meth:`Predictor.point_table`).
+A query then runs only the rest of the head.
+
+**Inference-time folding.** The predictor folds the network, in eval mode and in float64, into
+plain affine maps (:class:`~litege_core.nets.FoldedGeodesicNet`). A pair then costs one
+subtraction, a ReLU, one ``2n × 2n`` matrix product and a dot product; results equal
+``GeodesicNet.forward`` to float32 rounding (tested to 1e-5). The path tracer differentiates the
+same folded maps with autograd with respect to *canonical* coordinates (the z-score is inside),
+so the gradient is the true one (spec §6 chain-rule bug not repeated).
+
+**Memory bound.** A query is evaluated in chunks of at most ``chunk_pairs`` (source, target)
+pairs; the temporary memory of a chunk is about ``chunk_pairs × (4n + 8) × 4`` bytes
+(≈ 53 MB for the regression width ``n = 200`` and the default 16,384 pairs), independent of
+``S × T``. The output itself is ``S × T × 4`` bytes.
+
+**Out-of-distribution score.** ``residual`` is the PCA reconstruction residual of the shape's
+UDF. When the bundle manifest's ``training`` section holds ``residual_mean`` and
+``residual_std`` (the residuals of the training shapes), ``ood_score`` is the z-score
+``(residual − mean) / std``, and :attr:`ShapeState.is_out_of_distribution` is ``True`` above
+:data:`OOD_Z_THRESHOLD` = 3 (about the 99.9th percentile of a normal training distribution).
+Otherwise ``ood_score`` is the raw residual and ``is_out_of_distribution`` is ``None`` (no
+calibration to compare with).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+from litege_core.arrays import frozen
+from litege_core.canonical import BBOX_SQRT_AREA, canonicalize_bbox
+from litege_core.descriptor.basis import VOXEL_LATTICES
+from litege_core.errors import ArrayShapeError, ArtifactError, InputError
+from litege_core.learned.bundle import ModelBundle
+from litege_core.learned.describe import shape_samples
+from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
+from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
+from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
+from litege_core.nets.folded import resolve_precision
+from litege_core.projection import snap
+from litege_core.query import QueryLike, parse_query
+from litege_core.shape import Shape
+
+DEFAULT_CHUNK_PAIRS = 16_384
+"""(source, target) pairs per head evaluation; bounds the temporary memory of a query."""
+
+DEFAULT_EMBED_ROWS = 32_768
+"""Points per point-embedding evaluation (feature tables and on-the-fly queries)."""
+
+DENSE_MIN_PAIRS = 512
+"""A query of this many pairs or more runs on its own by broadcasting (a distance field, a
+matrix); smaller ones are concatenated with other shapes' pairs into one head evaluation.
+Gathering the features of a 1 → 2000 field costs more than its head (issue 17 profile)."""
+
+DEFAULT_PRECISION = "float32"
+"""Arithmetic of the folded network (see :class:`Predictor`)."""
+
+TABLE_FRACTION = 0.25
+"""A query of more than this fraction of a shape's points builds (and keeps) the shape's whole
+feature table; smaller ones embed just their points."""
+
+
+# --------------------------------------------------------------------------- predictor
+
+
+class Predictor:
+    """Learned geodesic distances and paths for registered shapes (one bundle, one device).
+
+    Args:
+        bundle: a loaded :class:`~litege_core.learned.bundle.ModelBundle` (regression network).
+        device: ``"cpu"``, ``"cuda"``, ... where every cached tensor and query runs.
+        chunk_pairs: pairs per head evaluation (memory bound, see the module docstring).
+        precision: arithmetic of the folded network without autograd (paths always run
+            float32): ``"float32"``, ``"bfloat16"`` (the head's per-pair product in bfloat16
+            with float32 accumulation; point features stay float32), ``"int8"`` (that product
+            in int8) or ``"auto"`` (bfloat16 where the device multiplies it natively, else
+            float32); see :mod:`litege_core.nets.folded` and BENCHMARKS.md
+            ``predictor-accuracy``.
+        descriptor_lattice: the informative voxels the UDF is evaluated at: ``"full"``
+            (default, the trained descriptor) or an opt-in sparser lattice (``"bcc"`` 1/4,
+            ``"stride2"`` 1/8, least-squares codes; :data:`litege_core.descriptor.basis.
+            VOXEL_LATTICES`). Records it computes are approximations of the full ones: do
+            not mix lattices in one record cache.
+
+    Raises:
+        ArtifactError: the bundle's pipeline is not one this predictor implements.
+    """
+
+    def __init__(
+        self,
+        bundle: ModelBundle,
+        device: str | torch.device = "cpu",
+        *,
+        chunk_pairs: int = DEFAULT_CHUNK_PAIRS,
+        precision: str = DEFAULT_PRECISION,
+        descriptor_lattice: str = "full",
+    ) -> None:
+        pipeline = bundle.pipeline
+        if pipeline.canonicalization != "bbox":
+            raise ArtifactError(
+                f"bundle {bundle.name!r} uses canonicalization {pipeline.canonicalization!r}; "
+                "the geodesic predictor implements 'bbox'"
+            )
+        if not math.isclose(pipeline.bbox_sqrt_area, BBOX_SQRT_AREA, rel_tol=1e-12):
+            raise ArtifactError(
+                f"bundle {bundle.name!r} was trained with bbox_sqrt_area "
+                f"{pipeline.bbox_sqrt_area}, this library canonicalizes to {BBOX_SQRT_AREA}"
+            )
+        if not (pipeline.target_scale > 0 and pipeline.n_mesh_samples >= 4):
+            raise ArtifactError(f"bundle {bundle.name!r} has an invalid pipeline: {pipeline}")
+        if isinstance(chunk_pairs, bool) or int(chunk_pairs) < 1:
+            raise InputError(f"chunk_pairs must be a positive integer, got {chunk_pairs!r}")
+        self.bundle = bundle
+        self.device = torch.device(device)
+        self.chunk_pairs = int(chunk_pairs)
+        self.network = bundle.network.eval()
+        self.precision = resolve_precision(precision, self.device)
+        if descriptor_lattice not in VOXEL_LATTICES:
+            raise InputError(
+                f"descriptor_lattice must be one of {VOXEL_LATTICES}, got {descriptor_lattice!r}"
+            )
+        self.descriptor_lattice = descriptor_lattice
+        self.folded = FoldedGeodesicNet(self.network, self.device, precision=self.precision)
+        self._shape_mlp = FoldedShapeMlp(self.network, self.device)
+        self.target_scale = float(pipeline.target_scale)
+        self.residual = bool(pipeline.residual)
+        self.n_mesh_samples = int(pipeline.n_mesh_samples)
+        training = bundle.manifest.get("training") or {}
+        mean, std = training.get("residual_mean"), training.get("residual_std")
+        self._ood: tuple[float, float] | None = None
+        if mean is not None and std is not None:
+            if not (math.isfinite(float(mean)) and math.isfinite(float(std)) and std > 0):
+                raise ArtifactError(
+                    f"bundle {bundle.name!r} has invalid residual statistics {mean}, {std}"
+                )
+            self._ood = (float(mean), float(std))
+
+    def __repr__(self) -> str:
+        return f"Predictor(bundle={self.bundle.name!r}, device={str(self.device)!r})"
+
+    # ----------------------------------------------------------------- registration
+
+    def register(self, shape: Shape, *, seed: int = 0) -> ShapeState:
+        """Canonicalize, describe and embed ``shape`` once.
+
+        Args:
+            shape: a validated mesh or point cloud in the user's frame.
+            seed: seed of the surface samples the descriptor is computed from (meshes); the
+                same shape and seed always give the same state.
+        """
+        return self.register_many([shape], seed=seed)[0]
+
+    def register_many(self, shapes: Sequence[Shape], *, seed: int = 0) -> list[ShapeState]:
+        """:meth:`register` for several shapes, batched: one UDF-PCA call and one shape-MLP
+        call (point features come later, when a query needs them). Each shape gets the same
+        result as :meth:`register` with the same seed."""
+        shapes = list(shapes)
+        if not shapes:
+            return []
+        for i, shape in enumerate(shapes):
+            if not isinstance(shape, Shape):
+                raise InputError(f"shapes[{i}] is a {type(shape).__name__}, not a Shape")
+        samples = [shape_samples(s, self.n_mesh_samples, seed) for s in shapes]
+        transforms = [canonicalize_bbox(p) for p in samples]
+        engine = self.bundle.basis.engine(self.device, lattice=self.descriptor_lattice)
+        clouds = [t.apply(p) for t, p in zip(transforms, samples, strict=True)]
+        described = engine.describe_with_residual(clouds)
+        descriptors = described.descriptors.detach().cpu().numpy().astype(np.float32)
+        residuals = described.residual.detach().cpu().numpy().astype(np.float64)
+        records = [
+            ShapeRecord(
+                shape_id=shape.content_hash,
+                bundle_hash=self.bundle.content_hash,
+                transform=transforms[b],
+                descriptor=frozen(descriptors[b]),
+                residual=float(residuals[b]),
+                seed=int(seed),
+            )
+            for b, shape in enumerate(shapes)
+        ]
+        return self.restore_many(shapes, records)
+
+    def restore(self, shape: Shape, record: ShapeRecord) -> ShapeState:
+        """Rebuild a state from its :class:`ShapeRecord` without recomputing the descriptor."""
+        return self.restore_many([shape], [record])[0]
+
+    def restore_many(
+        self, shapes: Sequence[Shape], records: Sequence[ShapeRecord]
+    ) -> list[ShapeState]:
+        """:meth:`restore` for several shapes at once (the embedding half of registration).
+
+        The result equals :meth:`register_many` with the records' seed: registration is this
+        method applied to freshly computed records. This is what a cache stores: the record is
+        a few hundred bytes; restoring it costs one shape-MLP call.
+
+        Raises:
+            InputError: a record belongs to another shape or another bundle.
+        """
+        shapes, records = list(shapes), list(records)
+        if len(shapes) != len(records):
+            raise InputError(f"got {len(shapes)} shapes and {len(records)} records")
+        if not shapes:
+            return []
+        k = self.bundle.basis.n_components
+        for shape, record in zip(shapes, records, strict=True):
+            if not isinstance(shape, Shape) or not isinstance(record, ShapeRecord):
+                raise InputError("restore_many takes Shape objects and ShapeRecord objects")
+            if record.shape_id != shape.content_hash:
+                raise InputError(
+                    f"record of shape {record.shape_id[:12]}… does not belong to shape "
+                    f"{shape.content_hash[:12]}…"
+                )
+            if record.bundle_hash != self.bundle.content_hash:
+                raise InputError(
+                    "this shape record was computed with another model bundle; register it again"
+                )
+            if record.descriptor.shape != (k,):
+                raise ArrayShapeError(
+                    f"record descriptor has shape {record.descriptor.shape}, bundle expects ({k},)"
+                )
+        transforms = [r.transform for r in records]
+        descriptors = torch.from_numpy(np.stack([r.descriptor for r in records])).to(
+            self.device, torch.float32
+        )
+        canonical = [t.apply(s.vertices) for t, s in zip(transforms, shapes, strict=True)]
+        with torch.no_grad():
+            shape_emb = self._shape_mlp(descriptors)  # (B, n)
+            biases = self.folded.shape_bias(shape_emb)  # (B, n)
+        return [
+            ShapeState(
+                shape_id=record.shape_id,
+                kind=shape.kind,
+                n_points=shape.n_points,
+                transform=record.transform,
+                descriptor=record.descriptor,
+                residual=record.residual,
+                ood_score=self._ood_score(record.residual),
+                ood_calibrated=self._ood is not None,
+                bundle_hash=record.bundle_hash,
+                vertices=shape.vertices,
+                canonical_points=frozen(points),
+                faces=shape.faces,
+                canonical_vertices=torch.from_numpy(points).to(self.device, torch.float32),
+                shape_embedding=shape_emb[b].clone(),
+                shape_bias=biases[b].clone(),
+                record=record,
+            )
+            for b, (shape, record, points) in enumerate(
+                zip(shapes, records, canonical, strict=True)
+            )
+        ]
+
+    def point_table(self, state: ShapeState) -> torch.Tensor:
+        """``(N, 2n)`` head features of every point of ``state``: built on first use (in
+        chunks of :data:`DEFAULT_EMBED_ROWS` points) and kept with the state."""
+        table = state.feature_table
+        if table is None:
+            with torch.no_grad():
+                table = self._features_of(state.canonical_vertices, state.shape_bias)
+            state._lazy["features"] = table
+        return table
+
+    def _features_of(self, positions: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        """``(R, 3)`` canonical positions → ``(R, 2n)`` head features, chunked (no grad).
+
+        A single row is computed as two: one-row products take a matrix-vector kernel whose
+        rounding differs from the matrix kernel's, and a point must get the same features
+        whether it is embedded alone or as a row of the whole table (same query, same answer).
+        """
+        if positions.shape[0] == 1:
+            return self._features_of(positions.expand(2, 3), bias)[:1]
+        return torch.cat(
+            [
+                self.folded.point_features(positions[s : s + DEFAULT_EMBED_ROWS], bias)
+                for s in range(0, max(1, positions.shape[0]), DEFAULT_EMBED_ROWS)
+            ]
+        )
+
+    def _ood_score(self, residual: float) -> float:
+        if self._ood is None:
+            return residual
+        mean, std = self._ood
+        return (residual - mean) / std
+
+    def ood_score(self, state: ShapeState) -> float:
+        """The state's out-of-distribution score (see the module docstring)."""
+        self.check_state(state)
+        return state.ood_score
+
+    # ----------------------------------------------------------------- queries
+
+    def check_state(self, state: ShapeState) -> None:
+        """Raise :class:`InputError` unless ``state`` was registered with this bundle."""
+        if not isinstance(state, ShapeState):
+            raise InputError(f"expected a ShapeState, got {type(state).__name__}")
+        if state.bundle_hash != self.bundle.content_hash:
+            raise InputError(
+                "this shape state was computed with another model bundle; register it again"
+            )
+
+    def resolve(self, state: ShapeState, query: QueryLike, what: str = "source") -> ResolvedPoints:
+        """Resolve sources or targets on ``state`` (validation at the boundary).
+
+        Args:
+            state: a registered shape.
+            query: anything :func:`litege_core.query.parse_query` takes: ``(Q,)`` integer
+                indices, ``(Q, 3)`` xyz points in the user's frame (put on the surface by
+                :func:`litege_core.projection.snap`), or ``None`` / ``"all"``.
+            what: word used in error messages.
+
+        Raises:
+            IndexOutOfRangeError: an index outside ``[0, N)``.
+            ArrayShapeError: non-integer indices, xyz not ``(Q, 3)``, empty query.
+            NonFiniteError: NaN, infinite or absurdly large xyz.
+        """
+        parsed = parse_query(query, what).check(state.n_points, what)
+        if parsed.points is not None:
+            return self._resolve_points(state, parsed.points)
+        if parsed.indices is not None:
+            return self._from_indices(state, parsed.indices)
+        return ResolvedPoints(
+            self.point_table(state),
+            state.canonical_vertices,
+            state.canonical_points,
+            state.vertices,
+            None,
+        )
+
+    def _from_indices(self, state: ShapeState, indices: NDArray) -> ResolvedPoints:
+        index_t = torch.from_numpy(indices).to(self.device)
+        positions = state.canonical_vertices.index_select(0, index_t)
+        table = state.feature_table
+        if table is None and indices.shape[0] > TABLE_FRACTION * state.n_points:
+            table = self.point_table(state)
+        if table is not None:
+            features = table.index_select(0, index_t)
+        else:
+            with torch.no_grad():
+                features = self._features_of(positions, state.shape_bias)
+        return ResolvedPoints(
+            features,
+            positions,
+            state.canonical_points[indices],
+            state.vertices[indices],
+            indices,
+        )
+
+    def _resolve_points(self, state: ShapeState, user_points: NDArray) -> ResolvedPoints:
+        snapped = snap(state.projector, state.transform.apply(user_points))
+        if snapped.indices is not None:
+            return self._from_indices(state, snapped.indices)
+        return self.embed_canonical(state, snapped.points)
+
+    def point_features(self, state: ShapeState, positions: torch.Tensor) -> torch.Tensor:
+        """``(R, 3)`` canonical positions on ``state`` → ``(R, 2n)`` head features
+        (differentiable in ``positions``: the path tracer's gradient)."""
+        return self.folded.point_features(positions, state.shape_bias)
+
+    def embed_canonical(self, state: ShapeState, canonical: NDArray) -> ResolvedPoints:
+        """Embed arbitrary canonical points ``(Q, 3)`` (already on the surface) on the fly."""
+        positions = torch.from_numpy(np.ascontiguousarray(canonical)).to(self.device, torch.float32)
+        with torch.no_grad():
+            features = self._features_of(positions, state.shape_bias)
+        canonical = np.asarray(canonical, np.float64)
+        return ResolvedPoints(
+            features, positions, canonical, state.transform.invert(canonical), None
+        )
+
+    def predict_canonical(
+        self,
+        src_features: torch.Tensor,
+        dst_features: torch.Tensor,
+        src_positions: torch.Tensor,
+        dst_positions: torch.Tensor,
+    ) -> torch.Tensor:
+        """Matched pairs → predicted geodesics in canonical units (differentiable).
+
+        Args:
+            src_features, dst_features: ``(R, 2n)`` head features.
+            src_positions, dst_positions: ``(R, 3)`` canonical coordinates.
+
+        Returns:
+            ``(R,)`` ``|head|/1.42 (+ ‖s − d‖ for residual bundles)``; no diagonal rule.
+        """
+        out = self.folded.head(src_features - dst_features) / self.target_scale
+        if self.residual:
+            out = out + torch.linalg.vector_norm(src_positions - dst_positions, dim=-1)
+        return out
+
+    def distances(
+        self, state: ShapeState, sources: QueryLike, targets: QueryLike = None
+    ) -> NDArray:
+        """Predicted geodesic distances ``(S, T)`` float32 in the user's units.
+
+        Args:
+            state: a registered shape.
+            sources: ``(S,)`` indices or ``(S, 3)`` xyz points (user frame).
+            targets: ``(T,)`` indices, ``(T, 3)`` xyz points, or ``None`` / ``"all"``
+                (``T = N``: distance fields).
+
+        Returns:
+            ``(S, T)`` float32; ``[i, j]`` = G(source i, target j); exactly 0 where the two
+            points coincide.
+        """
+        return self.distances_many([state], [sources], [targets])[0]
+
+    def distance_field(self, state: ShapeState, source: int | ArrayLike) -> NDArray:
+        """``(N,)`` float32 distances from one source (an index, or an xyz point ``(3,)``)
+        to every vertex / point, in the user's units."""
+        return self.distances(state, parse_query(source, "source", allow_all=False, single=True))[0]
+
+    def distances_many(
+        self,
+        states: Sequence[ShapeState],
+        sources_list: Sequence[QueryLike],
+        targets_list: Sequence[QueryLike] | None = None,
+    ) -> list[NDArray]:
+        """Distances for many shapes in one batch (the service's micro-batcher).
+
+        Pairs of all shapes are concatenated without padding; shapes whose pairs fit together
+        in ``chunk_pairs`` share one head evaluation (so e.g. 64 shapes × 1 query run in one
+        head call); a shape with at least :data:`DENSE_MIN_PAIRS` pairs (or ``chunk_pairs``)
+        runs alone, by broadcasting in chunks (no gathered copies of its features).
+
+        Args:
+            states: ``B`` registered shapes (repeats allowed).
+            sources_list: ``B`` source queries (see :meth:`distances`).
+            targets_list: ``B`` target queries, or ``None`` for all targets of every shape.
+
+        Returns:
+            ``B`` float32 arrays ``(S_b, T_b)`` in each shape's user units.
+        """
+        states = list(states)
+        sources_list = list(sources_list)
+        targets_list = [None] * len(states) if targets_list is None else list(targets_list)
+        if not (len(states) == len(sources_list) == len(targets_list)):
+            raise InputError(
+                f"got {len(states)} states, {len(sources_list)} source lists and "
+                f"{len(targets_list)} target lists; they must have the same length"
+            )
+        blocks = []
+        for state, sources, targets in zip(states, sources_list, targets_list, strict=True):
+            self.check_state(state)
+            blocks.append(
+                (self.resolve(state, sources, "source"), self.resolve(state, targets, "target"))
+            )
+        outputs: list[NDArray | None] = [None] * len(blocks)
+        with torch.no_grad():
+            group: list[int] = []
+            group_pairs = 0
+            for b, (src, dst) in enumerate(blocks):
+                pairs = src.count * dst.count
+                if pairs >= min(self.chunk_pairs, DENSE_MIN_PAIRS):
+                    outputs[b] = self._dense_block(src, dst)
+                    continue
+                if group and group_pairs + pairs > self.chunk_pairs:
+                    self._flat_group([blocks[i] for i in group], group, outputs)
+                    group, group_pairs = [], 0
+                group.append(b)
+                group_pairs += pairs
+            if group:
+                self._flat_group([blocks[i] for i in group], group, outputs)
+        return [
+            (np.asarray(out, dtype=np.float64) / state.transform.scale).astype(np.float32)
+            for out, state in zip(outputs, states, strict=True)
+        ]
+
+    def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:
+        out = head / self.target_scale
+        if self.residual:
+            out = out + euclidean
+        return out.masked_fill_(euclidean == 0, 0.0)
+
+    def _dense_block(self, src: ResolvedPoints, dst: ResolvedPoints) -> NDArray:
+        """All pairs of one shape by broadcasting, in chunks of ``chunk_pairs`` pairs."""
+        n_src, n_dst = src.count, dst.count
+        out = torch.empty((n_src, n_dst), device=self.device)
+        col_step = min(n_dst, self.chunk_pairs)
+        row_step = max(1, self.chunk_pairs // col_step)
+        for j0 in range(0, n_dst, col_step):
+            f_dst = dst.features[j0 : j0 + col_step]
+            x_dst = dst.positions[j0 : j0 + col_step]
+            for i0 in range(0, n_src, row_step):
+                f_src = src.features[i0 : i0 + row_step]
+                x_src = src.positions[i0 : i0 + row_step]
+                head = self.folded.pair_head(f_src, f_dst)  # cache-sized tiles inside
+                eu = torch.linalg.vector_norm(x_src[:, None, :] - x_dst[None, :, :], dim=-1)
+                out[i0 : i0 + row_step, j0 : j0 + col_step] = self._finish(head, eu)
+        return out.cpu().numpy()
+
+    def _flat_group(
+        self,
+        group: list[tuple[ResolvedPoints, ResolvedPoints]],
+        positions: list[int],
+        outputs: list[NDArray | None],
+    ) -> None:
+        """Several small blocks in one head evaluation (pairs concatenated, no padding)."""
+        src_rows, dst_rows, sizes = [], [], []
+        src_off = dst_off = 0
+        for src, dst in group:
+            s, t = src.count, dst.count
+            src_rows.append(torch.arange(s, device=self.device).repeat_interleave(t) + src_off)
+            dst_rows.append(torch.arange(t, device=self.device).repeat(s) + dst_off)
+            sizes.append((s, t))
+            src_off += s
+            dst_off += t
+        i = torch.cat(src_rows)
+        j = torch.cat(dst_rows)
+        f_src = torch.cat([src.features for src, _ in group])
+        f_dst = torch.cat([dst.features for _, dst in group])
+        x_src = torch.cat([src.positions for src, _ in group])
+        x_dst = torch.cat([dst.positions for _, dst in group])
+        head = self.folded.head(f_src[i] - f_dst[j], inplace=True)
+        eu = torch.linalg.vector_norm(x_src[i] - x_dst[j], dim=-1)
+        flat = self._finish(head, eu).cpu().numpy()
+        start = 0
+        for b, (s, t) in zip(positions, sizes, strict=True):
+            outputs[b] = flat[start : start + s * t].reshape(s, t)
+            start += s * t
+
+    # ----------------------------------------------------------------- paths
+
+    def path(
+        self, state: ShapeState, source: int | ArrayLike, target: int | ArrayLike, **options: Any
+    ) -> GeodesicPath:
+        """Geodesic path from ``source`` to ``target`` (see :func:`.trace_path`)."""
+        return trace_path(self, state, source, target, **options)
+
+    def paths(
+        self, state: ShapeState, sources: ArrayLike, targets: ArrayLike, **options: Any
+    ) -> list[GeodesicPath]:
+        """Several paths at once; see :func:`~litege_core.learned.trace_paths`."""
+        return trace_paths(self, state, sources, targets, **options)
+
+
+__all__ = [
+    "DEFAULT_CHUNK_PAIRS",
+    "OOD_Z_THRESHOLD",
+    "Predictor",
+    "QueryLike",
+    "ResolvedPoints",
+    "ShapeRecord",
+    "ShapeState",
+]

@@ -1,0 +1,338 @@
+"""ZoomOut refinement of LiteGE's matches on meshes (issue 15, step 5).
+
+On near-isometric pairs (two poses of one animal) LiteGE's learned map is right at the scale of
+body parts but coarse below it, while functional maps are precise once they start from a
+globally right map. :func:`zoomout_refine` does the second starting from the first:
+
+1. LiteGE matches ``n_samples`` farthest points of X on Y (the seed map);
+2. the seed map gives a ``k_init × k_init`` functional map between the Laplace–Beltrami bases
+   (least squares on the samples, pyFM's ``p2p_to_FM``);
+3. ZoomOut (Melzi et al. 2019) grows it to ``n_eigen`` in steps of ``step`` on the farthest-point
+   samples of both shapes;
+4. every query of X is mapped to the Y vertex nearest to it in the spectral embedding.
+
+Where LiteGE's map is wrong at the scale of the body (a real animal in a pose far from the
+training poses), no refinement repairs it. ``refine="zoomout-hybrid"`` therefore also runs
+ZoomOut from a map that owes nothing to LiteGE — the functional map fitted to wave-kernel
+signatures (:func:`descriptor_map`, the settings of the ZoomOut baseline of
+``litege eval matching``) — and keeps, per pair, the pointwise map that better preserves
+geodesic distances (:func:`geodesic_distortion`: heat-method distances from ``n_sources``
+farthest points of X to ``n_distortion_samples`` farthest points, against the same distances
+between their images on Y; ties keep LiteGE's). On a near-isometric pair the right map has the
+lower distortion; across species the WKS map is usually wrong at the body scale and LiteGE's
+is kept.
+
+Both shapes must be meshes; their spectra (``n_eigen`` eigenpairs of the cotangent Laplacian in
+the aligned unit-area frame, or the robust "tufted" Laplacian of a mesh prepared as broken) are
+computed once per prepared shape and memoized on it. Needs ``pyFM`` (PyPI ``pyfmaps``, extra
+``litege[eval]``): :class:`~litege_core.errors.MissingDependencyError` without it.
+A refined map is a few seconds per pair on a CPU (the eigenpairs dominate), not milliseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.errors import InputError, MissingDependencyError
+from litege_core.sampling import farthest_point_sampling
+
+
+class PreparedShape(Protocol):
+    """What :func:`spectrum` reads of a :class:`~litege_core.matching.MatchingShape`."""
+
+    @property
+    def aligned(self) -> NDArray: ...
+
+    @property
+    def faces(self) -> NDArray | None: ...
+
+    @property
+    def scaling(self) -> str: ...
+
+    @property
+    def _lazy(self) -> dict[str, Any]: ...
+
+
+REFINE_METHODS: tuple[str, ...] = ("none", "zoomout", "zoomout-hybrid")
+"""``refine`` values of :meth:`~litege_core.matching.MatchingModel.match`."""
+
+
+@dataclass(frozen=True)
+class ZoomOutSettings:
+    """Settings of :func:`zoomout_refine`.
+
+    Attributes:
+        k_init: size of the functional map built from LiteGE's seed map.
+        n_eigen: final size (eigenpairs computed per shape).
+        step: basis growth per ZoomOut iteration.
+        n_samples: farthest points of each mesh (seed queries on X, iteration samples).
+        n_descriptors, descriptor_step, k_fit, w_descr, w_lap, w_dcomm, w_orient: the WKS
+            functional map of ``zoomout-hybrid`` (``n_descriptors`` energies, every
+            ``descriptor_step``-th kept, a ``k_fit × k_fit`` map, pyFM's energy weights).
+        n_sources, n_distortion_samples: farthest points of X of the distortion check.
+    """
+
+    k_init: int = 20
+    n_eigen: int = 100
+    step: int = 5
+    n_samples: int = 1000
+    n_descriptors: int = 100
+    descriptor_step: int = 2
+    k_fit: int = 30
+    w_descr: float = 1.0
+    w_lap: float = 0.1
+    w_dcomm: float = 1.0
+    w_orient: float = 1.0
+    n_sources: int = 12
+    n_distortion_samples: int = 300
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.k_init <= self.n_eigen:
+            raise InputError(f"need 1 <= k_init <= n_eigen, got {self.k_init}, {self.n_eigen}")
+        if self.step < 1 or self.n_samples < 1:
+            raise InputError("step and n_samples must be positive")
+        if not 1 <= self.k_fit <= self.n_eigen:
+            raise InputError(f"need 1 <= k_fit <= n_eigen, got {self.k_fit}, {self.n_eigen}")
+        if min(self.n_sources, self.n_distortion_samples, self.n_descriptors) < 1:
+            raise InputError("n_sources, n_distortion_samples and n_descriptors must be positive")
+
+    @property
+    def n_iterations(self) -> int:
+        return (self.n_eigen - self.k_init) // self.step
+
+
+def import_pyfm() -> Any:
+    """The ``pyFM`` modules used here, or :class:`MissingDependencyError`."""
+    try:
+        from pyFM import spectral
+        from pyFM.mesh import TriMesh
+        from pyFM.refine import zoomout
+    except (ImportError, TypeError) as exc:  # TypeError: a module set to None
+        raise MissingDependencyError(
+            "refine='zoomout' needs pyFM: pip install 'litege[eval]' (PyPI pyfmaps)"
+        ) from exc
+    return TriMesh, spectral, zoomout
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Laplace–Beltrami eigenvectors ``(V, k)`` of a prepared mesh and its FPS samples.
+
+    ``mesh`` is the processed pyFM ``TriMesh`` (``None`` where a caller built the spectrum
+    itself; ``zoomout-hybrid`` needs it)."""
+
+    eigenvectors: NDArray
+    samples: NDArray
+    mesh: Any = None
+
+
+def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
+    """The (memoized) spectrum of a prepared mesh.
+
+    Raises:
+        InputError: a point cloud.
+        MissingDependencyError: no pyFM.
+    """
+    if prepared.faces is None:
+        raise InputError("refine='zoomout' needs meshes; got a point cloud")
+    key = f"spectrum:{settings.n_eigen}:{settings.n_samples}"
+    cached = prepared._lazy.get(key)
+    if cached is None:
+        TriMesh, _, _ = import_pyfm()
+        vertices = np.asarray(prepared.aligned, dtype=np.float64)
+        mesh = TriMesh(vertices, np.asarray(prepared.faces))
+        k = min(settings.n_eigen, vertices.shape[0] - 2)
+        mesh.process(k=k, robust=prepared.scaling == "broken_mesh", verbose=False)
+        samples = farthest_point_sampling(vertices, min(settings.n_samples, vertices.shape[0]))
+        cached = Spectrum(np.asarray(mesh.eigenvectors, dtype=np.float64), samples, mesh)
+        prepared._lazy[key] = cached
+    return cached
+
+
+def _zoomout(fmap: NDArray, source: Spectrum, target: Spectrum, settings: ZoomOutSettings):
+    """ZoomOut from ``fmap`` (``k2 × k1``, Y → X functions) up to the computed eigenpairs."""
+    _, _, zoomout = import_pyfm()
+    k2, k1 = fmap.shape
+    k_max = min(source.eigenvectors.shape[1], target.eigenvectors.shape[1])
+    n_iterations = max(0, (k_max - max(k1, k2)) // settings.step)
+    if not n_iterations:
+        return fmap
+    return zoomout.zoomout_refine(
+        fmap,
+        target.eigenvectors,
+        source.eigenvectors,
+        nit=n_iterations,
+        step=settings.step,
+        subsample=(target.samples, source.samples),
+        n_jobs=1,
+    )
+
+
+def _pointwise(fmap: NDArray, source: Spectrum, target: Spectrum, rows: NDArray) -> NDArray:
+    """Y vertex of each X vertex in ``rows`` under the functional map (spectral nearest)."""
+    _, spectral, _ = import_pyfm()
+    k2, k1 = fmap.shape
+    found = spectral.FM_to_p2p(
+        fmap, target.eigenvectors[:, :k1], source.eigenvectors[np.asarray(rows), :k2], n_jobs=1
+    )
+    return np.asarray(found, dtype=np.int64)
+
+
+def zoomout_refine(
+    seed_map: NDArray,
+    source: Spectrum,
+    target: Spectrum,
+    rows: NDArray,
+    settings: ZoomOutSettings,
+) -> NDArray:
+    """Refined matches of the vertices ``rows`` of X.
+
+    Args:
+        seed_map: ``(S,)`` Y vertex of each of ``source.samples`` (LiteGE's matches).
+        source, target: spectra of X and Y.
+        rows: ``(N,)`` vertex indices of X to map.
+        settings: sizes of the maps.
+
+    Returns:
+        ``(N,)`` int64 vertices of Y.
+    """
+    _, spectral, _ = import_pyfm()
+    phi_x, phi_y = source.eigenvectors, target.eigenvectors
+    k_init = min(settings.k_init, phi_x.shape[1], phi_y.shape[1])
+    # pyFM's convention: mesh1 = Y, mesh2 = X, FM_12 (k2 × k1) maps functions on Y to X and
+    # the pointwise map p2p_21 sends X points to Y points.
+    fmap = spectral.p2p_to_FM(
+        np.asarray(seed_map, dtype=np.int64), phi_y[:, :k_init], phi_x[source.samples, :k_init]
+    )
+    return _pointwise(_zoomout(fmap, source, target, settings), source, target, rows)
+
+
+def descriptor_map(source: Spectrum, target: Spectrum, settings: ZoomOutSettings) -> NDArray:
+    """ZoomOut-refined functional map (``k × k``, Y → X functions) started from the map fitted
+    to wave-kernel signatures (no LiteGE involved; the ZoomOut baseline's settings)."""
+    if source.mesh is None or target.mesh is None:
+        raise InputError("a descriptor map needs spectra computed by spectrum()")
+    from pyFM.functional import FunctionalMapping
+    from pyFM.signatures import mesh_WKS
+
+    k = min(source.eigenvectors.shape[1], target.eigenvectors.shape[1])
+    k_fit = min(settings.k_fit, k)
+    wks = [
+        mesh_WKS(s.mesh, settings.n_descriptors, k=k)[:, :: settings.descriptor_step]
+        for s in (target, source)
+    ]
+    model = FunctionalMapping(target.mesh, source.mesh)
+    model.add_descriptors(wks[0], wks[1], normalize=True)
+    model.fit(
+        K=(k_fit, k_fit),
+        w_descr=settings.w_descr,
+        w_lap=settings.w_lap,
+        w_dcomm=settings.w_dcomm,
+        w_orient=settings.w_orient,
+        verbose=False,
+    )
+    return _zoomout(np.asarray(model.FM_12), source, target, settings)
+
+
+def heat_engine(prepared: PreparedShape) -> Any:
+    """Heat-method geodesic engine of a prepared mesh in its aligned unit-area frame
+    (memoized on it)."""
+    cached = prepared._lazy.get("heat")
+    if cached is None:
+        from litege_core.engines import make_engine
+        from litege_core.shape import Shape
+
+        if prepared.faces is None:
+            raise InputError("geodesic distortion needs meshes")
+        mesh = Shape.from_arrays(np.asarray(prepared.aligned, dtype=np.float64), prepared.faces)
+        cached = make_engine(mesh, "heat")
+        prepared._lazy["heat"] = cached
+    return cached
+
+
+def geodesic_distortion(
+    source_heat: Any,
+    target_heat: Any,
+    sources: NDArray,
+    samples: NDArray,
+    mapped_sources: NDArray,
+    mapped_samples: NDArray,
+) -> float:
+    """Mean ``|d_X(s, v) − d_Y(m(s), m(v))|`` over ``sources × samples`` of X (unit-area units;
+    0 for an isometry)."""
+    on_x = source_heat.distances(np.asarray(sources)).distances[:, np.asarray(samples)]
+    on_y = target_heat.distances(np.asarray(mapped_sources)).distances[:, mapped_samples]
+    return float(np.abs(on_x - on_y).mean())
+
+
+@dataclass(frozen=True)
+class HybridResult:
+    """Matches of ``zoomout-hybrid`` and how they were chosen.
+
+    Attributes:
+        indices: ``(N,)`` int64 Y vertices of the queries.
+        seed: ``"litege"`` or ``"descriptors"``: the start of the kept map.
+        distortion: ``{"litege": float, "descriptors": float}``.
+    """
+
+    indices: NDArray
+    seed: str
+    distortion: dict[str, float]
+
+
+def hybrid_refine(
+    seed_map: NDArray,
+    source: Spectrum,
+    target: Spectrum,
+    rows: NDArray,
+    settings: ZoomOutSettings,
+    source_heat: Any,
+    target_heat: Any,
+    source_points: NDArray,
+) -> HybridResult:
+    """LiteGE-seeded and descriptor-seeded ZoomOut maps; the less distorting one is kept.
+
+    Args:
+        seed_map, source, target, rows, settings: as :func:`zoomout_refine`.
+        source_heat, target_heat: :func:`heat_engine` of X and Y.
+        source_points: ``(V, 3)`` X's vertices (for the farthest points of the check).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    sources = farthest_point_sampling(source_points, min(settings.n_sources, len(source_points)))
+    samples = farthest_point_sampling(
+        source_points, min(settings.n_distortion_samples, len(source_points))
+    )
+    wanted = np.concatenate([rows, sources, samples])
+    n, m = rows.size, sources.size
+    maps = {
+        "litege": zoomout_refine(seed_map, source, target, wanted, settings),
+        "descriptors": _pointwise(descriptor_map(source, target, settings), source, target, wanted),
+    }
+    distortion = {
+        name: geodesic_distortion(
+            source_heat, target_heat, sources, samples, found[n : n + m], found[n + m :]
+        )
+        for name, found in maps.items()
+    }
+    seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
+    return HybridResult(maps[seed][:n], seed, distortion)
+
+
+__all__ = [
+    "REFINE_METHODS",
+    "HybridResult",
+    "PreparedShape",
+    "Spectrum",
+    "ZoomOutSettings",
+    "descriptor_map",
+    "geodesic_distortion",
+    "heat_engine",
+    "hybrid_refine",
+    "import_pyfm",
+    "spectrum",
+    "zoomout_refine",
+]

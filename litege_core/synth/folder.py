@@ -1,0 +1,194 @@
+"""Training shapes from a folder of arbitrary meshes (each with its own triangulation).
+
+Every mesh file under a directory (any mesh format :func:`litege_core.io.load_shape` reads) is
+a *family*, named by its path relative to the directory. Files are split train/val/test by
+file (seeded), so no mesh of the evaluation splits is seen in training.
+
+A shape is a pure function of ``(file, seed)``, so a small collection yields many shapes:
+
+1. the file is loaded once per process, welded, reduced to its largest connected component,
+   repaired where it is not edge-manifold, centred and scaled to unit area;
+2. with probability ``stretch_probability`` a smooth non-rigid stretch is applied
+   (:func:`~litege_core.synth.meshops.smooth_stretch`: an anisotropic scale along random axes
+   plus low-frequency sine displacements, a diffeomorphism);
+3. the surface is remeshed isotropically to a vertex count drawn log-uniformly in
+   ``vertex_range`` (different densities and triangulations of the same surface), slivers are
+   collapsed, and the result is checked to be an oriented edge-manifold single component (and
+   closed when the input was). Random rotations are left to training views.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.errors import ComputationError, InputError
+from litege_core.synth.meshops import (
+    collapse_slivers,
+    largest_component,
+    manifold_report,
+    remesh,
+    repair_manifold,
+    smooth_stretch,
+    unit_area_scale,
+    weld,
+)
+
+FOLDER_VERSION = "folder-1"
+MESH_SUFFIXES = ("obj", "ply", "off", "stl", "glb")
+"""Mesh formats of :data:`litege_core.io.MESH_FORMATS` (point-cloud-only files are skipped)."""
+
+
+@dataclass(frozen=True)
+class FolderSettings:
+    """Augmentation ranges of folder shapes (see the module docstring)."""
+
+    vertex_range: tuple[int, int] = (3000, 6000)
+    stretch_probability: float = 0.75
+    axis_range: tuple[float, float] = (0.85, 1.15)
+    amplitude: float = 0.04
+    attempts: int = 4
+
+    def __post_init__(self) -> None:
+        if not 100 <= self.vertex_range[0] <= self.vertex_range[1]:
+            raise InputError("need 100 ≤ vertex_range[0] ≤ vertex_range[1]")
+        if not 0.0 <= self.stretch_probability <= 1.0:
+            raise InputError("stretch_probability must lie in [0, 1]")
+
+    def describe(self) -> str:
+        """A stable text of the settings (part of the factory version)."""
+        return (
+            f"v{self.vertex_range[0]}-{self.vertex_range[1]}"
+            f",p{self.stretch_probability:g},a{self.axis_range[0]:g}-{self.axis_range[1]:g}"
+            f",w{self.amplitude:g},k{self.attempts}"
+        )
+
+
+def list_meshes(directory: str | Path) -> tuple[str, ...]:
+    """Sorted relative POSIX paths of the mesh files under ``directory`` (recursive).
+
+    Raises:
+        InputError: the directory does not exist or holds no mesh file.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"{directory} is not a directory")
+    files = sorted(
+        path.relative_to(directory).as_posix()
+        for path in directory.rglob("*")
+        if path.is_file() and path.suffix.lower().lstrip(".") in MESH_SUFFIXES
+    )
+    if not files:
+        raise InputError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) under {directory}")
+    return tuple(files)
+
+
+def split_files(
+    files: tuple[str, ...], seed: int, eval_fraction: float = 0.1
+) -> dict[str, tuple[str, ...]]:
+    """Split ``files`` into train/val/test by a seeded permutation: ``round(eval_fraction·n)``
+    files each for val and test (at least one each when ``n ≥ 3``), the rest train."""
+    n = len(files)
+    n_eval = max(1, round(eval_fraction * n)) if n >= 3 else 0
+    order = np.random.default_rng([seed, 0xF17E]).permutation(n)
+    chosen = [files[i] for i in order]
+    return {
+        "val": tuple(sorted(chosen[:n_eval])),
+        "test": tuple(sorted(chosen[n_eval : 2 * n_eval])),
+        "train": tuple(sorted(chosen[2 * n_eval :])),
+    }
+
+
+def folder_digest(directory: str | Path, files: tuple[str, ...]) -> str:
+    """SHA-256 (hex, 16 characters) over the names and bytes of ``files``."""
+    digest = hashlib.sha256()
+    for name in files:
+        digest.update(name.encode())
+        digest.update(hashlib.sha256((Path(directory) / name).read_bytes()).digest())
+    return digest.hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class PreparedMesh:
+    """A cleaned input mesh: centred, unit area; ``closed`` when it has no boundary."""
+
+    vertices: NDArray
+    faces: NDArray
+    closed: bool
+
+
+@functools.lru_cache(maxsize=64)
+def prepare_mesh(path: str) -> PreparedMesh:
+    """Load, weld, keep the largest component, repair and normalize one file (step 1).
+
+    Raises:
+        InputError subclasses for unreadable files; ComputationError when no usable
+        manifold can be made of it.
+    """
+    from litege_core.io import load_shape
+    from litege_core.validate import ShapeLimits
+
+    limits = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
+    shape = load_shape(path, kind="mesh", limits=limits)
+    welded = weld(np.asarray(shape.vertices), np.asarray(shape.faces), tolerance=1e-7)
+    kept, faces = largest_component(welded.faces, welded.vertices.shape[0])
+    vertices = welded.vertices[kept]
+    report = manifold_report(vertices, faces)
+    if not (report.manifold and report.oriented):
+        faces, origin = repair_manifold(vertices, faces, require_closed=False)
+        vertices = vertices[origin]
+        report = manifold_report(vertices, faces)
+    vertices = (vertices - vertices.mean(axis=0)) * unit_area_scale(vertices, faces)
+    return PreparedMesh(vertices, faces, report.closed)
+
+
+def folder_shape(
+    directory: str | Path, name: str, seed: int, settings: FolderSettings = FolderSettings()
+) -> tuple[NDArray, NDArray]:
+    """The shape ``(vertices (V, 3), faces (F, 3))`` of file ``name`` and ``seed`` (steps 2–3);
+    attempt ``k`` draws from ``default_rng([seed, k])``.
+
+    Raises:
+        ComputationError: no attempt gave a clean manifold.
+    """
+    prepared = prepare_mesh(str(Path(directory) / name))
+    last: Exception | None = None
+    for attempt in range(settings.attempts):
+        rng = np.random.default_rng([seed, attempt])
+        low, high = settings.vertex_range
+        n_target = round(float(np.exp(rng.uniform(np.log(low), np.log(high)))))
+        vertices = prepared.vertices
+        if rng.random() < settings.stretch_probability:
+            vertices = smooth_stretch(
+                vertices, rng, axis_range=settings.axis_range, amplitude=settings.amplitude
+            )
+        try:
+            new_vertices, new_faces = remesh(vertices, prepared.faces, n_target, tolerance=0.08)
+            new_vertices, new_faces = collapse_slivers(new_vertices, new_faces, min_angle=2.0)
+            report = manifold_report(new_vertices, new_faces)
+            clean = report.manifold and report.oriented and report.components == 1
+            if not clean or report.min_angle <= 1.0 or (prepared.closed and not report.closed):
+                raise ComputationError(f"remeshed {name} is not a clean manifold: {report}")
+        except ComputationError as exc:
+            last = exc
+            continue
+        return new_vertices, new_faces
+    raise ComputationError(f"{name} seed {seed}: no clean remeshed shape ({last})")
+
+
+__all__ = [
+    "FOLDER_VERSION",
+    "MESH_SUFFIXES",
+    "FolderSettings",
+    "PreparedMesh",
+    "folder_digest",
+    "folder_shape",
+    "list_meshes",
+    "prepare_mesh",
+    "split_files",
+]

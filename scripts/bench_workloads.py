@@ -1,0 +1,439 @@
+"""Every workload a user has, LiteGE side by side with the classical methods in one run, as
+ratios (issue 17), with the speed targets checked at the end. Prints markdown.
+
+Usage::
+
+    python scripts/bench_workloads.py [--runs 5] [--exact-sources 20] [--no-cli]
+
+Inputs (held-out procedural quadrupeds, test seeds; nothing cached between runs, every timing
+includes the preprocessing: registration, k-NN graph, factorisation, solver set-up):
+
+* ``2K cloud``: 2000 area-weighted samples of a procedural dog (``point_cloud``);
+* ``5K mesh``: the same dog isotropically remeshed to about 5000 vertices;
+* 64 shapes: 8 distinct procedural quadrupeds (5 families), each sent 8 times, as 2K clouds
+  or 5K meshes.
+
+Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes × 1 query**
+(one pair each); a **1K × 1K** matrix (1000 × 1000 distinct vertices of the 5K mesh);
+**1K correspondences** (5K dog → 5K cat, 1000 query vertices).
+
+Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in three configurations: the
+defaults (float32, full descriptor), ``precision="auto"`` (bfloat16 head product where the CPU
+has AMX / AVX512-BF16) and ``auto`` + ``descriptor_lattice="stride2"`` (UDF at 1/8 of the
+voxels); kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
+:class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
+correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
+in its aligned frame, and ZoomOut (pyFM) as in ``litege eval matching``. The exact 1K × 1K is
+extrapolated from ``--exact-sources`` sources (its build plus per-source time × 1000).
+
+Time: median process CPU time over ``--runs`` rounds after a warm-up round; the rounds
+interleave the methods, so load from other jobs hits them alike. Wall-clock medians are shown
+too. The ratio column divides by the kNN Dijkstra time of the same workload and input
+(correspondences: by ZoomOut). One torch thread, ``OMP_NUM_THREADS=1``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import date
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from litege_core import __version__
+from litege_core.engines import ClassicalSolver
+from litege_core.evaluation.speed import peak_memory
+from litege_core.learned import Predictor, load_shipped
+from litege_core.shape import Shape
+from litege_core.synth import families, generate_shape
+from litege_core.variants import isotropic_remesh, point_cloud
+
+LITEGE = {
+    "LiteGE": ("float32", "full"),
+    "LiteGE auto": ("auto", "full"),
+    "LiteGE auto + stride2": ("auto", "stride2"),
+}
+REFERENCE = "kNN Dijkstra"
+
+
+@dataclass
+class Case:
+    workload: str
+    data: str
+    method: str
+    fn: Callable[[], object]
+    runs: int = 0  # 0: the --runs default
+    note: str = ""
+    scale: float = 1.0  # extrapolation factor
+    offset: Callable[[], float] | None = None
+    cpu: list[float] = field(default_factory=list)
+    wall: list[float] = field(default_factory=list)
+
+
+def _inputs():
+    names = families("quadruped")
+    generated = [
+        generate_shape("quadruped", names[i % len(names)], 2_000_000 + i) for i in range(8)
+    ]
+    clouds = [
+        Shape.from_arrays(point_cloud(g.vertices, g.faces, 2000, i).points)
+        for i, g in enumerate(generated)
+    ]
+    meshes = []
+    for g in generated:
+        remeshed = isotropic_remesh(g.vertices, g.faces, 5000)
+        meshes.append(Shape.from_arrays(remeshed.vertices, remeshed.faces))
+    dog = generate_shape("quadruped", "dog", 2_000_000)
+    cat = generate_shape("quadruped", "cat", 2_000_001)
+    dog_mesh = isotropic_remesh(dog.vertices, dog.faces, 5000)
+    cat_mesh = isotropic_remesh(cat.vertices, cat.faces, 5000)
+    return {
+        "cloud": Shape.from_arrays(point_cloud(dog.vertices, dog.faces, 2000, 0).points),
+        "mesh": Shape.from_arrays(dog_mesh.vertices, dog_mesh.faces),
+        "clouds64": [clouds[i % 8] for i in range(64)],
+        "meshes64": [meshes[i % 8] for i in range(64)],
+        "cat": Shape.from_arrays(cat_mesh.vertices, cat_mesh.faces),
+    }
+
+
+def _classical(shape: Shape, method: str, sources, targets=None):
+    return ClassicalSolver(shape, method).distances(sources, targets)
+
+
+def _classical_batch(shapes: list[Shape], method: str) -> list:
+    return [_classical(s, method, [0], [1]) for s in shapes]
+
+
+def _litege(predictor: Predictor, shape: Shape, sources, targets=None):
+    return predictor.distances(predictor.register(shape), sources, targets)
+
+
+def _litege_batch(predictor: Predictor, shapes: list[Shape]) -> list:
+    count = len(shapes)
+    return predictor.distances_many(predictor.register_many(shapes), [[0]] * count, [[1]] * count)
+
+
+def _match(method, x: Shape, y: Shape, queries):
+    return method.match(method.prepare(x), method.prepare(y), queries)
+
+
+def build_cases(args, data) -> list[Case]:
+    bundle = load_shipped("quadrupeds")
+    predictors = {
+        name: Predictor(bundle, precision=p, descriptor_lattice=lattice)
+        for name, (p, lattice) in LITEGE.items()
+    }
+    cloud, mesh = data["cloud"], data["mesh"]
+    rng = np.random.default_rng(0)
+    src = rng.choice(mesh.n_points, 1000, replace=False)
+    dst = rng.choice(mesh.n_points, 1000, replace=False)
+    far_c = int(np.argmax(np.linalg.norm(cloud.vertices - cloud.vertices[0], axis=1)))
+    far_m = int(np.argmax(np.linalg.norm(mesh.vertices - mesh.vertices[0], axis=1)))
+    cases: list[Case] = []
+
+    for data_name, shape, far, classical in (
+        ("2K cloud", cloud, far_c, {REFERENCE: "graph", "point-cloud heat": "heat"}),
+        ("5K mesh", mesh, far_m, {REFERENCE: "graph", "mesh heat": "heat", "exact": "exact"}),
+    ):
+        for name, predictor in predictors.items():
+            cases.append(
+                Case(
+                    "one pair",
+                    data_name,
+                    name,
+                    partial(_litege, predictor, shape, [0], [far]),
+                )
+            )
+            cases.append(
+                Case(
+                    "distance field",
+                    data_name,
+                    name,
+                    partial(_litege, predictor, shape, [0]),
+                )
+            )
+        for label, method in classical.items():
+            cases.append(
+                Case(
+                    "one pair",
+                    data_name,
+                    label,
+                    partial(_classical, shape, method, [0], [far]),
+                )
+            )
+            cases.append(
+                Case(
+                    "distance field",
+                    data_name,
+                    label,
+                    partial(_classical, shape, method, [0]),
+                )
+            )
+
+    for data_name, shapes, classical in (
+        ("64 × 2K clouds", data["clouds64"], {REFERENCE: "graph", "point-cloud heat": "heat"}),
+        (
+            "64 × 5K meshes",
+            data["meshes64"],
+            {REFERENCE: "graph", "mesh heat": "heat", "exact": "exact"},
+        ),
+    ):
+        for name, predictor in predictors.items():
+            cases.append(
+                Case(
+                    "64 shapes × 1 query",
+                    data_name,
+                    name,
+                    partial(_litege_batch, predictor, shapes),
+                )
+            )
+        for label, method in classical.items():
+            cases.append(
+                Case(
+                    "64 shapes × 1 query",
+                    data_name,
+                    label,
+                    partial(_classical_batch, shapes, method),
+                    runs=1 if method == "exact" else 0,
+                )
+            )
+
+    for name, predictor in predictors.items():
+        cases.append(
+            Case(
+                "1K × 1K",
+                "5K mesh",
+                name,
+                partial(_litege, predictor, mesh, src, dst),
+            )
+        )
+    cases.append(Case("1K × 1K", "5K mesh", REFERENCE, lambda: _classical(mesh, "graph", src, dst)))
+    cases.append(
+        Case("1K × 1K", "5K mesh", "mesh heat", lambda: _classical(mesh, "heat", src, dst))
+    )
+    k = max(1, int(args.exact_sources))
+    cases.append(
+        Case(
+            "1K × 1K",
+            "5K mesh",
+            "exact",
+            lambda: _classical(mesh, "exact", src[:k], dst),
+            runs=1,
+            note=f"extrapolated from {k} sources",
+            scale=1000.0 / k,
+        )
+    )
+
+    if not args.no_matching:
+        cases.extend(_matching_cases(data))
+    return cases
+
+
+def _matching_cases(data) -> list[Case]:
+    from litege_core.evaluation.matching import (
+        LiteGEMethod,
+        NearestNeighbourMethod,
+        ZoomOutMethod,
+    )
+    from litege_core.matching import MatchingModel
+
+    model = MatchingModel.load("quadrupeds")
+    x, y = data["mesh"], data["cat"]
+    queries = np.random.default_rng(1).choice(x.n_points, 1000, replace=False)
+    methods = {
+        "LiteGE matching": LiteGEMethod(model),
+        "NN (aligned)": NearestNeighbourMethod(model),
+    }
+    try:
+        methods["ZoomOut (pyFM)"] = ZoomOutMethod()
+    except Exception as exc:  # pyFM missing: the row says so
+        print(f"ZoomOut unavailable: {exc}", file=sys.stderr)
+    cases = []
+    for label, method in methods.items():
+        cases.append(
+            Case(
+                "1K correspondences",
+                "5K mesh → 5K mesh",
+                label,
+                partial(_match, method, x, y, queries),
+                runs=1 if label.startswith("ZoomOut") else 0,
+            )
+        )
+    return cases
+
+
+def run_cases(cases: list[Case], runs: int) -> None:
+    rounds = runs + 1
+    for r in range(rounds):
+        for case in cases:
+            wanted = case.runs or runs
+            if r > wanted:  # slow cases: fewer rounds (the warm-up round still runs)
+                continue
+            start_wall, start_cpu = time.perf_counter(), time.process_time()
+            case.fn()
+            cpu = 1000.0 * (time.process_time() - start_cpu) * case.scale
+            wall = 1000.0 * (time.perf_counter() - start_wall) * case.scale
+            if r:
+                case.cpu.append(cpu)
+                case.wall.append(wall)
+        print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
+
+
+def cli_wall_seconds(cloud: Shape, runs: int) -> float:
+    """Median wall time of ``litege geodesic`` on a 300-point cloud (a fresh process each)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "cloud300.npy"
+        np.save(path, np.asarray(cloud.vertices, dtype=np.float64))
+        command = [
+            sys.executable,
+            "-m",
+            "litege_core.cli",
+            "geodesic",
+            str(path),
+            "--sources",
+            "0",
+            "-o",
+            str(Path(folder) / "out.npy"),
+        ]
+        times = []
+        for _ in range(runs):
+            start = time.perf_counter()
+            subprocess.run(command, check=True, capture_output=True)
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--exact-sources", type=int, default=20)
+    parser.add_argument("--no-matching", action="store_true")
+    parser.add_argument("--no-cli", action="store_true")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    data = _inputs()
+    cases = build_cases(args, data)
+    run_cases(cases, args.runs)
+
+    bundle = load_shipped("quadrupeds")
+    memory = {}
+    for name, (pr, lat) in LITEGE.items():
+        predictor = Predictor(bundle, precision=pr, descriptor_lattice=lat)
+        batch = data["clouds64"]
+
+        def query(p: Predictor = predictor, b: list = batch) -> object:
+            return p.distances_many(p.register_many(b), [[0]] * len(b), [[1]] * len(b))
+
+        query()  # one-time set-up (the descriptor engine) is not the workload's memory
+        memory[name] = peak_memory(query)
+    cli = None
+    if not args.no_cli:
+        sample = point_cloud(
+            generate_shape("quadruped", "dog", 2_000_000).vertices,
+            generate_shape("quadruped", "dog", 2_000_000).faces,
+            300,
+            0,
+        ).points
+        cli = cli_wall_seconds(Shape.from_arrays(sample), max(3, args.runs))
+
+    med = {(c.workload, c.data, c.method): c for c in cases}
+
+    def cpu(workload: str, data_name: str, method: str) -> float:
+        return statistics.median(med[(workload, data_name, method)].cpu)
+
+    auto = Predictor(bundle, precision="auto").precision
+    print("### Workloads side by side: LiteGE vs classical methods (issue 17)\n")
+    print(
+        f"- date {date.today()}; {_cpu_name()}, {os.cpu_count()} logical CPUs shared with other "
+        f"jobs; python {platform.python_version()}, torch {torch.__version__} (1 thread), "
+        f"numpy {np.__version__}, litege {__version__}; OMP_NUM_THREADS=1; "
+        f"`precision='auto'` resolves to `{auto}` here"
+    )
+    print(
+        f"- median of {args.runs} interleaved rounds after a warm-up (exact on 64 meshes, the "
+        "exact 1K × 1K and ZoomOut: 1 round), preprocessing included, nothing cached between "
+        "runs; CPU = process CPU time (the steadier figure on this shared machine), wall in "
+        f"brackets; command `python scripts/bench_workloads.py --runs {args.runs} "
+        f"--exact-sources {args.exact_sources}`"
+    )
+    print(
+        "- ratio: the method's CPU time over kNN Dijkstra's on the same workload and input "
+        "(correspondences: over ZoomOut); < 1 is faster\n"
+    )
+    print("| workload | input | method | CPU ms | (wall ms) | ratio | note |")
+    print("|---|---|---|---:|---:|---:|---|")
+    for case in cases:
+        ms = statistics.median(case.cpu)
+        wall = statistics.median(case.wall)
+        ref_name = "ZoomOut (pyFM)" if case.workload == "1K correspondences" else REFERENCE
+        ref = med.get((case.workload, case.data, ref_name))
+        ratio = f"{ms / statistics.median(ref.cpu):.2f}×" if ref is not None else "—"
+        print(
+            f"| {case.workload} | {case.data} | {case.method} | {ms:.1f} | ({wall:.1f}) | "
+            f"{ratio} | {case.note} |"
+        )
+
+    print("\n**Targets** (2-core shared CPU, one thread, preprocessing included)\n")
+    print("| target | configuration | measured | target | met |")
+    print("|---|---|---:|---:|---|")
+    knn_field = cpu("distance field", "2K cloud", REFERENCE)
+    for name in LITEGE:
+        pair = cpu("one pair", "2K cloud", name) / knn_field
+        field_ratio = cpu("distance field", "2K cloud", name) / knn_field
+        matrix = cpu("1K × 1K", "5K mesh", name) / 1000.0
+        mem = memory[name].cpu_mb
+        print(
+            f"| 2K cloud, 1 pair ÷ kNN Dijkstra field | {name} | {pair:.2f}× | ≤ 1.0× | "
+            f"{_ok(pair <= 1.0)} |"
+        )
+        print(
+            f"| 2K cloud, field ÷ kNN Dijkstra field | {name} | {field_ratio:.2f}× | ≤ 2.0× | "
+            f"{_ok(field_ratio <= 2.0)} |"
+        )
+        print(
+            f"| 64 clouds × 1 query, peak memory growth (numpy {memory[name].numpy_mb:.1f} + "
+            f"torch {memory[name].torch_mb:.1f} MB) | {name} | {mem:.1f} MB | ≤ 60 MB | "
+            f"{_ok(mem <= 60)} |"
+        )
+        print(
+            f"| 1K × 1K on a 5K mesh (CPU s) | {name} | {matrix:.2f} s | ≤ 0.5 s | "
+            f"{_ok(matrix <= 0.5)} |"
+        )
+    if cli is not None:
+        print(
+            f"| `litege geodesic` on a 300-point cloud (wall s, fresh process) | defaults | "
+            f"{cli:.2f} s | ≤ 1.5 s | {_ok(cli <= 1.5)} |"
+        )
+
+
+def _ok(flag: bool) -> str:
+    return "yes" if flag else "**no**"
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""Real dev shapes, several geodesic models side by side with heat and kNN (issue 14 ablations).
+
+Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR=LABEL ...] [--set tosca]
+    [--sources 12] [--settings mesh,cloud_2000,cloud_300]
+
+Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
+exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
+Besides the pooled error per setting it reports the per-shape spread of each model (median,
+p90 and the worst shape of the per-shape mean errors, mesh setting) and the real / synthetic
+ratio against held-out procedural shapes of the same category.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from litege_core.evaluation.geodesic import (
+    REAL_SETS,
+    comparison_methods,
+    comparison_table,
+    evaluate_methods,
+    generated_eval_shapes,
+    real_eval_shapes,
+    real_shape_paths,
+)
+from litege_core.learned import Predictor, load_bundle, load_shipped
+
+
+def load_predictor(name: str) -> Predictor:
+    path = Path(name)
+    return Predictor(load_bundle(path) if path.is_dir() else load_shipped(name))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", action="append", default=[], help="NAME_OR_DIR=LABEL")
+    parser.add_argument("--set", default="tosca", choices=sorted(REAL_SETS))
+    parser.add_argument("--eval-data", default="../shared/eval-data")
+    parser.add_argument("--sources", type=int, default=12)
+    parser.add_argument("--synthetic", type=int, default=16)
+    parser.add_argument("--settings", default="mesh,cloud_2000,cloud_300")
+    parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    real = REAL_SETS[args.set]
+    models = args.model or [f"{real.model}={real.model} (shipped)"]
+    predictors = {}
+    for item in models:
+        name, _, label = item.partition("=")
+        predictors[label or name] = load_predictor(name)
+    settings = tuple(args.settings.split(","))
+    paths = real_shape_paths(args.eval_data, args.set)
+    if not paths:
+        print(f"no {args.set} shapes under {args.eval_data}: nothing to evaluate")
+        return
+    shapes = real_eval_shapes(paths, real.group, args.sources, cache_dir=args.cache)
+    synthetic = generated_eval_shapes(
+        real.category, args.synthetic, args.sources, cache_dir=args.cache
+    )
+    methods = comparison_methods(predictors)
+    pooled = evaluate_methods([*shapes, *synthetic], methods, settings)
+    spread = {
+        label: [
+            evaluate_methods([shape], comparison_methods({label: p}, baselines=False), ("mesh",))[
+                0
+            ].mean
+            for shape in shapes
+        ]
+        for label, p in predictors.items()
+    }
+    print(f"### Real-shape ablation: {real.group}\n")
+    print(
+        f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine "
+        f"{platform.processor() or platform.machine()}; {len(shapes)} real shapes, "
+        f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
+        "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
+        + " ".join(f"--model {m}" for m in models)
+        + f" --set {args.set} --sources {args.sources}`\n"
+    )
+    print(comparison_table(pooled))
+    print("\n| model | per-shape median (mesh) | p90 | worst shape | real / synthetic (mesh) |")
+    print("|---|---:|---:|---|---:|")
+    by_key = {(r.group, r.setting, r.method): r.mean for r in pooled}
+    synthetic_group = synthetic[0].group if synthetic else None
+    for label, errors in spread.items():
+        values = np.array(errors)
+        worst = int(np.argmax(values))
+        real_mean = by_key[(real.group, "mesh", label)]
+        synth = by_key.get((synthetic_group, "mesh", label), float("nan"))
+        print(
+            f"| {label} | {np.median(values):.2f} | {np.quantile(values, 0.9):.2f} | "
+            f"{shapes[worst].name} {values[worst]:.2f} | {real_mean / synth:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,142 @@
+"""Frame failures of a matching model: T-Net frame against judged frames (issue 15, step 1).
+
+Usage:
+    python scripts/frame_report.py quadrupeds [--procedural 60] [--eval-data ../shared/eval-data]
+
+Each shape is randomly rotated (seeded) and prepared with ``frames="tnet"`` and
+``frames="judged"``; the error of a frame is the angle (rad) between the rotation it applies
+and the true one; a failure is an angle above 0.66 rad (the reference's T-Net rejection filter).
+
+* **procedural**: held-out test-split shapes (seeds 2,000,100 + k, families cycled, the pose
+  mode each seed draws), whose true frame is the generator's (for ``lying`` animals that is the
+  ground frame, the body rolled ~83° on its side: a body-upright frame counts as a failure);
+* **TOSCA** (read from ``--eval-data`` when present): the 31 ``tosca_5k`` poses and the 4
+  high-resolution ``tosca_landmarks`` rest poses. TOSCA files share one frame (x: the animal's
+  left-right axis, z: up, −y: forward), so the true canonical rotation of every file is the
+  fixed ``C`` below (the T-Net gets cat0, dog0, horse0 within 0.2 rad of it). A rearing or
+  sitting pose has no unambiguous upright frame, so part of these failures is ill-posed;
+  **agreement** (convention-free) is the share of same-class pose pairs whose two frames,
+  expressed in the file frame, differ by at most 0.66 rad.
+
+Prints a markdown block; every number comes from this script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import itertools
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from litege_core.io import load_shape
+from litege_core.matching import MatchingModel
+from litege_core.shape import Shape
+from litege_core.synth import families, generate_shape
+from litege_core.variants import random_rotation
+
+FAILURE = 0.66
+TOSCA_TO_CANONICAL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""Rows: canonical x, y, z in TOSCA file coordinates (``q = C f``)."""
+
+
+def angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Geodesic angle (rad) between two rotations."""
+    return float(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def frames_of(model: MatchingModel, shapes: list[Shape], mode: str) -> list[tuple[np.ndarray, str]]:
+    """``(rotation, frame name)`` of each shape prepared with ``frames=mode``."""
+    out = []
+    for shape in shapes:
+        prepared = model.prepare(shape, frames=mode)
+        out.append((np.asarray(prepared.transform.rotation), prepared.frame))
+    return out
+
+
+def summary(errors: list[float]) -> str:
+    values = np.asarray(errors)
+    return (
+        f"{values.size} | {np.median(values):.2f} | {values.mean():.2f} | "
+        f"{100 * (values > FAILURE).mean():.1f}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("model", nargs="?", default="quadrupeds")
+    parser.add_argument("--procedural", type=int, default=60)
+    parser.add_argument("--eval-data", default="../shared/eval-data")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    model = MatchingModel.load(args.model)
+    names = families(model.category)
+    rows: list[str] = []
+    switched: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ procedural
+    shapes, truths, poses = [], [], []
+    for k in range(args.procedural):
+        generated = generate_shape(model.category, names[k % len(names)], 2_000_100 + k)
+        rotation = random_rotation(np.random.default_rng([args.seed, 17, k]))
+        shapes.append(Shape.from_arrays(generated.vertices @ rotation.T, generated.faces))
+        truths.append(rotation)
+        poses.append(generated.pose)
+    results = {mode: frames_of(model, shapes, mode) for mode in ("tnet", "judged")}
+    for mode, found in results.items():
+        errors = [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
+        rows.append(f"| procedural (test seeds), all poses | {mode} | {summary(errors)} |")
+        upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
+        rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
+        switched[f"procedural {mode}"] = sum(name != "tnet" for _, name in found)
+
+    # ------------------------------------------------------------------ TOSCA
+    root = Path(args.eval_data)
+    files = sorted((root / "tosca_5k").glob("*.off")) + sorted(
+        (root / "tosca_landmarks" / "meshes").glob("*.off")
+    )
+    if files:
+        real, rotations, labels = [], [], []
+        for k, path in enumerate(files):
+            loaded = load_shape(path)
+            rotation = random_rotation(np.random.default_rng([args.seed, 23, k]))
+            real.append(Shape.from_arrays(loaded.vertices @ rotation.T, loaded.faces))
+            rotations.append(rotation)
+            labels.append(("L" if "landmarks" in str(path) else "") + path.stem)
+        for mode in ("tnet", "judged"):
+            found = frames_of(model, real, mode)
+            in_file = [r @ t for (r, _), t in zip(found, rotations, strict=True)]
+            errors = [angle(f, TOSCA_TO_CANONICAL) for f in in_file]
+            rows.append(
+                f"| TOSCA ({len(real)} shapes) vs file convention | {mode} | {summary(errors)} |"
+            )
+            pose_index = [i for i, label in enumerate(labels) if not label.startswith("L")]
+            pairs = [
+                (i, j)
+                for i, j in itertools.combinations(pose_index, 2)
+                if re.sub(r"\d+$", "", labels[i]) == re.sub(r"\d+$", "", labels[j])
+            ]
+            agree = [angle(in_file[i], in_file[j]) <= FAILURE for i, j in pairs]
+            rows.append(
+                f"| TOSCA same-class pose pairs ({len(pairs)}): frames agree ≤ 0.66 rad, % | "
+                f"{mode} | {len(pairs)} | — | — | {100 * np.mean(agree):.1f} |"
+            )
+            switched[f"TOSCA {mode}"] = sum(name != "tnet" for _, name in found)
+
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
+    print(f"### Frame failures (> {FAILURE} rad): `{args.model}` matching model\n")
+    print(
+        f"- date {date}; command `python scripts/frame_report.py {args.model} "
+        f"--procedural {args.procedural}`; frames changed by the judge: {switched}\n"
+    )
+    print("| shapes | frames | n | median rad | mean rad | failures % |")
+    print("|---|---|---:|---:|---:|---:|")
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,131 @@
+"""Posed real animals (rigged glTF) and MakeHuman bodies. They need the train-data directory
+(``$LITEGE_TRAIN_DATA`` or ../shared/train-data), which users do not have: skipped without it."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from litege_core.synth import makehuman, meshops, rigged
+
+TRAIN_DATA = Path(
+    os.environ.get("LITEGE_TRAIN_DATA")
+    or Path(__file__).resolve().parents[4] / "shared" / "train-data"
+)
+pytestmark = pytest.mark.skipif(not TRAIN_DATA.is_dir(), reason="train-data not available")
+FAST_ANIMAL = rigged.PoseSettings(vertex_range=(1200, 1400))
+FAST_HUMAN = makehuman.HumanSettings(vertex_range=(1500, 1700))
+
+
+@pytest.fixture(scope="module")
+def fox():
+    return rigged.cached_model(str(rigged.animal_path(TRAIN_DATA, rigged.KHRONOS_FOX)), "fox")
+
+
+@pytest.fixture(scope="module")
+def human():
+    return makehuman.cached_makehuman(str(TRAIN_DATA / "makehuman"))
+
+
+def test_every_rigged_animal_loads_as_a_closed_body_with_clips():
+    for name in rigged.ANIMALS:
+        model = rigged.cached_model(str(rigged.animal_path(TRAIN_DATA, name)), name)
+        report = meshops.manifold_report(model.mesh.vertices, model.mesh.faces)
+        assert report.closed and report.manifold and report.oriented, name
+        assert report.components == 1 and report.euler == 2, name
+        assert len(model.clips) >= 3 and 0 < model.leg_joints.sum() < model.leg_joints.size
+        assert model.free_joints.any() and not (model.free_joints & model.leg_joints).any()
+        area = meshops.triangle_area_total(model.rest_vertices(), model.mesh.faces)
+        assert area == pytest.approx(1.0, rel=1e-9), name
+
+
+def test_posed_animals_are_seeded_clean_manifolds(fox):
+    vertices, faces, draw = rigged.posed_animal(fox, 5, FAST_ANIMAL)
+    again, again_faces, again_draw = rigged.posed_animal(fox, 5, FAST_ANIMAL)
+    np.testing.assert_array_equal(vertices, again)
+    np.testing.assert_array_equal(faces, again_faces)
+    assert draw == again_draw and draw.clip in {c.name for c in fox.clips}
+    other, _, _ = rigged.posed_animal(fox, 6, FAST_ANIMAL)
+    assert other.shape != vertices.shape or not np.allclose(other, vertices)
+    report = meshops.manifold_report(vertices, faces)
+    assert report.ok and report.euler == 2
+    assert abs(len(vertices) / draw.target_vertices - 1.0) < 0.15
+    # the pose keeps roughly unit area (stretches are within ±15 %)
+    assert 0.6 < meshops.triangle_area_total(vertices, faces) < 1.6
+
+
+def test_unperturbed_clip_pose_is_the_clip_keyframe(fox):
+    settings = rigged.PoseSettings(perturb_degrees=0.0, body_range=(1.0, 1.0))
+    posed, draw = rigged.pose_model(fox, np.random.default_rng(0), settings)
+    clip = next(c for c in fox.clips if c.name == draw.clip)
+    translation, rotation, scale = rigged.gltf.sample_pose(fox.tree, clip, draw.time)
+    local = fox.tree.local_matrices(translation, rotation, scale)
+    matrices = rigged.gltf.skin_matrices(fox.tree, fox.mesh, local)
+    expected = rigged.gltf.linear_blend_skinning(
+        fox.mesh.vertices, fox.mesh.joints, fox.mesh.weights, matrices
+    )
+    expected = (expected - expected.mean(axis=0)) * fox.scale
+    np.testing.assert_allclose(posed, expected, atol=1e-12)
+
+
+def test_makehuman_rest_pose_and_a_single_bone_rotation(human):
+    shaped = makehuman.body_shape(human, 0.5, 0.5, 0.5)
+    heads, _ = makehuman.joint_positions(human, shaped)
+    rest = shaped[human.body]
+    identity = makehuman.bone_matrices(human, heads, {})
+    np.testing.assert_allclose(makehuman.skin(human, rest, identity), rest, atol=1e-12)
+    bone = human.bone("lowerarm01.L")
+    rotation = makehuman._rot([1.0, 0.0, 0.0], 40.0)
+    posed = makehuman.skin(
+        human, rest, makehuman.bone_matrices(human, heads, {"lowerarm01.L": rotation})
+    )
+    subtree = {bone}
+    for b in range(len(human.bones)):  # parents come first
+        if human.parents[b] in subtree:
+            subtree.add(b)
+    influence = np.asarray(human.weights[:, sorted(subtree)].sum(axis=1)).ravel()
+    moved = np.linalg.norm(posed - rest, axis=1) > 1e-12
+    np.testing.assert_array_equal(moved, influence > 1e-12)
+    rigid = influence > 1 - 1e-9
+    assert rigid.sum() > 100  # the hand and forearm move rigidly about the elbow
+    expected = (rest[rigid] - heads[bone]) @ rotation.T + heads[bone]
+    np.testing.assert_allclose(posed[rigid], expected, atol=1e-9)
+
+
+def test_makehuman_targets_change_the_body(human):
+    female = makehuman.body_shape(human, 0.0, 0.5, 0.5)
+    male = makehuman.body_shape(human, 1.0, 0.5, 0.5)
+    heavy = makehuman.body_shape(human, 1.0, 0.5, 1.0)
+    strong = makehuman.body_shape(human, 1.0, 1.0, 0.5)
+    for other in (female, heavy, strong):
+        assert np.abs(other - male).max() > 0.1
+    # at average muscle and weight only the gender targets act
+    only_gender = human.base.copy()
+    for name in ("caucasian-male-young",):
+        np.add.at(only_gender, human.targets[name][0], human.targets[name][1])
+    np.testing.assert_allclose(male, only_gender, atol=1e-12)
+
+
+def test_corner_factors_interpolate_the_grid():
+    assert makehuman.corner_factors(0.0, 1.0) == {
+        ("min", "min"): 0.0,
+        ("min", "max"): 1.0,
+        ("max", "min"): 0.0,
+        ("max", "max"): 0.0,
+    }
+    assert sum(makehuman.corner_factors(0.5, 0.5).values()) == 0.0
+    edge = makehuman.corner_factors(0.5, 1.0)  # average muscle, max weight
+    assert edge[("min", "max")] == edge[("max", "max")] == 0.5
+    assert sum(makehuman.corner_factors(0.75, 0.25).values()) == pytest.approx(0.75)
+
+
+def test_posed_humans_are_seeded_clean_manifolds(human):
+    vertices, faces, draw = makehuman.posed_human(human, 3, FAST_HUMAN)
+    again, _, again_draw = makehuman.posed_human(human, 3, FAST_HUMAN)
+    np.testing.assert_array_equal(vertices, again)
+    assert draw == again_draw
+    report = meshops.manifold_report(vertices, faces)
+    assert report.ok and report.euler == 2
+    extent = np.ptp(vertices, axis=0)
+    assert extent.max() > 1.5 * extent.min()  # a body, not a blob

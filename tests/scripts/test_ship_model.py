@@ -1,0 +1,70 @@
+"""scripts/ship_model.py: one model-card writer for geodesic and matching bundles, which
+regenerates the cards of the shipped bundles from their manifests (the geodesic cards were
+written before the category line named the shipping commit; every other line is reproduced)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+from litege_core.learned.bundle import MANIFEST, SHIPPED_DIR
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _load_script():
+    spec = importlib.util.spec_from_file_location(
+        "litege_ship_model", REPO / "scripts/ship_model.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+ship_model = _load_script()
+SHIPPED = sorted(p.parent.name for p in SHIPPED_DIR.glob(f"*/{MANIFEST}"))
+
+
+def _section(card: str, title_start: str) -> str | None:
+    match = re.search(rf"\n## {re.escape(title_start)}[^\n]*\n\n(.*?)\n\n## ", card, re.S)
+    return match.group(1) if match else None
+
+
+def _without_category(card: str) -> str:
+    return "\n".join(line for line in card.split("\n") if not line.startswith("- **Category**"))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_writer_reproduces_the_shipped_cards(name):
+    directory = SHIPPED_DIR / name
+    card = (directory / "MODEL_CARD.md").read_text()
+    manifest = json.loads((directory / MANIFEST).read_text())
+    commit = re.search(r"shipped at commit `([^`]*)`", card)
+    if commit:
+        manifest["training"].setdefault("commit", commit.group(1))
+    evaluation = _section(card, "Evaluation")
+    tnet = _section(card, "T-Net alignment")
+    report = json.loads(tnet.removeprefix("```json\n").removesuffix("\n```")) if tnet else None
+    written = ship_model.model_card(manifest, evaluation, report)
+    if commit:
+        assert written == card
+    else:
+        assert _without_category(written) == _without_category(card)
+
+
+def test_cards_differ_by_kind():
+    geodesic = json.loads((SHIPPED_DIR / "quadrupeds" / MANIFEST).read_text())
+    matching = json.loads((SHIPPED_DIR / "quadrupeds-matching" / MANIFEST).read_text())
+    card = ship_model.model_card(geodesic, "| table |")
+    assert "geodesic regression" in card and "## Evaluation (`litege eval geodesic`)" in card
+    assert "T-Net" not in card
+    card = ship_model.model_card(matching, None, {"val": {"mean": 0.1}})
+    assert "shape correspondence" in card and "## T-Net alignment error" in card
+    assert "## Evaluation" not in card and card.endswith("met and missed.\n")
