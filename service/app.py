@@ -699,10 +699,15 @@ def _add_query_routes(app: FastAPI) -> None:
         vertex/point of the target shape (learned cross-shape geodesic, coarse-to-fine
         search). Both shapes must be registered first (``POST /shapes``). With
         ``return_distance``: the distance at each match in the target's input units
-        (``distances``) and in unit-area units (``distances_unit_area``)."""
+        (``distances``) and in unit-area units (``distances_unit_area``). With ``refine``
+        (meshes only): the matches refined with ZoomOut, ``refinement`` saying how."""
         body = await _json_body(request, CorrespondenceRequest)
         result = await runtime.correspond(
-            body.source_shape_id, body.target_shape_id, body.queries, body.model
+            body.source_shape_id,
+            body.target_shape_id,
+            body.queries,
+            body.model,
+            refine=body.refine,
         )
         payload = {
             "source_shape_id": result.source_shape_id,
@@ -714,6 +719,7 @@ def _add_query_routes(app: FastAPI) -> None:
             "distances_unit_area": (
                 result.distances_unit_area.tolist() if body.return_distance else None
             ),
+            "refinement": result.refinement,
         }
         return Response(json.dumps(payload, allow_nan=False), media_type="application/json")
 

@@ -365,18 +365,22 @@ class GrpcClient:
         return_distance: bool = False,
         deadline_ms: int | None = None,
         timeout_s: float | None = None,
+        refine: str | None = None,
     ) -> Iterator[dict[str, Any]]:
         """Stream batches of source queries through one ``Correspond`` call; yields one dict
         per batch, in order: ``batch_id`` (the batch's position), ``n_queries``, ``matches``
         (``(K,)`` int64 target indices), ``distances`` (``(K,)`` float32 in the target's input
         units) and ``distances_unit_area`` (the same in unit-area units; both ``None`` unless
-        ``return_distance``), ``model``.
+        ``return_distance``), ``model``, ``refinement`` (``"none"``, ``"zoomout"``,
+        ``"zoomout:<seed>"``).
 
         Args:
             batches: each ``(K,)`` integer indices, ``(K, 3)`` float xyz points in the source's
                 units, or ``"all"``; consumed lazily, as gRPC's flow control allows.
             deadline_ms: deadline of each batch, from its arrival at the server.
             timeout_s: deadline of the whole stream (default: the client's).
+            refine: ``"none"`` (the server's default), ``"zoomout"`` or ``"zoomout-hybrid"``:
+                refine the matches of two meshes with ZoomOut (seconds per batch).
 
         Closing the returned iterator early (``break``, ``close()``) cancels the call: the
         server computes no further batch. A failed batch raises :class:`GrpcCallError` (with
@@ -392,6 +396,8 @@ class GrpcClient:
                     request.target_shape_id = target_shape_id
                     if model is not None:
                         request.model = model
+                    if refine is not None:
+                        request.refine = refine
                 if deadline_ms is not None:
                     request.deadline_ms = int(deadline_ms)
                 if isinstance(queries, str) and queries == "all":
@@ -416,6 +422,7 @@ class GrpcClient:
                     "source_shape_id": response.source_shape_id,
                     "target_shape_id": response.target_shape_id,
                     "model": response.model,
+                    "refinement": response.refinement,
                     "n_queries": int(response.n_queries),
                     "matches": np.array(response.matches, dtype=np.int64),
                     "distances": (

@@ -334,7 +334,12 @@ class LiteGEServicer:
             own = message.deadline_ms / 1000.0
             timeout = own if timeout is None else min(timeout, own)
         result = await self.runtime.correspond(
-            pair.source, pair.target, queries, model=pair.model, timeout_s=timeout
+            pair.source,
+            pair.target,
+            queries,
+            model=pair.model,
+            timeout_s=timeout,
+            refine=pair.refine,
         )
         response = self.pb2.CorrespondResponse(
             batch_id=message.batch_id,
@@ -343,6 +348,7 @@ class LiteGEServicer:
             model=result.model,
             n_queries=result.n_queries,
             matches=result.matches.tolist(),
+            refinement=result.refinement,
         )
         if message.return_distance:
             response.MergeFromString(
@@ -540,11 +546,13 @@ def _cancelled(context: grpc.aio.ServicerContext) -> bool:
 
 @dataclass(frozen=True)
 class _Pair:
-    """The shapes and model a ``Correspond`` stream is on (set by its first message)."""
+    """The shapes, model and refinement a ``Correspond`` stream is on (set by its first
+    message; ``refine`` ``None``: the runtime's default, ``"none"``)."""
 
     source: str = ""
     target: str = ""
     model: str | None = None
+    refine: str | None = None
 
     def updated(self, message: Any) -> _Pair:
         source = message.source_shape_id.strip() or self.source
@@ -554,7 +562,8 @@ class _Pair:
                 "the first Correspond message must name source_shape_id and target_shape_id"
             )
         model = _optional(message, "model") if message.HasField("model") else self.model
-        return _Pair(source, target, model)
+        refine = _optional(message, "refine") if message.HasField("refine") else self.refine
+        return _Pair(source, target, model, refine)
 
 
 def _shape_id(request: Any) -> str:

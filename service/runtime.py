@@ -20,10 +20,11 @@ import torch
 
 from litege_core.device import resolve_device
 from litege_core.engines import ClassicalPath
-from litege_core.errors import LiteGEError, ShapeTooLargeError
+from litege_core.errors import LiteGEError, MethodNotApplicableError, ShapeTooLargeError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
 from litege_core.learned import GeodesicPath, Predictor, load_shipped, shipped_bundles
 from litege_core.matching.model import MatchingModel
+from litege_core.matching.refine import REFINE_METHODS
 from litege_core.query import PointQuery, QueryLike, parse_query
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
@@ -50,7 +51,11 @@ T = TypeVar("T")
 
 CORRESPOND_CHUNK_QUERIES = 512
 """Correspondence queries per compute job: a large request runs as several jobs, so that other
-requests interleave with it and a timed-out or cancelled one stops after the current chunk."""
+requests interleave with it and a timed-out or cancelled one stops after the current chunk.
+A refined request (``refine`` other than ``"none"``) runs as one job whatever its size: the
+refinement computes one map of the whole pair (seconds), which every chunk would redo."""
+NO_REFINEMENT = "none"
+"""The default ``refine`` of a correspondence: LiteGE's matches as they are."""
 GEODESIC_CHUNK_PAIRS = 1 << 18
 """Most source × target pairs per geodesic compute job (larger requests run in row blocks)."""
 INLINE_PARSE_VALUES = 4096
@@ -254,6 +259,7 @@ class _CorrespondJob:
     model: str
     queries: PointQuery
     token: CancelToken
+    refine: str = NO_REFINEMENT
 
 
 @dataclass(frozen=True)
@@ -270,6 +276,9 @@ class Correspondence:
         distances_unit_area: ``(K,)`` float32 the same in unit-area units (both shapes
             scaled to unit surface area): what the matching network predicts.
         evaluations: network pair evaluations used.
+        refinement: how the matches were refined (:attr:`MatchResult.refinement
+            <litege_core.matching.model.MatchResult>`): ``"none"``, ``"zoomout"``, or
+            ``"zoomout:<seed>"`` for ``refine="zoomout-hybrid"`` (the start of the kept map).
     """
 
     source_shape_id: str
@@ -279,6 +288,7 @@ class Correspondence:
     distances: np.ndarray
     distances_unit_area: np.ndarray
     evaluations: int
+    refinement: str = NO_REFINEMENT
 
     @property
     def n_queries(self) -> int:
@@ -718,15 +728,25 @@ class Runtime:
         queries: QueryLike = "all",
         model: str | None = None,
         timeout_s: float | None = None,
+        refine: str | None = None,
     ) -> Correspondence:
         """Match ``queries`` of the source shape (indices, xyz points in its units, or
         ``"all"``) on the target shape; both must be registered.
 
         The queries run in chunks of ``correspond_chunk``, one compute job each, so other
         requests interleave with a large one; a request that times out or is cancelled stops
-        before its next chunk.
+        before its next chunk. ``refine`` (``None`` → ``"none"``; one of the library's
+        ``REFINE_METHODS``) refines the matches of two meshes
+        (:meth:`~litege_core.matching.model.MatchingModel.match`); such a request runs as one
+        job (see :data:`CORRESPOND_CHUNK_QUERIES`).
+
+        Raises:
+            RequestError: ``refine`` is not one of ``REFINE_METHODS``.
+            MethodNotApplicableError: a refinement with a point cloud (from the job).
+            MissingDependencyError: a refinement without pyFM (from the job).
         """
         name = self.matching.model_name(model)  # unknown model: fail before queueing
+        refine = self.refine_name(refine)
         query = await self.parse_query(queries, "queries")
         if not query.is_all:
             self._check_match_count(query.count(0))
@@ -737,9 +757,13 @@ class Runtime:
                 n_points = await self._submit("prepare_pair", prepare, deadline, token)
                 self._check_match_count(n_points)
                 query = PointQuery(indices=np.arange(n_points, dtype=np.int64))
+            refined = refine != NO_REFINEMENT
+            blocks = [query] if refined else _blocks(query, self.correspond_chunk)
             parts: list[Correspondence] = []
-            for block in _blocks(query, self.correspond_chunk):
-                job = _CorrespondJob(source_shape_id, target_shape_id, name, block, token)
+            for block in blocks:
+                job = _CorrespondJob(
+                    source_shape_id, target_shape_id, name, block, token, refine=refine
+                )
                 parts.append(await self._submit("correspond", job, deadline, token))
         return Correspondence(
             source_shape_id,
@@ -749,6 +773,7 @@ class Runtime:
             np.concatenate([p.distances for p in parts]),
             np.concatenate([p.distances_unit_area for p in parts]),
             sum(p.evaluations for p in parts),
+            refinement=parts[0].refinement,
         )
 
     async def _submit(self, kind: str, job: Any, deadline: _Deadline, token: CancelToken) -> Any:
@@ -764,6 +789,18 @@ class Runtime:
         name = LEARNED if method is None else method
         if name not in METHODS:
             raise RequestError(f"unknown method {name!r}; expected one of {list(METHODS)}")
+        return name
+
+    @staticmethod
+    def refine_name(refine: str | None) -> str:
+        """``refine`` checked (``None`` → ``"none"``).
+
+        Raises:
+            RequestError: not one of the library's ``REFINE_METHODS``.
+        """
+        name = NO_REFINEMENT if refine is None else refine
+        if name not in REFINE_METHODS:
+            raise RequestError(f"unknown refine {name!r}; expected one of {list(REFINE_METHODS)}")
         return name
 
     def _check_exact_sources(self, n_sources: int) -> None:
@@ -839,7 +876,19 @@ class Runtime:
     def _correspond(self, job: _CorrespondJob) -> Correspondence:
         source = self.matching.get(job.source_id, job.model)
         target = self.matching.get(job.target_id, job.model)
-        result = self.matching.models[job.model].match(source, target, job.queries)
+        if job.refine != NO_REFINEMENT:
+            for role, shape_id, prepared in (
+                ("source", job.source_id, source),
+                ("target", job.target_id, target),
+            ):
+                if prepared.faces is None:
+                    raise MethodNotApplicableError(
+                        f"refine={job.refine!r} needs two meshes; the {role} shape {shape_id} "
+                        "is a point cloud (use refine 'none')"
+                    )
+        result = self.matching.models[job.model].match(
+            source, target, job.queries, refine=job.refine
+        )
         self.metrics.correspond_batches.labels(job.model).inc()
         unit_area = np.asarray(result.distance, dtype=np.float32)
         in_target_units = target.transform.unscale_distance(unit_area.astype(np.float64))
@@ -851,6 +900,7 @@ class Runtime:
             np.asarray(in_target_units, dtype=np.float32),
             unit_area,
             result.evaluations,
+            refinement=result.refinement,
         )
 
     def _handle_geodesic(self, jobs: list[_GeodesicJob]) -> list[Any]:

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, WithJsonSchema
+
+from litege_core.matching.refine import REFINE_METHODS
 
 Point = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, z]")]
 Triangle = Annotated[list[int], Field(min_length=3, max_length=3)]
@@ -72,6 +74,20 @@ SinglePoint = Annotated[
 """One index or one ``[x, y, z]`` point."""
 
 
+def _refine_method(value: str) -> str:
+    if value not in REFINE_METHODS:
+        raise ValueError(f"refine must be one of {list(REFINE_METHODS)}, got {value!r}")
+    return value
+
+
+RefineName = Annotated[
+    str,
+    AfterValidator(_refine_method),
+    WithJsonSchema({"type": "string", "enum": list(REFINE_METHODS)}),
+]
+"""One of the library's ``REFINE_METHODS`` (:mod:`litege_core.matching.refine`)."""
+
+
 class _Request(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -114,6 +130,15 @@ class CorrespondenceRequest(_Request):
     )
     return_distance: bool = Field(False, description="also return the distance at each match")
     model: str | None = Field(None, description="matching model (default: the service's)")
+    refine: RefineName = Field(
+        "none",
+        description="'none' (default): the learned matches; 'zoomout': refine them with ZoomOut "
+        "(functional maps started from the learned map); 'zoomout-hybrid': that, or ZoomOut "
+        "started from a wave-kernel-signature map, whichever preserves geodesic distances "
+        "better. Meshes only (a point cloud: 422 method-not-applicable); seconds per pair, "
+        "and the request runs as one compute job; needs pyFM on the server (else 501 "
+        "missing-dependency)",
+    )
 
 
 class ShapeInfoResponse(BaseModel):
@@ -174,6 +199,11 @@ class CorrespondenceResponse(BaseModel):
         description="the same distances in unit-area units (both shapes scaled to unit "
         "surface area: what the matching network predicts, comparable across shapes); null "
         "unless return_distance was true",
+    )
+    refinement: str = Field(
+        description="how the matches were refined: 'none', 'zoomout', or for 'zoomout-hybrid' "
+        "'zoomout:<seed>' naming the start of the kept map ('zoomout:litege' or "
+        "'zoomout:descriptors')"
     )
 
 

@@ -5,6 +5,8 @@ status, cancellation stopping the work, per-batch deadlines."""
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -23,6 +25,10 @@ MODEL = "tiny"
 SLOW_WAIT_MS = 150.0
 """The slow server's batcher waits this long before computing: every batch takes longer."""
 SC = grpc.StatusCode
+HAS_PYFM = importlib.util.find_spec("pyFM") is not None
+NEEDS_PYFM = pytest.mark.skipif(
+    not HAS_PYFM, reason="refine='zoomout' needs pyFM (PyPI pyfmaps, the 'eval' extra)"
+)
 
 
 def counter(service, name: str, **labels: str) -> float:
@@ -128,6 +134,7 @@ def test_batches_answered_in_order_equal_the_library(client, pair, reference):
     ]
     for answer, want in zip(answers, expected, strict=True):
         assert answer["model"] == MODEL and answer["n_queries"] == len(want.indices)
+        assert answer["refinement"] == "none"
         assert (answer["source_shape_id"], answer["target_shape_id"]) == tuple(pair["ids"])
         np.testing.assert_array_equal(answer["matches"], want.indices)
         unit_area = answer["distances_unit_area"]
@@ -171,6 +178,83 @@ def test_shapes_are_prepared_once_across_streams(service, client, test_shape):
     assert counter(service, "litege_matching_prepared_total", model=MODEL) == before + 2
     list(client.correspond(ids[1], ids[0], [[0], [1]]))
     assert counter(service, "litege_matching_prepared_total", model=MODEL) == before + 2
+
+
+# --------------------------------------------------------------------------- refinement
+
+
+@pytest.fixture(scope="module")
+def small_pair(client, blob, reference) -> dict[str, Any]:
+    """Two small meshes (162 vertices: ZoomOut in about a second), their library preparations
+    and a registered point cloud."""
+    shapes = (blob(21, subdivisions=2), blob(22, subdivisions=2))
+    ids = [client.register_arrays(s.vertices, s.faces)["shape_id"] for s in shapes]
+    cloud = client.register_arrays(blob(23, subdivisions=2).vertices, kind="point_cloud")
+    return {
+        "ids": ids,
+        "shapes": shapes,
+        "prepared": [reference.prepare(s, seed=0) for s in shapes],
+        "cloud": cloud["shape_id"],
+    }
+
+
+@NEEDS_PYFM
+def test_refine_zoomout_on_two_meshes(client, small_pair, reference):
+    answers = list(
+        client.correspond(
+            *small_pair["ids"], ["all", [0, 7, 100]], refine="zoomout", return_distance=True
+        )
+    )
+    assert [a["refinement"] for a in answers] == ["zoomout", "zoomout"]
+    expected = reference.match(*small_pair["prepared"], refine="zoomout")
+    n_target = small_pair["shapes"][1].n_points
+    full, some = answers
+    assert full["n_queries"] == small_pair["shapes"][0].n_points
+    assert full["matches"].min() >= 0 and full["matches"].max() < n_target
+    assert np.isfinite(full["distances"]).all()
+    np.testing.assert_array_equal(full["matches"], expected.indices)
+    np.testing.assert_array_equal(some["matches"], expected.indices[[0, 7, 100]])
+
+
+@NEEDS_PYFM
+def test_refine_is_inherited_and_replaced_like_the_model(stub, pb2, small_pair, reference):
+    src, tgt = small_pair["ids"]
+    requests = [
+        _request(pb2, 0, [0, 1], source_shape_id=src, target_shape_id=tgt, refine="zoomout"),
+        _request(pb2, 1, [2]),  # inherits refine
+        _request(pb2, 2, [0, 1], refine="none"),
+        _request(pb2, 3, [0, 1], refine=""),  # empty: the default, "none"
+    ]
+    answers = list(stub.Correspond(iter(requests), timeout=60))
+    assert [a.refinement for a in answers] == ["zoomout", "zoomout", "none", "none"]
+    refined = reference.match(*small_pair["prepared"], refine="zoomout").indices
+    plain = reference.match(*small_pair["prepared"], np.array([0, 1])).indices
+    assert list(answers[0].matches) == list(refined[[0, 1]])
+    assert list(answers[1].matches) == [refined[2]]
+    assert list(answers[2].matches) == list(plain) == list(answers[3].matches)
+
+
+@pytest.mark.parametrize("cloud_is", ["source", "target"])
+def test_refine_with_a_point_cloud_is_invalid_argument(client, small_pair, reference, cloud_is):
+    mesh, cloud = small_pair["ids"][0], small_pair["cloud"]
+    src, tgt = (cloud, mesh) if cloud_is == "source" else (mesh, cloud)
+    error = _raises(lambda: list(client.correspond(src, tgt, [[0, 1]], refine="zoomout")))
+    assert error.code == SC.INVALID_ARGUMENT and error.batch_id == 0
+    assert error.problem_type == PROBLEM_BASE_URI + "method-not-applicable"
+    assert "point cloud" in error.message and cloud_is in error.message
+    (answer,) = client.correspond(src, tgt, [[0, 1]])  # unrefined: fine
+    assert answer["refinement"] == "none"
+
+
+def test_refine_without_pyfm_is_unimplemented(client, small_pair, monkeypatch):
+    """pyFM not importable on the server: UNIMPLEMENTED missing-dependency, never INTERNAL."""
+    monkeypatch.setitem(sys.modules, "pyFM", None)  # `import pyFM` now raises ImportError
+    ids = small_pair["ids"]
+    error = _raises(lambda: list(client.correspond(*ids, [[0]], refine="zoomout")))
+    assert error.code == SC.UNIMPLEMENTED and error.batch_id == 0
+    assert error.problem_type == PROBLEM_BASE_URI + "missing-dependency"
+    assert "pyFM" in error.message
+    assert len(list(client.correspond(*ids, [[0]]))) == 1  # unrefined still works
 
 
 # --------------------------------------------------------------------------- errors
@@ -224,6 +308,8 @@ BAD_STREAMS: dict[str, tuple[SC, str, dict[str, Any]]] = {
         {"query_indices": DROP, "query_points": [1.0, 2.0]},
     ),
     "unknown model": (SC.INVALID_ARGUMENT, "unknown-model", {"model": "giraffes"}),
+    "unknown refine": (SC.INVALID_ARGUMENT, "invalid-request", {"refine": "zoom-out"}),
+    "refine in capitals": (SC.INVALID_ARGUMENT, "invalid-request", {"refine": "ZoomOut"}),
 }
 
 

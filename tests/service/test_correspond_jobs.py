@@ -1,10 +1,12 @@
 """Large requests run as several compute jobs: a big correspondence lets a small geodesic
 request through between its chunks, answers the same as one call of the library, and stops
-computing once its caller has given up (deadline or cancellation)."""
+computing once its caller has given up (deadline or cancellation). A refined correspondence
+(``refine``) runs as one job: its refinement is one map of the whole pair."""
 
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -48,6 +50,7 @@ class Recorder:
 
     def __init__(self, service: Any, hold_first: bool) -> None:
         self.events: list[tuple[str, int]] = []
+        self.refines: list[str] = []
         self.first_started = threading.Event()
         self.release = threading.Event()
         if not hold_first:
@@ -60,6 +63,7 @@ class Recorder:
 
     def match(self, source: Any, target: Any, queries: Any = None, **options: Any) -> Any:
         self.events.append(("match", parse_query(queries).count(source.n_points)))
+        self.refines.append(options.get("refine", "none"))
         if len(self.events) == 1:
             self.first_started.set()
             self.release.wait(30)
@@ -170,3 +174,42 @@ def test_a_cancelled_request_stops_computing(service, ids, recorder):
     assert ok.status_code == 200
     computed = sum(size for kind, size in recorder.events if kind == "match")
     assert computed == CHUNK
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("pyFM") is None,
+    reason="refine='zoomout' needs pyFM (PyPI pyfmaps, the 'eval' extra)",
+)
+def test_a_refined_request_runs_as_one_job(service, blob):
+    """More queries than a chunk: the unrefined request runs in chunks, the refined one as a
+    single job with ``refine`` passed to the library (every chunk would redo the refinement);
+    each answers what one call of the library answers."""
+    shapes = [blob(seed, subdivisions=2) for seed in (31, 32)]  # 162 vertices: > 2 chunks
+    ids = []
+    for shape in shapes:
+        response = httpx.post(
+            f"{service.base_url}/shapes",
+            json={"vertices": shape.vertices.tolist(), "faces": shape.faces.tolist()},
+        )
+        assert response.status_code in (200, 201), response.text
+        ids.append(response.json()["shape_id"])
+    n_points = shapes[0].n_points
+    assert n_points > 2 * CHUNK
+    body = {"source_shape_id": ids[0], "target_shape_id": ids[1], "queries": "all"}
+    with Recorder(service, hold_first=False) as recorder:
+        plain = httpx.post(f"{service.base_url}/correspondences", json=body, timeout=60)
+        refined = httpx.post(
+            f"{service.base_url}/correspondences", json=body | {"refine": "zoomout"}, timeout=60
+        )
+    assert plain.status_code == 200 and refined.status_code == 200, refined.text
+    sizes = [size for kind, size in recorder.events if kind == "match"]
+    n_chunks = -(-n_points // CHUNK)
+    assert sizes[:n_chunks] == [CHUNK] * (n_chunks - 1) + [n_points - CHUNK * (n_chunks - 1)]
+    assert sizes[n_chunks:] == [n_points], "the refined request is one job"
+    assert recorder.refines == ["none"] * n_chunks + ["zoomout"]
+    assert plain.json()["refinement"] == "none" and refined.json()["refinement"] == "zoomout"
+    reference = MatchingModel.tiny_random(SEED)
+    prepared = [reference.prepare(shape, seed=0) for shape in shapes]
+    expected = reference.match(*prepared, refine="zoomout")
+    np.testing.assert_array_equal(refined.json()["matches"], expected.indices)
+    np.testing.assert_array_equal(plain.json()["matches"], reference.match(*prepared).indices)

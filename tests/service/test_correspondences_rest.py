@@ -5,7 +5,9 @@ kept in the store (in-process or Redis, across a restart), bad inputs give preci
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
+import sys
 from typing import Any
 
 import httpx
@@ -14,6 +16,7 @@ import pytest
 import redis
 
 from litege_core.matching.model import MatchingModel
+from litege_core.matching.refine import REFINE_METHODS
 from litege_core.shape import Shape
 from service.client import LiteGEClient, ProblemError
 from service.errors import UnknownModelError
@@ -25,6 +28,10 @@ from service.store import artifact_key
 SEED = 3
 MODEL = "tiny"
 PROBLEM_JSON = "application/problem+json"
+HAS_PYFM = importlib.util.find_spec("pyFM") is not None
+NEEDS_PYFM = pytest.mark.skipif(
+    not HAS_PYFM, reason="refine='zoomout' needs pyFM (PyPI pyfmaps, the 'eval' extra)"
+)
 
 
 def counter(service, name: str, **labels: str) -> float:
@@ -119,7 +126,9 @@ def test_index_queries_without_distances(service, client, pair, reference):
         "matches",
         "distances",
         "distances_unit_area",
+        "refinement",
     }
+    assert raw.json()["refinement"] == "none" and got["refinement"] == "none"
 
 
 def test_xyz_queries_match_the_library(client, pair, reference):
@@ -167,6 +176,78 @@ def test_point_cloud_target_and_reverse_direction(client, pair, test_shape, refe
     np.testing.assert_array_equal(
         back["matches"], reference.match(prepared_cloud, pair["prepared"][0]).indices
     )
+
+
+# --------------------------------------------------------------------------- refinement
+
+
+@pytest.fixture(scope="module")
+def small_pair(client, blob, reference):
+    """Two small meshes (162 vertices: ZoomOut in about a second) and their library
+    preparations."""
+    shapes = (blob(21, subdivisions=2), blob(22, subdivisions=2))
+    ids = [client.register_arrays(s.vertices, s.faces)["shape_id"] for s in shapes]
+    return {
+        "ids": ids,
+        "shapes": shapes,
+        "prepared": [reference.prepare(s, seed=0) for s in shapes],
+    }
+
+
+@NEEDS_PYFM
+def test_refine_zoomout_on_two_meshes(service, client, small_pair, reference):
+    src, tgt = small_pair["ids"]
+    n_source = small_pair["shapes"][0].n_points
+    n_target = small_pair["shapes"][1].n_points
+    batches = counter(service, "litege_correspond_batches_total", model=MODEL)
+    got = client.correspondences(src, tgt, "all", return_distance=True, refine="zoomout")
+    assert counter(service, "litege_correspond_batches_total", model=MODEL) == batches + 1
+    assert got["refinement"] == "zoomout" and got["n_queries"] == n_source
+    assert got["matches"].shape == (n_source,)
+    assert got["matches"].min() >= 0 and got["matches"].max() < n_target
+    assert np.isfinite(got["distances"]).all() and np.isfinite(got["distances_unit_area"]).all()
+    expected = reference.match(*small_pair["prepared"], refine="zoomout")
+    assert expected.refinement == "zoomout"
+    np.testing.assert_array_equal(got["matches"], expected.indices)
+    queries = [0, 7, 100, 7]
+    some = client.correspondences(src, tgt, queries, refine="zoomout")
+    np.testing.assert_array_equal(some["matches"], got["matches"][queries])
+    plain = client.correspondences(src, tgt, queries)  # unrefined answers stay unrefined
+    assert plain["refinement"] == "none"
+    expected_plain = reference.match(*small_pair["prepared"], np.array(queries))
+    np.testing.assert_array_equal(plain["matches"], expected_plain.indices)
+
+
+@NEEDS_PYFM
+def test_refine_zoomout_hybrid_names_the_kept_seed(client, small_pair):
+    src, tgt = small_pair["ids"]
+    got = client.correspondences(src, tgt, [0, 1, 2], refine="zoomout-hybrid")
+    assert got["refinement"] in {"zoomout:litege", "zoomout:descriptors"}
+    assert got["matches"].shape == (3,) and got["matches"].max() < small_pair["shapes"][1].n_points
+
+
+@pytest.mark.parametrize("refine", ["zoomout", "zoomout-hybrid"])
+@pytest.mark.parametrize("cloud_is", ["source", "target"])
+def test_refine_with_a_point_cloud_is_not_applicable(
+    service, client, small_pair, test_shape, refine, cloud_is
+):
+    mesh = small_pair["ids"][0]
+    cloud = client.register_arrays(test_shape(4).vertices, kind="point_cloud")["shape_id"]
+    src, tgt = (cloud, mesh) if cloud_is == "source" else (mesh, cloud)
+    body = {"source_shape_id": src, "target_shape_id": tgt, "queries": [0, 1], "refine": refine}
+    problem = assert_problem(_post(service, body), 422, "method-not-applicable")
+    assert "point cloud" in problem["detail"] and cloud_is in problem["detail"]
+    assert client.correspondences(src, tgt, [0, 1])["refinement"] == "none"  # unrefined: fine
+
+
+def test_refine_without_pyfm_is_a_missing_dependency(service, client, small_pair, monkeypatch):
+    """pyFM not importable on the server: 501 missing-dependency, never a 500."""
+    monkeypatch.setitem(sys.modules, "pyFM", None)  # `import pyFM` now raises ImportError
+    src, tgt = small_pair["ids"]
+    body = {"source_shape_id": src, "target_shape_id": tgt, "queries": [0], "refine": "zoomout"}
+    problem = assert_problem(_post(service, body), 501, "missing-dependency")
+    assert "pyFM" in problem["detail"]
+    assert client.correspondences(src, tgt, [0])["n_queries"] == 1  # unrefined still works
 
 
 # --------------------------------------------------------------------------- caching
@@ -275,6 +356,10 @@ BAD_BODIES: dict[str, tuple[dict, int, str]] = {
     "return_distance not a bool": ({"return_distance": "maybe"}, 422, "invalid-request"),
     "extra field": ({"beams": 4}, 422, "invalid-request"),
     "unknown model": ({"model": "quadrupeds-x"}, 422, "unknown-model"),
+    "unknown refine": ({"refine": "zoom-out"}, 422, "invalid-request"),
+    "refine in capitals": ({"refine": "ZOOMOUT"}, 422, "invalid-request"),
+    "refine null": ({"refine": None}, 422, "invalid-request"),
+    "refine a bool": ({"refine": True}, 422, "invalid-request"),
 }
 
 
@@ -323,6 +408,10 @@ def test_openapi_documents_the_operation(service):
     response = schema["components"]["schemas"]["CorrespondenceResponse"]
     assert "input units" in response["properties"]["distances"]["description"]
     assert "unit-area" in response["properties"]["distances_unit_area"]["description"]
+    assert "zoomout" in response["properties"]["refinement"]["description"]
+    request = operation["requestBody"]["content"]["application/json"]["schema"]
+    refine = request["properties"]["refine"]
+    assert refine["enum"] == list(REFINE_METHODS) and refine["default"] == "none"
 
 
 def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, tmp_path):

@@ -6,7 +6,8 @@ Includes the cases of issue 13: absurd but finite numbers (an ``.npy`` header de
 ``(10^12, 3)``, query points at 1e154 on ``/geodesic`` and ``/paths``, a correspondence query
 at 1e40 with ``return_distance``), ``sources: "all"``, a body that never arrives, and a large
 body sent without the API key; and of issue 16's ``method``: an unknown method, ``exact`` on a
-point cloud, above the vertex limit, or with too many sources.
+point cloud, above the vertex limit, or with too many sources; and of correspondence's
+``refine``: an unknown value, and a refinement with a point cloud.
 """
 
 from __future__ import annotations
@@ -265,6 +266,20 @@ REST_CASES: dict[str, tuple[RestCase, int]] = {
         ),
         422,
     ),
+    "correspondence unknown refine": (_match(queries=[0], refine="zoomout++"), 422),
+    "correspondence refine a list": (_match(queries=[0], refine=["zoomout"]), 422),
+    "correspondence refine, point cloud target": (
+        lambda h, s, ids: h.post(
+            "/correspondences",
+            json={
+                "source_shape_id": ids[0],
+                "target_shape_id": ids[2],
+                "queries": [0],
+                "refine": "zoomout",
+            },
+        ),
+        422,
+    ),
     # request bodies
     "shape id empty": (
         lambda h, s, ids: h.post("/geodesic", json={"shape_id": "", "sources": [0]}),
@@ -498,6 +513,18 @@ GRPC_CASES: dict[str, GrpcCase] = {
         lambda pb2, ids: [pb2.CorrespondRequest(query_indices=pb2.Indices(values=[0]))],
     ),
     "correspondence too many queries": _grpc_match(query_indices=list(range(MAX_QUERIES + 1))),
+    "correspondence unknown refine": _grpc_match(query_indices=[0], refine="zoomout++"),
+    "correspondence refine, point cloud source": _stream(
+        "Correspond",
+        lambda pb2, ids: [
+            pb2.CorrespondRequest(
+                source_shape_id=ids[2],
+                target_shape_id=ids[0],
+                query_indices=pb2.Indices(values=[0]),
+                refine="zoomout-hybrid",
+            )
+        ],
+    ),
     ".npy declaring (10^12, 3)": _stream(
         "RegisterShape", lambda pb2, ids: _file(pb2, "npy", _npy((10**12, 3)))
     ),
