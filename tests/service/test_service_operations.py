@@ -95,7 +95,9 @@ def test_redis_outage_degrades_and_recovers(live_service_factory, private_redis,
         private_redis.kill()
 
         started = time.monotonic()
-        np.testing.assert_array_equal(client.geodesic(kept, [0], "all"), before)
+        # served from the process's own cache; equal up to float32 rounding (a state read
+        # back may or may not hold its point table, whose products round differently)
+        np.testing.assert_allclose(client.geodesic(kept, [0], "all"), before, rtol=1e-6)
         during = client.register_file(mesh_bytes(3, "obj"), file_format="obj")
         assert during["created"] is True
         assert client.geodesic(during["shape_id"], [0], [1]).shape == (1, 1)

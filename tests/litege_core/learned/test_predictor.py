@@ -178,8 +178,12 @@ def test_state_fields_are_read_only_and_keyed_by_content(predictor, mesh, mesh_s
     assert fresh.feature_table is not None
     assert fresh.nbytes >= before + mesh.n_points * 64 * 4
     again = predictor.register(mesh, seed=3)  # deterministic
-    np.testing.assert_array_equal(
-        predictor.distances(again, [1, 2]), predictor.distances(mesh_state, [1, 2])
+    np.testing.assert_array_equal(again.descriptor, mesh_state.descriptor)
+    np.testing.assert_array_equal(again.canonical_points, mesh_state.canonical_points)
+    # equal up to float32 rounding: the matrix kernels round differently with the number of
+    # rows, and the fixture's state may already hold its point table (built by another test)
+    np.testing.assert_allclose(
+        predictor.distances(again, [1, 2]), predictor.distances(mesh_state, [1, 2]), rtol=1e-6
     )
 
 
@@ -191,7 +195,8 @@ def test_few_point_queries_embed_only_their_points(predictor, mesh):
     np.testing.assert_allclose(predictor.distances(state, [3, 7], [1, 2, 400]), few, rtol=1e-5)
     alone = predictor.register(mesh, seed=3)
     first = predictor.distances(alone, [5], "all")  # the source is embedded on its own
-    np.testing.assert_array_equal(predictor.distances(alone, [5], "all"), first)  # from the table
+    # from the table: the same embedding, up to the rounding of a matrix product of more rows
+    np.testing.assert_allclose(predictor.distances(alone, [5], "all"), first, rtol=1e-6)
     large = predictor.register(mesh, seed=3)
     predictor.distances(large, np.arange(mesh.n_points // 2), [1])
     assert large.feature_table is not None  # a query of most points builds it once
