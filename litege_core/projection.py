@@ -27,7 +27,6 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from litege_core.arrays import frozen
 from litege_core.errors import EmptyShapeError
@@ -184,6 +183,8 @@ class MeshProjector:
         self._a, self._b, self._c = (np.ascontiguousarray(corners[:, i]) for i in range(3))
         centroids = corners.mean(axis=1)
         self.max_radius = float(np.linalg.norm(corners - centroids[:, None], axis=2).max())
+        from scipy.spatial import cKDTree  # imported on first use (CLI start-up)
+
         self._tree = cKDTree(centroids)
         self.candidates = max(1, min(int(candidates), self.n_faces))
         normals = np.cross(self._b - self._a, self._c - self._a)
@@ -263,6 +264,8 @@ class CloudProjector:
         self.points = frozen(np.asarray(points, dtype=np.float64))
         if self.points.ndim != 2 or self.points.shape[1] != 3 or self.points.shape[0] < 2:
             raise EmptyShapeError("a cloud projector needs at least two points")
+        from scipy.spatial import cKDTree  # imported on first use (CLI start-up)
+
         self._tree = cKDTree(self.points)
         self.normal_neighbours = max(3, min(int(normal_neighbours), self.points.shape[0]))
 

@@ -12,11 +12,10 @@ All functions are deterministic for a given seed.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from litege_core.errors import (
     ArrayShapeError,
@@ -26,6 +25,9 @@ from litege_core.errors import (
     NonFiniteError,
 )
 from litege_core.validate import triangle_areas
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 class SurfaceSamples(NamedTuple):
@@ -223,6 +225,8 @@ def poisson_disk_subsample(
     diagonal = float(np.linalg.norm(np.ptp(pts, axis=0)))
     if not diagonal > 0.0:
         raise DegenerateShapeError("cannot Poisson-disk sample points that all coincide")
+    from scipy.spatial import cKDTree  # imported on first use (CLI start-up)
+
     rng = np.random.default_rng(seed)
     order = rng.permutation(n_points).tolist()
     tree = cKDTree(pts)
@@ -319,6 +323,8 @@ def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
 
     Duplicate points count with distance 0. Needs at least 2 points.
     """
+    from scipy.spatial import cKDTree  # imported on first use (CLI start-up)
+
     pts = as_points(points, min_points=2)
     distances, _ = cKDTree(pts).query(pts, k=2)
     return float(distances[:, 1].mean())

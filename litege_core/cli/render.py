@@ -27,7 +27,10 @@ from litege_core.cli.common import (
 )
 from litege_core.errors import InputError
 from litege_core.io import load_shape
-from litege_core.render.raster import VIEWS
+
+VIEW_NAMES = ("back", "front", "side", "three_quarter", "top")
+"""The names of :data:`litege_core.render.raster.VIEWS`, sorted, spelled out so that building
+the ``litege`` parser imports no renderer (a test keeps the two equal)."""
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -146,7 +149,7 @@ def cmd_render_match(args: argparse.Namespace) -> int:
 
 
 def _add_figure_arguments(parser: argparse.ArgumentParser, size: str) -> None:
-    parser.add_argument("--view", choices=sorted(VIEWS), default="three_quarter")
+    parser.add_argument("--view", choices=VIEW_NAMES, default="three_quarter")
     parser.add_argument("--size", default=size, help=f"image size WxH of one view (default {size})")
     parser.add_argument("--ssaa", type=int, default=2, help="supersampling factor (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the descriptor samples")
@@ -190,4 +193,4 @@ def register(commands: argparse._SubParsersAction) -> None:
     match.set_defaults(handler=cmd_render_match)
 
 
-__all__ = ["cmd_render", "cmd_render_match", "register"]
+__all__ = ["VIEW_NAMES", "cmd_render", "cmd_render_match", "register"]

@@ -35,7 +35,6 @@ import itertools
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
 
 from litege_core.descriptor._arrays import as_faces, as_points
 from litege_core.descriptor.grid import VoxelGrid
@@ -335,6 +334,8 @@ def point_cloud_occupancy(points: ArrayLike, grid: VoxelGrid, dilation: int = 0)
     occupied = np.zeros(grid.n_voxels, dtype=bool)
     occupied[flat[flat >= 0]] = True
     if dilation:
+        from scipy import ndimage  # imported on first use (CLI start-up)
+
         dense = occupied.reshape(grid.shape).view(np.uint8)
         dense = ndimage.maximum_filter(dense, size=2 * int(dilation) + 1, mode="constant", cval=0)
         occupied = dense.reshape(-1).astype(bool)

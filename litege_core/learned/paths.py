@@ -59,20 +59,21 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-import scipy.sparse as sp
 import torch
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse.csgraph import connected_components, dijkstra
 
-from litege_core.engines._topology import MeshTopology
-from litege_core.engines.graph import edge_graph, knn_graph
 from litege_core.errors import ArrayShapeError, InputError
 from litege_core.learned.state import ResolvedPoints, ShapeState
 from litege_core.projection import CloudProjector
 from litege_core.query import QueryLike, parse_query
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
+    from litege_core.engines._topology import MeshTopology
 
 MESH_STEP_FRACTION = 0.5
 """Default step on a mesh, as a fraction of its mean edge length."""
@@ -497,6 +498,12 @@ class SurfaceRouter:
     """
 
     def __init__(self, vertices: NDArray, faces: NDArray | None) -> None:
+        # scipy and the engines load with the first router (a path), not with the predictor.
+        from scipy.sparse.csgraph import connected_components
+
+        from litege_core.engines._topology import MeshTopology
+        from litege_core.engines.graph import edge_graph, knn_graph
+
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self._lock = threading.Lock()
         self._flip: Any = None
@@ -524,6 +531,8 @@ class SurfaceRouter:
         method that produced it."""
         starts = np.asarray(starts, dtype=np.int64).reshape(-1)
         ends = np.asarray(ends, dtype=np.int64).reshape(-1)
+        from scipy.sparse.csgraph import dijkstra
+
         with self._lock:
             out: list[tuple[NDArray, str] | None] = [None] * starts.size
             graph_pairs: dict[int, list[int]] = {}

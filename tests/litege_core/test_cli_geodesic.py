@@ -1,6 +1,8 @@
 """`litege geodesic` and `litege path`: round trips through files, and errors with exit code 2."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -112,6 +114,41 @@ def test_geodesic_on_a_point_cloud_file(tmp_path, bundle_dir, predictor):
     assert code == 0
     state = predictor.register(load_shape(cloud_file))
     np.testing.assert_array_equal(np.load(out), predictor.distances(state, [3]))
+
+
+# Modules `litege geodesic` on a point cloud must not import (issue 17: CLI start-up time). scipy
+# alone cost ~0.3 s; it, trimesh and the engines load on first use (paths, meshes, baselines).
+NOT_FOR_A_CLOUD_GEODESIC = (
+    "scipy",
+    "trimesh",
+    "PIL",
+    "litege_core.engines",
+    "litege_core.matching",
+    "litege_core.evaluation",
+    "litege_core.datasets",
+    "litege_core.train",
+    "litege_core.render",
+    "litege_core.synth",
+    "litege_core.variants",
+)
+
+
+def test_geodesic_on_a_cloud_imports_only_what_it_needs(tmp_path, bundle_dir):
+    cloud_file = tmp_path / "cloud.npy"
+    np.save(cloud_file, np.random.default_rng(0).normal(size=(300, 3)) * [3.0, 2.0, 1.0])
+    argv = ["geodesic", str(cloud_file), "--sources", "0", "--bundle", str(bundle_dir)]
+    argv += ["-o", str(tmp_path / "d.npy")]
+    code = (
+        "import sys\n"
+        "from litege_core.cli import main\n"
+        f"assert main({argv!r}) == 0\n"
+        f"heavy = {NOT_FOR_A_CLOUD_GEODESIC!r}\n"
+        "print('LOADED', sorted({m for m in sys.modules for h in heavy "
+        "if m == h or m.startswith(h + '.')}))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "LOADED []" in result.stdout, result.stdout
 
 
 def test_path_round_trip(tmp_path, bundle_dir, mesh_file, capsys):

@@ -150,3 +150,11 @@ def test_render_match_unknown_model_exits_2(files, tmp_path, capsys):
     out = tmp_path / "m.png"
     assert main(["render-match", str(files[0]), str(files[1]), "--model", "nope", "-o", str(out)])
     assert "unknown matching model" in capsys.readouterr().err
+
+
+def test_cli_view_names_are_the_renderer_views():
+    """``--view`` choices are spelled out in the CLI (building the parser imports no renderer)."""
+    from litege_core.cli.render import VIEW_NAMES
+    from litege_core.render.raster import VIEWS
+
+    assert tuple(sorted(VIEWS)) == VIEW_NAMES
