@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from litege_core.cli.common import (
     add_bundle_arguments,
@@ -13,6 +14,9 @@ from litege_core.cli.common import (
     split_list,
     write_json,
 )
+
+if TYPE_CHECKING:
+    from litege_core.evaluation.matching import LiteGEVariant, SettingResult
 
 
 def cmd_eval_geodesic(args: argparse.Namespace) -> int:
@@ -45,11 +49,29 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_eval_matching(args: argparse.Namespace) -> int:
+def parse_variants(text: str) -> list[LiteGEVariant]:
+    """``--variants``: comma-separated :meth:`LiteGEVariant.parse` texts (``auto``, ``tnet``,
+    ``judged+zoomout``, …); a bad one is an argparse error (exit 2) with the library's message."""
+    from litege_core.errors import InputError
+    from litege_core.evaluation.matching import LiteGEVariant
+
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError("give at least one LiteGE variant, e.g. 'auto'")
+    try:
+        return [LiteGEVariant.parse(item) for item in items]
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def evaluate_matching(
+    args: argparse.Namespace, extra_meta: dict[str, str] | None = None
+) -> tuple[list[SettingResult], str]:
+    """Run the matching evaluation the options of :func:`add_matching_arguments` ask for;
+    returns the results and the machine header (``extra_meta`` appended to it)."""
     from litege_core.evaluation.matching import (
         load_matching_model,
         machine_header,
-        results_table,
         run_matching_evaluation,
     )
     from litege_core.evaluation.matching_data import REAL_SETS, SYNTHETIC_SETTINGS
@@ -75,6 +97,7 @@ def cmd_eval_matching(args: argparse.Namespace) -> int:
         rotate_input=not args.no_rotate,
         workers=args.workers,
         log=log,
+        variants=args.variants,
     )
     meta = {
         "model": f"{model.name} ({model.content_hash[:12]})",
@@ -82,12 +105,58 @@ def cmd_eval_matching(args: argparse.Namespace) -> int:
         "pairs/set": str(args.pairs),
         "queries/pair": str(args.queries),
         "seed": str(args.seed),
+        **(extra_meta or {}),
     }
-    header = machine_header(meta)
+    return results, machine_header(meta)
+
+
+def cmd_eval_matching(args: argparse.Namespace) -> int:
+    from litege_core.evaluation.matching import results_table
+
+    results, header = evaluate_matching(args)
     print(results_table(results, header))
     if args.json:
         write_json(args.json, {"meta": header, "results": [r.to_dict() for r in results]})
     return 0
+
+
+def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``litege eval matching`` (also used by
+    ``scripts/eval_matching_variants.py``)."""
+    parser.add_argument(
+        "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
+    )
+    add_device_argument(parser)
+    parser.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
+    parser.add_argument("--queries", type=int, default=100, help="query points per pair")
+    parser.add_argument(
+        "--settings",
+        default="template,remesh5k,aniso10k,broken40,cloud8k,cloud500",
+        help="comma-separated synthetic settings ('' for none)",
+    )
+    parser.add_argument(
+        "--real",
+        default="tosca,tosca-landmarks,faust",
+        help="comma-separated real sets, read from --eval-data when present ('' for none)",
+    )
+    parser.add_argument("--eval-data", default="../shared/eval-data")
+    parser.add_argument("--baselines", default="nn,zoomout", help="nn, zoomout ('' for none)")
+    parser.add_argument(
+        "--variants",
+        type=parse_variants,
+        default="auto",
+        help="comma-separated LiteGE rows: a frames token (auto, tnet, judged) and any of "
+        "mirror-vote and zoomout or zoomout-hybrid, joined by '+', e.g. "
+        "'tnet,judged,judged+zoomout' (default: auto, one LiteGE row)",
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--no-rotate", action="store_true", help="keep inputs in their frame (default: random)"
+    )
+    parser.add_argument(
+        "--workers", type=int, default=1, help="processes for ground-truth geodesics"
+    )
+    parser.add_argument("--json", default=None, help="also write the results as JSON")
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -110,33 +179,15 @@ def register(commands: argparse._SubParsersAction) -> None:
     matching = eval_commands.add_parser(
         "matching", help="matching error, AUC, flips and time vs NN and ZoomOut baselines"
     )
-    matching.add_argument(
-        "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
-    )
-    add_device_argument(matching)
-    matching.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
-    matching.add_argument("--queries", type=int, default=100, help="query points per pair")
-    matching.add_argument(
-        "--settings",
-        default="template,remesh5k,aniso10k,broken40,cloud8k,cloud500",
-        help="comma-separated synthetic settings ('' for none)",
-    )
-    matching.add_argument(
-        "--real",
-        default="tosca,tosca-landmarks,faust",
-        help="comma-separated real sets, read from --eval-data when present ('' for none)",
-    )
-    matching.add_argument("--eval-data", default="../shared/eval-data")
-    matching.add_argument("--baselines", default="nn,zoomout", help="nn, zoomout ('' for none)")
-    matching.add_argument("--seed", type=int, default=0)
-    matching.add_argument(
-        "--no-rotate", action="store_true", help="keep inputs in their frame (default: random)"
-    )
-    matching.add_argument(
-        "--workers", type=int, default=1, help="processes for ground-truth geodesics"
-    )
-    matching.add_argument("--json", default=None, help="also write the results as JSON")
+    add_matching_arguments(matching)
     matching.set_defaults(handler=cmd_eval_matching)
 
 
-__all__ = ["cmd_eval_geodesic", "cmd_eval_matching", "register"]
+__all__ = [
+    "add_matching_arguments",
+    "cmd_eval_geodesic",
+    "cmd_eval_matching",
+    "evaluate_matching",
+    "parse_variants",
+    "register",
+]

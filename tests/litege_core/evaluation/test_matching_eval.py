@@ -1,6 +1,8 @@
 """Matching evaluation: metrics, flips, baselines, pair sets and ``litege eval matching``."""
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -302,6 +304,49 @@ def test_cli_rejects_unknown_setting(tiny_bundle_dir, capsys):
 
     assert main(["eval", "matching", "--model", str(tiny_bundle_dir), "--settings", "bogus"]) == 2
     assert "bogus" in capsys.readouterr().err
+
+
+def test_cli_eval_matching_variants(tiny_bundle_dir, tmp_path, capsys):
+    from litege_core.cli import main
+
+    out = tmp_path / "variants.json"
+    argv = ["eval", "matching", "--model", str(tiny_bundle_dir), "--pairs", "1"]
+    argv += ["--queries", "4", "--settings", "template", "--real", "", "--baselines", "nn"]
+    code = main([*argv, "--variants", " tnet , tnet+mirror-vote", "--json", str(out)])
+    assert code == 0
+    table = capsys.readouterr().out
+    assert "| template | LiteGE [tnet] | 1 |" in table
+    assert "| template | LiteGE [tnet+mirror-vote] | 1 |" in table
+    assert "| template | NN (aligned) [tnet] | 1 |" in table
+    rows = {r["method"] for r in json.loads(out.read_text())["results"]}
+    assert rows == {"litege[tnet]", "litege[tnet+mirror-vote]", "nn[tnet]"}
+
+
+@pytest.mark.parametrize("bad", ["pca", "tnet+judged", "judged,icp", " , "])
+def test_cli_rejects_a_bad_variant_with_exit_code_2(tiny_bundle_dir, capsys, bad):
+    from litege_core.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", "matching", "--model", str(tiny_bundle_dir), "--variants", bad])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --variants:" in err and "Traceback" not in err
+    assert "LiteGE variant" in err
+
+
+def test_eval_matching_variants_script_uses_the_cli_options(tiny_bundle_dir, tmp_path):
+    script = Path(__file__).resolve().parents[3] / "scripts" / "eval_matching_variants.py"
+    out = tmp_path / "script.json"
+    argv = [sys.executable, str(script), "--model", str(tiny_bundle_dir), "--pairs", "1"]
+    argv += ["--queries", "4", "--real", "", "--baselines", "", "--variants", "tnet"]
+    result = subprocess.run([*argv, "--json", str(out)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "| template | LiteGE [tnet] | 1 |" in result.stdout  # --settings template default
+    assert "command: python " in result.stdout
+    report = json.loads(out.read_text())
+    assert [r["method"] for r in report["results"]] == ["litege[tnet]"]
+    bad = subprocess.run([*argv[:-1], "pca"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "argument --variants:" in bad.stderr
 
 
 # ----------------------------------------------------------------------------- issue 15
