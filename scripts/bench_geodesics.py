@@ -36,6 +36,7 @@ import numpy as np
 import trimesh
 
 from litege_core.engines import ExactGeodesicEngine, insert_surface_points, make_engine
+from litege_core.evaluation.speed import cpu_name
 from litege_core.io import load_shape
 from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
@@ -43,16 +44,6 @@ from litege_core.shape import Shape
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TOSCA_DIR = REPO_ROOT.parent / "shared" / "eval-data" / "tosca_5k"
 PACKAGES = ("numpy", "scipy", "pygeodesic", "tvb-gdist", "potpourri3d", "trimesh")
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def median_ms(fn: Callable[[int], object], runs: int, warmup: int) -> float:

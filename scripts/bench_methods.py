@@ -58,6 +58,7 @@ import torch
 
 from litege_core.engines import ClassicalSolver
 from litege_core.errors import InputError
+from litege_core.evaluation.speed import cpu_name
 from litege_core.io import load_shape
 from litege_core.learned import Predictor, load_shipped
 from litege_core.sampling import sample_surface
@@ -77,16 +78,6 @@ MODEL_OF = {"quadruped": "quadrupeds", "biped": "humans"}
 METHODS = ("learned", "heat", "exact", "graph")
 CLOUD_POINTS = 2000
 PACKAGES = ("numpy", "scipy", "torch", "pygeodesic", "potpourri3d")
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def timed(fn: Callable[[], Any]) -> tuple[Any, float]:

@@ -58,6 +58,7 @@ import torch
 
 from litege_core import __version__
 from litege_core.descriptor import UdfPcaBasis, VoxelGrid
+from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import PipelineConfig, Predictor, describe_shape, load_bundle, save_bundle
 from litege_core.nets import GeodesicNet
 from litege_core.shape import Shape
@@ -106,16 +107,6 @@ def median_ms(fn: Callable[[], object], runs: int, warmup: int = 2) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return 1000.0 * statistics.median(times)
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 ACCURACY_CONFIGS: dict[str, dict] = {

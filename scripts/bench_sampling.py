@@ -20,24 +20,13 @@ import numpy as np
 import scipy
 import trimesh
 
+from litege_core.evaluation.speed import cpu_name
 from litege_core.sampling import (
     farthest_point_sampling,
     mean_nearest_neighbour_distance,
     poisson_disk_subsample,
     sample_surface,
 )
-
-
-def _cpu_name() -> str:
-    """CPU model from /proc/cpuinfo where available, else ``platform`` data."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _time(function: Callable[[], object], repeats: int) -> tuple[float, float]:
@@ -72,7 +61,7 @@ def main() -> None:
         ("poisson_disk_subsample 56K → 7000", lambda: poisson_disk_subsample(dense, 7000)),
         ("mean_nearest_neighbour_distance 8K", lambda: mean_nearest_neighbour_distance(cloud)),
     ]
-    print(f"- machine: {_cpu_name()}, {os.cpu_count()} CPUs")
+    print(f"- machine: {cpu_name()}, {os.cpu_count()} CPUs")
     print(f"- date: {datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC')}")
     versions = f"numpy {np.__version__}, scipy {scipy.__version__}"
     print(f"- python {platform.python_version()}, {versions}")

@@ -46,7 +46,7 @@ from litege_core.shape import Shape
 from litege_core.synth import generate_shape
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_predictor import cpu_name
+from litege_core.evaluation.speed import cpu_name
 
 N_TARGETS = 100
 

@@ -48,7 +48,6 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
-import platform
 import shutil
 import statistics
 import subprocess
@@ -67,7 +66,13 @@ import torch
 from litege_core import __version__
 from litege_core.arrays import frozen
 from litege_core.canonical import canonicalize_bbox
-from litege_core.evaluation.speed import numpy_peak, peak_memory, time_call, torch_cpu_peak
+from litege_core.evaluation.speed import (
+    cpu_name,
+    numpy_peak,
+    peak_memory,
+    time_call,
+    torch_cpu_peak,
+)
 from litege_core.learned import Predictor, load_shipped
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.predictor import DENSE_MIN_PAIRS
@@ -304,16 +309,6 @@ def loop_workload(slug: str, loops: int) -> None:
 # --------------------------------------------------------------------------- report
 
 
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def report(
     results: dict[str, dict[str, dict[str, Any]]],
     configs: Sequence[str],
@@ -324,7 +319,7 @@ def report(
 ) -> str:
     lines = ["### Where the time and the memory go: predictor stage profile\n"]
     lines.append(
-        f"- date {date.today()}; {_cpu_name()}, {os.cpu_count()} logical CPUs (shared with "
+        f"- date {date.today()}; {cpu_name()}, {os.cpu_count()} logical CPUs (shared with "
         f"other jobs), torch {torch.__version__} with 1 thread, numpy {np.__version__}, "
         f"litege {__version__}; model `quadrupeds`; command `{command}`"
     )

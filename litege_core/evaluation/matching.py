@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import datetime
 import os
-import platform
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -437,24 +436,15 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return f"{value:.{digits}f}"
 
 
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as handle:
-            for line in handle:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return f"{platform.machine()} {platform.processor() or platform.system()}"
-
-
 def machine_header(extra: dict[str, str] | None = None) -> str:
     """One markdown line: date, machine, Python/torch, threads, plus ``extra`` items."""
     import torch
 
+    from litege_core.evaluation.speed import cpu_name
+
     items = {
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "machine": _cpu_name(),
+        "machine": cpu_name(),
         "cpus": str(os.cpu_count()),
         "torch threads": str(torch.get_num_threads()),
         "python": sys.version.split()[0],

@@ -25,6 +25,7 @@ the core.
 
 from __future__ import annotations
 
+import platform
 import statistics
 import time
 import tracemalloc
@@ -74,6 +75,18 @@ class MemoryPeak:
     @property
     def cuda_mb(self) -> float | None:
         return None if self.cuda_bytes is None else self.cuda_bytes / MB
+
+
+def cpu_name() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; ``platform`` elsewhere), for benchmark headers."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as handle:
+            for line in handle:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return f"{platform.machine()} {platform.processor() or platform.system()}"
 
 
 def numpy_peak(fn: Callable[[], Any]) -> tuple[Any, int]:
@@ -226,6 +239,7 @@ __all__ = [
     "MemoryPeak",
     "Timing",
     "batch_query_table",
+    "cpu_name",
     "device_sync",
     "numpy_peak",
     "peak_memory",
