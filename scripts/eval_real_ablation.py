@@ -13,7 +13,6 @@ ratio against held-out procedural shapes of the same category.
 from __future__ import annotations
 
 import argparse
-import platform
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from litege_core.evaluation.geodesic import (
     real_eval_shapes,
     real_shape_paths,
 )
+from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_bundle, load_shipped
 
 
@@ -65,19 +65,15 @@ def main() -> None:
     )
     methods = comparison_methods(predictors)
     pooled = evaluate_methods([*shapes, *synthetic], methods, settings)
-    spread = {
-        label: [
-            evaluate_methods([shape], comparison_methods({label: p}, baselines=False), ("mesh",))[
-                0
-            ].mean
-            for shape in shapes
-        ]
-        for label, p in predictors.items()
+    spread = {  # per-shape mean errors of each model on the real meshes
+        r.method: [error for _, error in r.per_shape]
+        for r in pooled
+        if r.group == real.group and r.setting == "mesh" and r.method in predictors
     }
     print(f"### Real-shape ablation: {real.group}\n")
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine "
-        f"{platform.processor() or platform.machine()}; {len(shapes)} real shapes, "
+        f"{cpu_name()}; {len(shapes)} real shapes, "
         f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
         "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
         + " ".join(f"--model {m}" for m in models)

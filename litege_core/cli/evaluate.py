@@ -21,10 +21,13 @@ if TYPE_CHECKING:
 
 def cmd_eval_geodesic(args: argparse.Namespace) -> int:
     from litege_core.evaluation.geodesic import (
+        REAL_SETS,
         SETTINGS,
         evaluate,
         real_eval_shapes,
+        real_shape_paths,
         results_table,
+        spread_table,
         synthetic_eval_shapes,
     )
 
@@ -32,20 +35,17 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
     shapes = []
     if args.dataset:
         shapes += synthetic_eval_shapes(args.dataset, args.shapes)
-    eval_root = Path(args.eval_data)
-    real = {
-        "tosca": ("tosca_5k", "TOSCA animals (real)"),
-        "faust": ("faust_5k", "FAUST humans (real)"),
-    }
     for key in args.real:
-        folder, group = real[key]
-        paths = sorted((eval_root / folder).glob("*.off"))[: args.real_shapes]
+        paths = real_shape_paths(args.eval_data, key, args.real_shapes)
         if not paths:
-            print(f"litege: no {key} shapes under {eval_root / folder}; skipped", file=sys.stderr)
-        shapes += real_eval_shapes(paths, group, args.sources)
+            folder = Path(args.eval_data) / REAL_SETS[key].folder
+            print(f"litege: no {key} shapes under {folder}; skipped", file=sys.stderr)
+        shapes += real_eval_shapes(paths, REAL_SETS[key].group, args.sources)
     settings = args.settings.split(",") if args.settings else SETTINGS
     results = evaluate(shapes, model, settings, seed=args.seed)
     print(results_table(results))
+    print()
+    print(spread_table(results))
     return 0
 
 
@@ -169,7 +169,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     geodesic.add_argument("--seed", type=int, default=0)
     geodesic.add_argument("--dataset", help="dataset directory whose test split is evaluated")
     geodesic.add_argument("--shapes", type=int, default=20, help="synthetic shapes to evaluate")
-    geodesic.add_argument("--real", nargs="*", default=[], choices=["tosca", "faust"])
+    geodesic.add_argument("--real", nargs="*", default=[], choices=["tosca", "faust", "leopard"])
     geodesic.add_argument("--real-shapes", type=int, default=32)
     geodesic.add_argument("--eval-data", default="../shared/eval-data")
     geodesic.add_argument("--sources", type=int, default=16, help="sources per real shape")

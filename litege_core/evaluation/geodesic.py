@@ -318,6 +318,7 @@ class SettingResult:
     n_pairs: int
     unreachable: float  # fraction of pairs a graph method could not reach
     seconds: float
+    per_shape: tuple[tuple[str, float], ...] = ()  # (shape name, its mean error), input order
 
 
 def evaluate(
@@ -434,12 +435,18 @@ def evaluate_methods(
                     truth.append(item.gt.ravel())
                 seconds = time.perf_counter() - start
                 pred, gt = np.concatenate(predicted), np.concatenate(truth)
+                owner = np.repeat(np.arange(len(inputs)), [t.size for t in truth])
                 keep = gt > 0
-                pred, gt = pred[keep], gt[keep]
+                pred, gt, owner = pred[keep], gt[keep], owner[keep]
                 finite = np.isfinite(pred)
                 # Unreachable pairs (disconnected kNN graph) count as the largest finite guess.
                 pred = np.where(finite, pred, np.nanmax(np.where(finite, pred, np.nan)))
                 report = geodesic_error(pred, gt)
+                per_shape = tuple(
+                    (shape.name, geodesic_error(pred[owner == i], gt[owner == i]).mean)
+                    for i, shape in enumerate(members)
+                    if np.any(owner == i)
+                )
                 results.append(
                     SettingResult(
                         group,
@@ -450,9 +457,32 @@ def evaluate_methods(
                         report.n_pairs,
                         float(1 - finite.mean()),
                         seconds,
+                        per_shape,
                     )
                 )
     return results
+
+
+def spread_table(results: Sequence[SettingResult]) -> str:
+    """Markdown table of the per-shape spread of each (group, setting, method) row: the median
+    and 90th percentile of the shapes' mean errors and the worst shape (GT mean = 100), so a
+    pooled mean that hides a few failing shapes shows them."""
+    lines = [
+        "| shapes | setting | method | shapes | per-shape median | p90 | worst shape |",
+        "|---|---|---|---:|---:|---:|---|",
+    ]
+    for r in results:
+        if not r.per_shape:
+            continue
+        names = [name for name, _ in r.per_shape]
+        errors = np.array([error for _, error in r.per_shape])
+        worst = int(np.argmax(errors))
+        lines.append(
+            f"| {r.group} | {r.setting} | {r.method} | {errors.size} | "
+            f"{np.median(errors):.2f} | {np.quantile(errors, 0.9):.2f} | "
+            f"{names[worst]} {errors[worst]:.2f} |"
+        )
+    return "\n".join(lines)
 
 
 def mean_by_method(results: Sequence[SettingResult]) -> dict[str, float]:
@@ -513,6 +543,7 @@ __all__ = [
     "real_shape_paths",
     "register_in_frame",
     "results_table",
+    "spread_table",
     "synthetic_eval_shapes",
     "unit_area",
 ]

@@ -6,8 +6,10 @@ from litege_core.evaluation.geodesic import (
     SETTINGS,
     EvalShape,
     evaluate,
+    evaluate_methods,
     make_input,
     results_table,
+    spread_table,
     unit_area,
 )
 from litege_core.evaluation.speed import batch_query_table
@@ -79,6 +81,31 @@ def test_evaluate_runs_every_method_and_setting(eval_shape, toy_predictor):
     assert "| toy | mesh | LiteGE |" in results_table(results)
 
 
+def test_per_shape_errors_pool_to_the_row_and_name_the_worst_shape(eval_shape):
+    other = EvalShape(
+        "other",
+        "toy",
+        *[getattr(eval_shape, k) for k in ("vertices", "faces")],
+        eval_shape.sources,
+        eval_shape.gt,
+    )
+    factors = iter([1.0, 1.1])  # the methods see the shapes in order: blob, then other
+
+    def methods(setting):
+        return {"truth": lambda item: item.gt, "scaled": lambda item: item.gt * next(factors)}
+
+    results = evaluate_methods([eval_shape, other], methods, settings=("mesh",))
+    by_method = {r.method: r for r in results}
+    assert [name for name, _ in by_method["truth"].per_shape] == ["blob", "other"]
+    assert all(error == pytest.approx(0.0, abs=1e-9) for _, error in by_method["truth"].per_shape)
+    scaled = dict(by_method["scaled"].per_shape)
+    assert scaled["blob"] == pytest.approx(0.0, abs=1e-9) and scaled["other"] > 5.0
+    # equal pair counts: the pooled mean is the mean of the two shapes' means
+    assert by_method["scaled"].mean == pytest.approx(np.mean(list(scaled.values())))
+    table = spread_table(results)
+    assert "| toy | mesh | scaled | 2 |" in table and f"other {scaled['other']:.2f} |" in table
+
+
 def test_batch_query_table(blob, toy_predictor):
     clouds = [Shape.from_arrays(blob(s).vertices) for s in range(2)]
     rows = batch_query_table(toy_predictor, clouds, counts=(1, 4), runs=1)
@@ -124,3 +151,15 @@ def test_generated_held_out_shapes_and_row_cache(tmp_path):
     assert len(list(tmp_path.glob("*.npz"))) == 1
     again = generated_eval_shapes("quadruped", 1, 3, cache_dir=tmp_path)  # from the cache
     np.testing.assert_array_equal(first[0].gt, again[0].gt)
+
+
+def test_eval_geodesic_cli_offers_every_real_set():
+    """The parser lists the sets literally (no evaluation import at start-up): kept equal to
+    the library's :data:`REAL_SETS`."""
+    from litege_core.cli import build_parser
+    from litege_core.evaluation.geodesic import REAL_SETS
+
+    args = build_parser(plugins=False).parse_args(["eval", "geodesic", "--real", *REAL_SETS])
+    assert list(args.real) == list(REAL_SETS)
+    with pytest.raises(SystemExit):
+        build_parser(plugins=False).parse_args(["eval", "geodesic", "--real", "scape"])
