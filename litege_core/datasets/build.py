@@ -62,8 +62,13 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 class ShapeFactory(Protocol):
     """Generates shapes of one category that all share the template's faces."""
 
-    category: str
-    version: str
+    @property
+    def category(self) -> str:
+        """The category written into the dataset's manifest."""
+
+    @property
+    def version(self) -> str:
+        """The generator version; a dataset built by another version is not resumed."""
 
     def template(self) -> tuple[NDArray, NDArray]:
         """``(vertices (V, 3), faces (F, 3))`` of the category's template."""
@@ -75,8 +80,13 @@ class ShapeFactory(Protocol):
 class CollectionFactory(Protocol):
     """Generates shapes that each have their own triangulation (collection datasets)."""
 
-    category: str
-    version: str
+    @property
+    def category(self) -> str:
+        """The category written into the dataset's manifest."""
+
+    @property
+    def version(self) -> str:
+        """The generator version; a dataset built by another version is not resumed."""
 
     def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
         """``(vertices (V, 3), faces (F, 3))`` of the shape (family, seed): a closed (or at
@@ -244,17 +254,22 @@ def _stack_shard(records: list[ShapeRecord], keys: list[tuple[str, int]], spec, 
 
 
 def _stack_collection_shard(records: list[ShapeRecord], keys, spec, split) -> dict:
+    faces = [r.faces for r in records]
+    if any(f is None for f in faces):
+        raise ComputationError("a collection shape has no faces")
     n_v = max(r.vertices.shape[0] for r in records)
-    n_f = max(r.faces.shape[0] for r in records)
+    n_f = max(f.shape[0] for f in faces if f is not None)
     distances = np.stack([pad_axis(r.distances, n_v, 1) for r in records])
     dtype = spec.distance_dtype(split)
     if dtype == "float16" and distances.max() > FLOAT16_MAX:
         raise ComputationError("distances overflow float16; store this split as float32")
     return {
         "vertices": np.stack([pad_axis(r.vertices, n_v, 0) for r in records]).astype(np.float32),
-        "faces": np.stack([pad_axis(r.faces, n_f, 0, FACE_PAD) for r in records]).astype(np.int32),
+        "faces": np.stack([pad_axis(f, n_f, 0, FACE_PAD) for f in faces if f is not None]).astype(
+            np.int32
+        ),
         "n_vertices": np.array([r.vertices.shape[0] for r in records], dtype=np.int64),
-        "n_faces": np.array([r.faces.shape[0] for r in records], dtype=np.int64),
+        "n_faces": np.array([f.shape[0] for f in faces if f is not None], dtype=np.int64),
         "sources": np.stack([r.sources for r in records]).astype(np.int32),
         "distances": distances.astype(dtype),
         "area": np.array([r.area for r in records], dtype=np.float64),
@@ -315,7 +330,9 @@ def _check_same_dataset(found: dict, expected: dict, directory: Path, what: str 
     """ArtifactError unless ``found`` (a manifest) has the spec, generator and solver of
     ``expected`` (solver texts of before the engines rename count as the current ones)."""
     found = dict(found)
-    found["solver"] = LEGACY_SOLVER_TEXT.get(found.get("solver"), found.get("solver"))
+    solver = found.get("solver")
+    if isinstance(solver, str):
+        found["solver"] = LEGACY_SOLVER_TEXT.get(solver, solver)
     for key in ("spec", "generator", "solver"):
         if found.get(key) != expected[key]:
             raise ArtifactError(
