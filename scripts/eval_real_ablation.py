@@ -1,7 +1,10 @@
 """Real dev shapes, several geodesic models side by side with heat and kNN (issue 14 ablations).
 
-Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR=LABEL ...] [--set tosca]
-    [--sources 12] [--settings mesh,cloud_2000,cloud_300]
+Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@small]=LABEL ...] [--set tosca]
+    [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
+
+``NAME_OR_DIR@small`` evaluates the model with its distilled small head
+(``Predictor(bundle, head="small")``, issue 17); ``--no-baselines`` leaves out heat and kNN.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
@@ -33,8 +36,11 @@ from litege_core.learned import Predictor, load_bundle, load_shipped
 
 
 def load_predictor(name: str) -> Predictor:
+    """``NAME_OR_DIR`` (full head) or ``NAME_OR_DIR@small`` (the bundle's small head)."""
+    name, _, head = name.partition("@")
     path = Path(name)
-    return Predictor(load_bundle(path) if path.is_dir() else load_shipped(name))
+    bundle = load_bundle(path) if path.is_dir() else load_shipped(name)
+    return Predictor(bundle, head=head or "full")
 
 
 def main() -> None:
@@ -46,6 +52,7 @@ def main() -> None:
     parser.add_argument("--synthetic", type=int, default=16)
     parser.add_argument("--settings", default="mesh,cloud_2000,cloud_300")
     parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
+    parser.add_argument("--no-baselines", action="store_true", help="LiteGE rows only")
     args = parser.parse_args()
     torch.set_num_threads(1)
     real = REAL_SETS[args.set]
@@ -63,7 +70,7 @@ def main() -> None:
     synthetic = generated_eval_shapes(
         real.category, args.synthetic, args.sources, cache_dir=args.cache
     )
-    methods = comparison_methods(predictors)
+    methods = comparison_methods(predictors, baselines=not args.no_baselines)
     pooled = evaluate_methods([*shapes, *synthetic], methods, settings)
     spread = {  # per-shape mean errors of each model on the real meshes
         r.method: [error for _, error in r.per_shape]
@@ -77,7 +84,9 @@ def main() -> None:
         f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
         "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
         + " ".join(f"--model {m}" for m in models)
-        + f" --set {args.set} --sources {args.sources}`\n"
+        + f" --set {args.set} --sources {args.sources}"
+        + (" --no-baselines" if args.no_baselines else "")
+        + "`\n"
     )
     print(comparison_table(pooled))
     print("\n| model | per-shape median (mesh) | p90 | worst shape | real / synthetic (mesh) |")

@@ -7,6 +7,7 @@ import argparse
 from typing import Any
 
 from litege_core.cli.common import (
+    add_head_argument,
     add_kind_argument,
     add_model_arguments,
     parse_indices,
@@ -54,7 +55,9 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
         model = predictor(args)
         state = model.register(shape, seed=args.seed)
         distances = model.distances(state, sources, targets).astype(np.float32)
-        report.update(engine="learned", model=model.bundle.name, ood_score=state.ood_score)
+        report.update(
+            engine="learned", model=model.bundle.name, head=model.head, ood_score=state.ood_score
+        )
     else:
         solver = _classical(args, shape)
         distances = solver.distances(sources, targets)
@@ -78,6 +81,7 @@ def cmd_path(args: argparse.Namespace) -> int:
         report.update(
             engine="learned",
             model=model.bundle.name,
+            head=model.head,
             length=path.length,
             predicted_distance=path.predicted_distance,
             n_steps=path.n_steps,
@@ -129,6 +133,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_model_arguments(geodesic)
     geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")
     geodesic.add_argument("--targets", default="all", help="'all' (default) or i,j,...")
+    add_head_argument(geodesic)
     _add_method_arguments(geodesic)
     geodesic.set_defaults(handler=cmd_geodesic)
 
@@ -138,6 +143,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_model_arguments(path)
     path.add_argument("--source", required=True, type=int, help="source vertex/point index")
     path.add_argument("--target", required=True, type=int, help="target vertex/point index")
+    add_head_argument(path)
     _add_method_arguments(path)
     path.set_defaults(handler=cmd_path)
 

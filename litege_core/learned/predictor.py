@@ -30,6 +30,11 @@ few points embeds just those; one that needs most of the shape (a distance field
 builds the ``(N, 2n)`` table once and keeps it with the state (:meth:`Predictor.point_table`).
 A query then runs only the rest of the head.
 
+**Small head (opt-in).** ``Predictor(bundle, head="small")`` runs the bundle's distilled head
+(:mod:`litege_core.nets.small_head`, ``head-small.*`` beside the bundle files): ``(N, m)``
+point features and ``m·k`` multiply-adds per pair instead of ``(2n)²``, with the same
+target scale, residual and zero-diagonal rule; the default stays the trained head.
+
 **Inference-time folding.** The predictor folds the network, in eval mode and in float64, into
 plain affine maps (:class:`~litege_core.nets.FoldedGeodesicNet`). A pair then costs one
 subtraction, a ReLU, one ``2n × 2n`` matrix product and a dot product; results equal
@@ -53,6 +58,7 @@ calibration to compare with).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -71,6 +77,7 @@ from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
+from litege_core.nets.small_head import FoldedSmallHead, SmallHead
 from litege_core.projection import snap
 from litege_core.query import QueryLike, parse_query
 from litege_core.shape import Shape
@@ -88,6 +95,9 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
+
+HEADS = ("full", "small")
+"""Values of :class:`Predictor`'s ``head``: the trained head or the bundle's distilled one."""
 
 TABLE_FRACTION = 0.25
 """A query of more than this fraction of a shape's points builds (and keeps) the shape's whole
@@ -115,6 +125,17 @@ class Predictor:
             ``"stride2"`` 1/8, least-squares codes; :data:`litege_core.descriptor.basis.
             VOXEL_LATTICES`). Records it computes are approximations of the full ones: do
             not mix lattices in one record cache.
+        head: the distance head every query runs: ``"full"`` (default, the trained head) or
+            ``"small"`` (opt-in: the bundle's distilled head, ``head-small.*`` beside the
+            bundle files, :mod:`litege_core.learned.small_head`; ~18× fewer operations per
+            pair, BENCHMARKS.md). A :class:`~litege_core.nets.small_head.SmallHead` module is
+            taken as the small head as it is (a fresh distillation; no teacher check). With
+            the small head, distances, distance fields, batches and paths all use it (a
+            path then follows the small head's distance, and its ``predicted_distance``
+            equals :meth:`distances`); ``precision`` applies to the full head only (the
+            small head runs float32). Registrations (records, states) do not depend on the
+            head: a state may be queried by a full-head and a small-head predictor of the
+            same bundle, each building its own feature table.
 
     Raises:
         ArtifactError: the bundle's pipeline is not one this predictor implements.
@@ -128,6 +149,7 @@ class Predictor:
         chunk_pairs: int = DEFAULT_CHUNK_PAIRS,
         precision: str = DEFAULT_PRECISION,
         descriptor_lattice: str = "full",
+        head: str | SmallHead = "full",
     ) -> None:
         pipeline = bundle.pipeline
         if pipeline.canonicalization != "bbox":
@@ -155,6 +177,23 @@ class Predictor:
             )
         self.descriptor_lattice = descriptor_lattice
         self.folded = FoldedGeodesicNet(self.network, self.device, precision=self.precision)
+        self.small_head_config: dict[str, Any] | None = None
+        self._net: FoldedGeodesicNet | FoldedSmallHead = self.folded
+        self._table_key = "features"
+        if isinstance(head, SmallHead):
+            student = head
+        elif head == "small":
+            from litege_core.learned.small_head import load_small_head
+
+            student, self.small_head_config = load_small_head(bundle, self.device)
+        elif head == "full":
+            student = None
+        else:
+            raise InputError(f"head must be one of {HEADS} or a SmallHead, got {head!r}")
+        self.head = "full" if student is None else "small"
+        if student is not None:
+            self._net = FoldedSmallHead(student.eval(), self.folded)
+            self._table_key = f"features.small.{_fingerprint(student)}"
         self._shape_mlp = FoldedShapeMlp(self.network, self.device)
         self.target_scale = float(pipeline.target_scale)
         self.residual = bool(pipeline.residual)
@@ -170,7 +209,8 @@ class Predictor:
             self._ood = (float(mean), float(std))
 
     def __repr__(self) -> str:
-        return f"Predictor(bundle={self.bundle.name!r}, device={str(self.device)!r})"
+        head = "" if self.head == "full" else f", head={self.head!r}"
+        return f"Predictor(bundle={self.bundle.name!r}, device={str(self.device)!r}{head})"
 
     # ----------------------------------------------------------------- registration
 
@@ -285,17 +325,23 @@ class Predictor:
         ]
 
     def point_table(self, state: ShapeState) -> torch.Tensor:
-        """``(N, 2n)`` head features of every point of ``state``: built on first use (in
-        chunks of :data:`DEFAULT_EMBED_ROWS` points) and kept with the state."""
-        table = state.feature_table
+        """``(N, F)`` head features of every point of ``state`` (``F = 2n`` for the full head,
+        ``m`` for the small one): built on first use (in chunks of :data:`DEFAULT_EMBED_ROWS`
+        points) and kept with the state, under a key of this predictor's head (a full-head
+        table is never read by a small-head predictor, nor the other way round)."""
+        table = self._table(state)
         if table is None:
             with torch.no_grad():
                 table = self._features_of(state.canonical_vertices, state.shape_bias)
-            state._lazy["features"] = table
+            state._lazy[self._table_key] = table
         return table
 
+    def _table(self, state: ShapeState) -> torch.Tensor | None:
+        """This head's feature table of ``state`` if a query built it."""
+        return state._lazy.get(self._table_key)
+
     def _features_of(self, positions: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-        """``(R, 3)`` canonical positions → ``(R, 2n)`` head features, chunked (no grad).
+        """``(R, 3)`` canonical positions → ``(R, F)`` head features, chunked (no grad).
 
         A single row is computed as two: one-row products take a matrix-vector kernel whose
         rounding differs from the matrix kernel's, and a point must get the same features
@@ -305,7 +351,7 @@ class Predictor:
             return self._features_of(positions.expand(2, 3), bias)[:1]
         return torch.cat(
             [
-                self.folded.point_features(positions[s : s + DEFAULT_EMBED_ROWS], bias)
+                self._net.point_features(positions[s : s + DEFAULT_EMBED_ROWS], bias)
                 for s in range(0, max(1, positions.shape[0]), DEFAULT_EMBED_ROWS)
             ]
         )
@@ -363,7 +409,7 @@ class Predictor:
     def _from_indices(self, state: ShapeState, indices: NDArray) -> ResolvedPoints:
         index_t = torch.from_numpy(indices).to(self.device)
         positions = state.canonical_vertices.index_select(0, index_t)
-        table = state.feature_table
+        table = self._table(state)
         if table is None and indices.shape[0] > TABLE_FRACTION * state.n_points:
             table = self.point_table(state)
         if table is not None:
@@ -386,9 +432,9 @@ class Predictor:
         return self.embed_canonical(state, snapped.points)
 
     def point_features(self, state: ShapeState, positions: torch.Tensor) -> torch.Tensor:
-        """``(R, 3)`` canonical positions on ``state`` → ``(R, 2n)`` head features
+        """``(R, 3)`` canonical positions on ``state`` → ``(R, F)`` head features
         (differentiable in ``positions``: the path tracer's gradient)."""
-        return self.folded.point_features(positions, state.shape_bias)
+        return self._net.point_features(positions, state.shape_bias)
 
     def embed_canonical(self, state: ShapeState, canonical: NDArray) -> ResolvedPoints:
         """Embed arbitrary canonical points ``(Q, 3)`` (already on the surface) on the fly."""
@@ -410,13 +456,13 @@ class Predictor:
         """Matched pairs → predicted geodesics in canonical units (differentiable).
 
         Args:
-            src_features, dst_features: ``(R, 2n)`` head features.
+            src_features, dst_features: ``(R, F)`` head features (this predictor's head).
             src_positions, dst_positions: ``(R, 3)`` canonical coordinates.
 
         Returns:
             ``(R,)`` ``|head|/1.42 (+ ‖s − d‖ for residual bundles)``; no diagonal rule.
         """
-        out = self.folded.head(src_features - dst_features) / self.target_scale
+        out = self._net.head(src_features - dst_features) / self.target_scale
         if self.residual:
             out = out + torch.linalg.vector_norm(src_positions - dst_positions, dim=-1)
         return out
@@ -517,7 +563,7 @@ class Predictor:
             for i0 in range(0, n_src, row_step):
                 f_src = src.features[i0 : i0 + row_step]
                 x_src = src.positions[i0 : i0 + row_step]
-                head = self.folded.pair_head(f_src, f_dst)  # cache-sized tiles inside
+                head = self._net.pair_head(f_src, f_dst)  # cache-sized tiles inside
                 eu = torch.linalg.vector_norm(x_src[:, None, :] - x_dst[None, :, :], dim=-1)
                 out[i0 : i0 + row_step, j0 : j0 + col_step] = self._finish(head, eu)
         return out.cpu().numpy()
@@ -544,7 +590,7 @@ class Predictor:
         f_dst = torch.cat([dst.features for _, dst in group])
         x_src = torch.cat([src.positions for src, _ in group])
         x_dst = torch.cat([dst.positions for _, dst in group])
-        head = self.folded.head(f_src[i] - f_dst[j], inplace=True)
+        head = self._net.head(f_src[i] - f_dst[j], inplace=True)
         eu = torch.linalg.vector_norm(x_src[i] - x_dst[j], dim=-1)
         flat = self._finish(head, eu).cpu().numpy()
         start = 0
@@ -567,8 +613,18 @@ class Predictor:
         return trace_paths(self, state, sources, targets, **options)
 
 
+def _fingerprint(head: SmallHead) -> str:
+    """A short digest of a small head's weights (keys its feature tables on a state)."""
+    digest = hashlib.sha256()
+    for name, tensor in sorted(head.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+    return digest.hexdigest()[:16]
+
+
 __all__ = [
     "DEFAULT_CHUNK_PAIRS",
+    "HEADS",
     "OOD_Z_THRESHOLD",
     "Predictor",
     "QueryLike",

@@ -119,7 +119,8 @@ class ShapeState:
     built on first use and kept with the state: the ``(N, 2n)`` head-feature table of every
     point (:attr:`feature_table`, built by :meth:`Predictor.point_table` when a query needs
     most points; a query of a few points embeds just those), and the surface projector used by
-    xyz queries and paths.
+    xyz queries and paths. A small-head predictor (``Predictor(..., head="small")``) keeps its
+    own ``(N, m)`` table beside it, under another key (:meth:`Predictor.point_table`).
     """
 
     shape_id: str
@@ -160,11 +161,10 @@ class ShapeState:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the cached arrays and tensors, including the feature table once
-        built (for cache accounting)."""
+        """Bytes held by the cached arrays and tensors, including the feature tables once
+        built (the full head's and a small head's, for cache accounting)."""
         tensors = [self.canonical_vertices, self.shape_embedding, self.shape_bias]
-        if self.feature_table is not None:
-            tensors.append(self.feature_table)
+        tensors += [v for k, v in self._lazy.items() if k.startswith("features")]
         total = sum(t.numel() * t.element_size() for t in tensors)
         total += self.canonical_points.nbytes + self.descriptor.nbytes
         return int(total + (0 if self.faces is None else self.faces.nbytes))

@@ -303,6 +303,16 @@ class FoldedGeodesicNet:
         h = torch.addmm(self.p2_b, h, self.p2_wt).relu()
         return torch.addmm(self.pf_b, h, self.pf_wt)
 
+    def hidden(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
+        """``(R, 3)`` canonical coordinates → ``(R, n)`` last hidden layer of the point MLP
+        (after its last ReLU, before ``project_embed``), float32; the input of every linear
+        map a head reads (the distilled head folds its own into it,
+        :class:`~litege_core.nets.small_head.FoldedSmallHead`). Differentiable in ``points``."""
+        h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
+        h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
+        h = (h @ self.p1_wt + shape_bias).relu()
+        return torch.addmm(self.p2_b, h, self.p2_wt).relu()
+
     def features(self, embeddings: torch.Tensor) -> torch.Tensor:
         """``(R, n)`` point embeddings → ``(R, 2n)`` head features ``f_p = a ⊙ (W₁ e_p)``
         (float32; bfloat16 embeddings from ``embed_precision="bfloat16"`` are multiplied in

@@ -1,0 +1,140 @@
+"""The distilled small head (issue 17): the folded inference form against the trainable module
+evaluated pair by pair (slow reference), tiled and flat, with and without autograd."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from litege_core.errors import InputError
+from litege_core.nets import FoldedGeodesicNet, GeodesicNet
+from litege_core.nets.small_head import FoldedSmallHead, SmallHead
+
+WIDTH = 32
+K = 6
+M, H = 12, 8
+
+
+@pytest.fixture(scope="module")
+def net() -> GeodesicNet:
+    """A small network with non-trivial BatchNorm statistics, in eval mode."""
+    torch.manual_seed(0)
+    net = GeodesicNet(width=WIDTH, descriptor_dim=K)
+    net.set_coord_normalization([0.0, 0.1, 0.0], [0.3, 0.2, 0.1])
+    net.train()
+    with torch.no_grad():
+        for _ in range(5):
+            points = torch.rand(256, 3) - 0.5
+            net(points, points.flip(0), torch.randn(256, K), None)
+    return net.eval()
+
+
+@pytest.fixture(scope="module")
+def student() -> SmallHead:
+    torch.manual_seed(3)
+    head = SmallHead(WIDTH, M, H)
+    with torch.no_grad():
+        head.bias.normal_(0.0, 0.5)
+        head.final.bias.fill_(-0.2)  # some outputs negative before abs
+    return head.eval()
+
+
+@pytest.fixture(scope="module")
+def setting(net, student):
+    """The folded teacher and student, a shape bias and 30 + 45 canonical points."""
+    teacher = FoldedGeodesicNet(net)
+    folded = FoldedSmallHead(student, teacher)
+    generator = torch.Generator().manual_seed(1)
+    points = torch.rand(75, 3, generator=generator) - 0.5
+    with torch.no_grad():
+        bias = teacher.shape_bias(net.shape_embedding(torch.randn(1, K, generator=generator))[0])
+    return teacher, folded, bias, points
+
+
+def _naive(student: SmallHead, teacher, bias, src_points, dst_points) -> torch.Tensor:
+    """Slow reference: the trainable module on teacher embeddings, one pair at a time."""
+    with torch.no_grad():
+        e_src = teacher.embed(src_points, bias).double()
+        e_dst = teacher.embed(dst_points, bias).double()
+        double = SmallHead(WIDTH, M, H).double()
+        double.load_state_dict(student.state_dict())
+        out = torch.empty(src_points.shape[0], dst_points.shape[0], dtype=torch.float64)
+        for i in range(src_points.shape[0]):
+            for j in range(dst_points.shape[0]):
+                out[i, j] = double(e_src[i : i + 1], e_dst[j : j + 1])[0]
+    return out.float()
+
+
+@pytest.mark.parametrize("tile", [1, 7, 45, 100, 8192])
+def test_tiled_pair_head_equals_the_naive_per_pair_evaluation(student, setting, tile) -> None:
+    teacher, folded, bias, points = setting
+    src, dst = points[:30], points[30:]
+    with torch.no_grad():
+        g_src = folded.point_features(src, bias)
+        g_dst = folded.point_features(dst, bias)
+        tiled = folded.pair_head(g_src, g_dst, tile_pairs=tile)
+    assert g_src.shape == (30, M) and tiled.shape == (30, 45)
+    reference = _naive(student, teacher, bias, src, dst)
+    assert (reference > 0).all()
+    torch.testing.assert_close(tiled, reference, rtol=1e-4, atol=1e-5)
+
+
+def test_flat_head_and_autograd_path_equal_the_tiled_one(setting) -> None:
+    _, folded, bias, points = setting
+    src, dst = points[:30], points[30:]
+    with torch.no_grad():
+        g_src = folded.point_features(src, bias)
+        g_dst = folded.point_features(dst, bias)
+        tiled = folded.pair_head(g_src, g_dst, tile_pairs=64)
+        diff = (g_src[:, None, :] - g_dst[None, :, :]).reshape(-1, M)
+        flat = folded.head(diff.clone(), inplace=True).reshape(30, 45)
+        plain = folded.head(diff).reshape(30, 45)
+    torch.testing.assert_close(flat, tiled, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(plain, flat, rtol=0, atol=0)
+    positions = dst.clone().requires_grad_(True)
+    features = folded.point_features(positions, bias)
+    graded = folded.pair_head(g_src, features)
+    torch.testing.assert_close(graded.detach(), tiled, rtol=1e-5, atol=1e-6)
+    (grad,) = torch.autograd.grad(graded.sum(), positions)
+    assert grad.shape == (45, 3) and torch.isfinite(grad).all() and grad.abs().sum() > 0
+
+
+def test_point_features_fold_project_embed(student, setting) -> None:
+    teacher, folded, bias, points = setting
+    with torch.no_grad():
+        folded_features = folded.point_features(points, bias)
+        unfolded = student.point_features(teacher.embed(points, bias))
+    torch.testing.assert_close(folded_features, unfolded, rtol=1e-4, atol=1e-5)
+
+
+def test_empty_blocks_and_softplus_output(net, setting) -> None:
+    teacher, _, bias, points = setting
+    head = SmallHead(WIDTH, M, H, output="softplus")
+    with pytest.raises(InputError, match="does not fit"):
+        FoldedSmallHead(head, teacher)  # the teacher's output is abs
+    folded = FoldedSmallHead(SmallHead(WIDTH, M, H), teacher)
+    with torch.no_grad():
+        g = folded.point_features(points, bias)
+        assert folded.pair_head(g[:0], g).shape == (0, 75)
+        assert folded.pair_head(g, g[:0]).shape == (75, 0)
+
+
+def test_config_round_trip_and_validation() -> None:
+    head = SmallHead(WIDTH, M, H)
+    again = SmallHead.from_config(head.config())
+    assert (
+        again.config()
+        == head.config()
+        == {
+            "width": WIDTH,
+            "features": M,
+            "hidden": H,
+            "output": "abs",
+        }
+    )
+    assert head.multiply_adds() == {"per_pair": M * H + H, "per_point": WIDTH * M}
+    for bad in ({"features": 0}, {"hidden": True}, {"output": "relu"}):
+        with pytest.raises(InputError):
+            SmallHead(WIDTH, **{"features": M, "hidden": H, **bad})
+    with pytest.raises(InputError, match="does not fit"):
+        FoldedSmallHead(SmallHead(WIDTH + 1, M, H), FoldedGeodesicNet(GeodesicNet(WIDTH, K)))
