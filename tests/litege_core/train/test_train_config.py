@@ -65,7 +65,7 @@ def test_integers_are_accepted_for_floats():
     assert isinstance(config.train.lr, float)
 
 
-@pytest.mark.parametrize("name", ["geodesic-smoke", "geodesic-quadrupeds", "geodesic-humans"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("geodesic-*.toml")))
 def test_repository_configs_parse(name):
     config = load_config(CONFIGS / f"{name}.toml")
     assert config.output.name
