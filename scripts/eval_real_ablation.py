@@ -1,10 +1,11 @@
 """Real dev shapes, several geodesic models side by side with heat and kNN (issue 14 ablations).
 
-Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@small]=LABEL ...] [--set tosca]
-    [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
+Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL ...]
+    [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
 
-``NAME_OR_DIR@small`` evaluates the model with its distilled small head
-(``Predictor(bundle, head="small")``, issue 17); ``--no-baselines`` leaves out heat and kNN.
+``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` (the distilled small head,
+``Predictor(bundle, head="small")``) and ``stride2`` / ``bcc`` (descriptor lattice), e.g.
+``quadrupeds@small+stride2``; ``--no-baselines`` leaves out heat and kNN.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
@@ -36,11 +37,21 @@ from litege_core.learned import Predictor, load_bundle, load_shipped
 
 
 def load_predictor(name: str) -> Predictor:
-    """``NAME_OR_DIR`` (full head) or ``NAME_OR_DIR@small`` (the bundle's small head)."""
-    name, _, head = name.partition("@")
+    """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
+    ``small`` (the bundle's small head), ``stride2`` / ``bcc`` (descriptor lattice)."""
+    name, _, text = name.partition("@")
+    options = set(filter(None, text.split("+")))
+    unknown = options - {"small", "full", "stride2", "bcc"}
+    if unknown:
+        raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
+    lattices = options & {"stride2", "bcc"}
     path = Path(name)
     bundle = load_bundle(path) if path.is_dir() else load_shipped(name)
-    return Predictor(bundle, head=head or "full")
+    return Predictor(
+        bundle,
+        head="small" if "small" in options else "full",
+        descriptor_lattice=lattices.pop() if lattices else "full",
+    )
 
 
 def main() -> None:

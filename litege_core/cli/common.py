@@ -54,7 +54,12 @@ def predictor(args: argparse.Namespace) -> Predictor:
         bundle = load_bundle(args.model, device)
     else:
         bundle = load_shipped(args.model or DEFAULT_MODEL, device)
-    return Predictor(bundle, device, head=getattr(args, "head", "full"))
+    return Predictor(
+        bundle,
+        device,
+        head=getattr(args, "head", "full"),
+        descriptor_lattice=getattr(args, "lattice", "full"),
+    )
 
 
 def save_npy(path: str, array: Any) -> None:
@@ -100,14 +105,28 @@ def add_bundle_arguments(parser: argparse.ArgumentParser) -> None:
     add_device_argument(parser)
 
 
+VOXEL_LATTICES = ("full", "bcc", "stride2")
+"""The descriptor lattices (:data:`litege_core.descriptor.basis.VOXEL_LATTICES`, listed here so
+that building the parser imports no descriptor code; a test keeps the two equal)."""
+
+
 def add_head_argument(parser: argparse.ArgumentParser) -> None:
-    """``--head full|small``: the trained distance head or the bundle's distilled one."""
+    """``--head full|small`` (the trained distance head or the bundle's distilled one) and
+    ``--lattice full|bcc|stride2`` (the voxels whose UDF the descriptor samples): the speed
+    options of the learned engine."""
     parser.add_argument(
         "--head",
         choices=("full", "small"),
         default="full",
         help="distance head: full (default, the trained head) or small (the model's "
         "distilled head: ~18x fewer operations per pair, slightly less accurate)",
+    )
+    parser.add_argument(
+        "--lattice",
+        choices=VOXEL_LATTICES,
+        default="full",
+        help="descriptor voxels: full (default), bcc (1/4) or stride2 (1/8: the fastest "
+        "registration; with --head small every CPU speed target of BENCHMARKS.md is met)",
     )
 
 
@@ -123,6 +142,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 __all__ = [
     "SHAPE_FILE_HELP",
     "SHAPE_KINDS",
+    "VOXEL_LATTICES",
     "add_bundle_arguments",
     "add_device_argument",
     "add_head_argument",

@@ -61,3 +61,19 @@ def test_a_bundle_without_a_small_head_is_a_clear_error(
     args = ["geodesic", str(mesh_file), "--sources", "0", "--head", "small", "-o", str(out)]
     assert main([*args, "--bundle", str(toy_predictor.bundle.path)]) == 2
     assert "has no small head" in capsys.readouterr().err and not out.exists()
+
+
+def test_the_lattice_option_is_the_predictor_option(tmp_path, bundle_dir, mesh_file, capsys):
+    from litege_core.cli.common import VOXEL_LATTICES
+    from litege_core.descriptor.basis import VOXEL_LATTICES as LIBRARY_LATTICES
+
+    assert VOXEL_LATTICES == LIBRARY_LATTICES
+    out = tmp_path / "d.npy"
+    args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(bundle_dir)]
+    assert main([*args, "--head", "small", "--lattice", "stride2", "-o", str(out)]) == 0
+    capsys.readouterr()
+    fast = Predictor(load_bundle(bundle_dir), head="small", descriptor_lattice="stride2")
+    state = fast.register(load_shape(mesh_file))
+    np.testing.assert_array_equal(np.load(out), fast.distances(state, [0, 7]))
+    with pytest.raises(SystemExit):
+        main([*args, "--lattice", "sparse", "-o", str(out)])
