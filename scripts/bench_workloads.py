@@ -73,6 +73,7 @@ LITEGE = {
     "LiteGE auto": ("auto", "full", "full"),
     "LiteGE auto + stride2": ("auto", "stride2", "full"),
     "LiteGE small head": ("float32", "full", "small"),
+    "LiteGE small head + stride2": ("float32", "stride2", "small"),
 }
 """Name → (precision, descriptor lattice, head) of each LiteGE configuration."""
 REFERENCE = "kNN Dijkstra"
