@@ -2,8 +2,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from litege_core.canonical import canonicalize_bbox
-from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.learned import describe_shape, shape_samples
 from litege_core.shape import Shape
 from litege_core.variants import random_rotation
@@ -18,20 +16,8 @@ def _ellipsoid(seed: int) -> Shape:
 
 
 @pytest.fixture(scope="module")
-def basis():
-    canonical = []
-    for seed in range(12):
-        shape = _ellipsoid(seed)
-        transform = canonicalize_bbox(shape_samples(shape, 2000, seed))
-        canonical.append((transform.apply(shape.vertices), np.asarray(shape.faces)))
-    return fit_basis(
-        canonical,
-        grid=VoxelGrid(resolution=41, pitch=0.06),
-        std_threshold=0.1,
-        n_components=8,
-        n_udf_samples=1000,
-        seed=0,
-    )
+def basis(fit_toy_basis):
+    return fit_toy_basis(_ellipsoid)
 
 
 def test_descriptor_is_invariant_to_rigid_motion_and_scale(basis):

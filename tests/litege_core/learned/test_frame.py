@@ -4,7 +4,6 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from litege_core.canonical import canonicalize_bbox
-from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.errors import InputError
 from litege_core.learned import describe_shape, shape_samples
 from litege_core.learned.frame import (
@@ -30,20 +29,8 @@ def _egg(seed: int) -> Shape:
 
 
 @pytest.fixture(scope="module")
-def basis():
-    canonical = []
-    for seed in range(12):
-        shape = _egg(seed)
-        transform = canonicalize_bbox(shape_samples(shape, 2000, seed))
-        canonical.append((transform.apply(shape.vertices), np.asarray(shape.faces)))
-    return fit_basis(
-        canonical,
-        grid=VoxelGrid(resolution=41, pitch=0.06),
-        std_threshold=0.1,
-        n_components=8,
-        n_udf_samples=1000,
-        seed=0,
-    )
+def basis(fit_toy_basis):
+    return fit_toy_basis(_egg)
 
 
 def _chamfer(a: np.ndarray, b: np.ndarray) -> float:

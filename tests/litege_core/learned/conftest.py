@@ -1,0 +1,38 @@
+"""Helpers shared by the learned-model tests."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from litege_core.canonical import canonicalize_bbox
+from litege_core.descriptor import VoxelGrid, fit_basis
+from litege_core.descriptor.basis import UdfPcaBasis
+from litege_core.learned import shape_samples
+from litege_core.shape import Shape
+
+
+def _fit_toy_basis(make_shape: Callable[[int], Shape], count: int = 12) -> UdfPcaBasis:
+    """An 8-component UDF-PCA basis on a coarse 41³ grid, fitted on ``make_shape(0..count-1)``
+    in their canonical (bbox) frames."""
+    canonical = []
+    for seed in range(count):
+        shape = make_shape(seed)
+        transform = canonicalize_bbox(shape_samples(shape, 2000, seed))
+        canonical.append((transform.apply(shape.vertices), np.asarray(shape.faces)))
+    return fit_basis(
+        canonical,
+        grid=VoxelGrid(resolution=41, pitch=0.06),
+        std_threshold=0.1,
+        n_components=8,
+        n_udf_samples=1000,
+        seed=0,
+    )
+
+
+@pytest.fixture(scope="session")
+def fit_toy_basis() -> Callable[..., UdfPcaBasis]:
+    """``fit_toy_basis(make_shape, count=12)`` → a small basis of those shapes."""
+    return _fit_toy_basis
