@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
-from litege_core.nets.geodesic import GeodesicNet
+from litege_core.nets.geodesic import GeodesicNet, apply_output
 
 Precision = Literal["float32", "bfloat16", "int8"]
 PRECISIONS: tuple[str, ...] = ("float32", "bfloat16", "int8")
@@ -343,7 +343,7 @@ class FoldedGeodesicNet:
             h = h.relu_() if inplace else h.relu()
             out = (h @ self.f_w).squeeze(-1)
         out = out + self.f_b
-        return out.abs() if self.output == "abs" else nn.functional.softplus(out)
+        return apply_output(out, self.output)
 
     def pair_head(
         self, src: torch.Tensor, dst: torch.Tensor, *, tile_pairs: int = PAIR_TILE

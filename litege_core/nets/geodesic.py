@@ -75,7 +75,13 @@ MATCHING_WIDTH = 400
 MATCHING_DESCRIPTOR_DIM = 400
 
 OutputKind = Literal["abs", "softplus"]
-_OUTPUT_KINDS: tuple[str, ...] = get_args(OutputKind)
+OUTPUT_KINDS: tuple[str, ...] = get_args(OutputKind)
+
+
+def apply_output(raw: torch.Tensor, output: str) -> torch.Tensor:
+    """The network's last step on raw head outputs: ``|raw|`` (``"abs"``) or ``softplus(raw)``;
+    the one rule for the trained, folded and distilled heads."""
+    return raw.abs() if output == "abs" else nn.functional.softplus(raw)
 
 
 def _bn_mlp(*dims: int) -> nn.Sequential:
@@ -116,8 +122,8 @@ class GeodesicNet(nn.Module):
         super().__init__()
         n = _positive_int(width, "width")
         e = _positive_int(descriptor_dim, "descriptor_dim")
-        if output not in _OUTPUT_KINDS:
-            raise InputError(f"output must be one of {list(_OUTPUT_KINDS)}, got {output!r}")
+        if output not in OUTPUT_KINDS:
+            raise InputError(f"output must be one of {list(OUTPUT_KINDS)}, got {output!r}")
         self.width = n
         self.descriptor_dim = e
         self.output = output
@@ -234,7 +240,7 @@ class GeodesicNet(nn.Module):
         return self.project_embed(self.mlp_pcacoord(fused))
 
     def _output(self, raw: torch.Tensor) -> torch.Tensor:
-        return raw.abs() if self.output == "abs" else nn.functional.softplus(raw)
+        return apply_output(raw, self.output)
 
     def _head_rows(self, diff: torch.Tensor) -> torch.Tensor:
         """``(R, n)`` differences ``e_src − e_dst`` → ``(R,)`` outputs."""
@@ -546,11 +552,13 @@ def predict_geodesic(
 __all__ = [
     "MATCHING_DESCRIPTOR_DIM",
     "MATCHING_WIDTH",
+    "OUTPUT_KINDS",
     "REGRESSION_DESCRIPTOR_DIM",
     "REGRESSION_WIDTH",
     "TARGET_SCALE",
     "GeodesicNet",
     "OutputKind",
+    "apply_output",
     "geodesic_from_output",
     "geodesic_from_residual",
     "matching_net",

@@ -35,12 +35,11 @@ from torch import nn
 
 from litege_core.errors import InputError
 from litege_core.nets.folded import FoldedGeodesicNet
+from litege_core.nets.geodesic import OUTPUT_KINDS, apply_output
 
 SMALL_PAIR_TILE = 8192
 """Pairs per tile of :meth:`FoldedSmallHead.pair_head`: ``8192 × m`` float32 differences
 (4 MB at ``m = 128``) plus ``8192 × k`` hidden activations."""
-
-_OUTPUTS = ("abs", "softplus")
 
 
 class SmallHead(nn.Module):
@@ -60,8 +59,8 @@ class SmallHead(nn.Module):
         for name, value in (("width", width), ("features", features), ("hidden", hidden)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise InputError(f"{name} must be a positive integer, got {value!r}")
-        if output not in _OUTPUTS:
-            raise InputError(f"output must be one of {list(_OUTPUTS)}, got {output!r}")
+        if output not in OUTPUT_KINDS:
+            raise InputError(f"output must be one of {list(OUTPUT_KINDS)}, got {output!r}")
         self.width, self.features, self.hidden_width, self.output = width, features, hidden, output
         self.point = nn.Linear(width, features, bias=False)  # A
         self.bias = nn.Parameter(torch.zeros(features))  # b₁, after the difference
@@ -93,8 +92,7 @@ class SmallHead(nn.Module):
     def head(self, diff: torch.Tensor) -> torch.Tensor:
         """``(R, m)`` feature differences ``g_s − g_d`` → ``(R,)`` outputs (≥ 0)."""
         h = torch.relu(diff + self.bias)
-        out = self.final(torch.relu(self.hidden(h))).squeeze(-1)
-        return out.abs() if self.output == "abs" else nn.functional.softplus(out)
+        return apply_output(self.final(torch.relu(self.hidden(h))).squeeze(-1), self.output)
 
     def forward(self, src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
         """Matched pairs of teacher embeddings ``(R, n)``, ``(R, n)`` → ``(R,)`` outputs."""
@@ -157,8 +155,7 @@ class FoldedSmallHead:
         return torch.addmm(self.g_b, self.teacher.hidden(points, shape_bias), self.g_wt)
 
     def _finish(self, out: torch.Tensor) -> torch.Tensor:
-        out = out + self.f_b
-        return out.abs() if self.output == "abs" else nn.functional.softplus(out)
+        return apply_output(out + self.f_b, self.output)
 
     def head(self, diff: torch.Tensor, *, inplace: bool = False) -> torch.Tensor:
         """``(R, m)`` differences ``g_s − g_d`` → ``(R,)`` outputs (≥ 0); ``inplace=True``
@@ -199,8 +196,9 @@ class FoldedSmallHead:
                 torch.addmm(self.h_b, diff.view(pairs, width).relu_(), self.h_wt, out=h)
                 value = h.relu_() @ self.f_w
                 out[i0 : i0 + rows, j0 : j0 + cols] = value.view(a.shape[0], c.shape[0])
-        out.add_(self.f_b)
-        return out.abs_() if self.output == "abs" else nn.functional.softplus(out)
+        if self.output == "abs":  # in place on the (S, T) block: no copy of it
+            return out.add_(self.f_b).abs_()
+        return apply_output(out.add_(self.f_b), self.output)
 
 
 __all__ = ["SMALL_PAIR_TILE", "FoldedSmallHead", "SmallHead"]
