@@ -73,6 +73,14 @@ from litege_core.descriptor.basis import VOXEL_LATTICES
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
+from litege_core.learned.fusion import (
+    FUSIONS,
+    FusionCalibration,
+    fuse,
+    graph_rows,
+    load_fusion,
+    pruned_knn_graph,
+)
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
@@ -137,6 +145,14 @@ class Predictor:
             small head runs float32). Registrations (records, states) do not depend on the
             head: a state may be queried by a full-head and a small-head predictor of the
             same bundle, each building its own feature table.
+        fusion: ``"none"`` (default: the network's distances) or ``"graph"`` (opt-in: the
+            network blended with a calibrated, network-pruned kNN-graph Dijkstra on the
+            shape's points, weighted per shape by its OOD z-score and point count;
+            :mod:`litege_core.learned.fusion`, ``fusion.json`` beside the bundle files), or a
+            :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
+            calibration; its bundle hash must still match). Needs the bundle's residual
+            statistics (the OOD z-score). Applies to :meth:`distances` and everything built
+            on it; paths follow the network's field.
 
     Raises:
         ArtifactError: the bundle's pipeline is not one this predictor implements.
@@ -151,6 +167,7 @@ class Predictor:
         precision: str = DEFAULT_PRECISION,
         descriptor_lattice: str = "full",
         head: str | SmallHead = "full",
+        fusion: str | FusionCalibration = "none",
     ) -> None:
         pipeline = bundle.pipeline
         if pipeline.canonicalization != "bbox":
@@ -195,6 +212,7 @@ class Predictor:
         if student is not None:
             self._net = FoldedSmallHead(student.eval(), self.folded)
             self._table_key = f"features.small.{_fingerprint(student)}"
+        self.fusion = self._fusion_of(fusion)
         self._shape_mlp = FoldedShapeMlp(self.network, self.device)
         self.target_scale = float(pipeline.target_scale)
         self.residual = bool(pipeline.residual)
@@ -208,10 +226,29 @@ class Predictor:
                     f"bundle {bundle.name!r} has invalid residual statistics {mean}, {std}"
                 )
             self._ood = (float(mean), float(std))
+        if self.fusion is not None and self._ood is None:
+            raise ArtifactError(
+                f"bundle {bundle.name!r} has no residual statistics: graph fusion needs its "
+                "OOD z-score"
+            )
+
+    def _fusion_of(self, fusion: str | FusionCalibration) -> FusionCalibration | None:
+        bundle = self.bundle
+        if isinstance(fusion, FusionCalibration):
+            if fusion.bundle_hash != bundle.content_hash:
+                raise InputError(f"this fusion calibration is not for bundle {bundle.name!r}")
+            return fusion
+        if fusion not in FUSIONS:
+            raise InputError(f"fusion must be one of {FUSIONS}, got {fusion!r}")
+        if fusion == "none":
+            return None
+        return load_fusion(bundle.path, bundle.content_hash, bundle.name)
 
     def __repr__(self) -> str:
         head = "" if self.head == "full" else f", head={self.head!r}"
-        return f"Predictor(bundle={self.bundle.name!r}, device={str(self.device)!r}{head})"
+        fusion = "" if self.fusion is None else ", fusion='graph'"
+        device = str(self.device)
+        return f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{fusion})"
 
     # ----------------------------------------------------------------- registration
 
@@ -404,7 +441,7 @@ class Predictor:
             state.canonical_vertices,
             state.canonical_points,
             state.vertices,
-            None,
+            np.arange(state.n_points),
         )
 
     def _from_indices(self, state: ShapeState, indices: NDArray) -> ResolvedPoints:
@@ -541,10 +578,55 @@ class Predictor:
                 group_pairs += pairs
             if group:
                 self._flat_group([blocks[i] for i in group], group, outputs)
+        if self.fusion is not None:
+            outputs = [
+                self._fused(state, src, dst, out)
+                for state, (src, dst), out in zip(states, blocks, outputs, strict=True)
+            ]
         return [
             (np.asarray(out, dtype=np.float64) / state.transform.scale).astype(np.float32)
             for out, state in zip(outputs, states, strict=True)
         ]
+
+    def _fused(
+        self, state: ShapeState, src: ResolvedPoints, dst: ResolvedPoints, network: Any
+    ) -> NDArray:
+        """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
+        assert self.fusion is not None
+        fusion = self.fusion
+        key = f"fusion.graph.{self._table_key}.{fusion.k}.{fusion.prune_ratio}"
+        graph = state._lazy.get(key)
+        if graph is None:
+            graph = pruned_knn_graph(
+                state.canonical_points,
+                fusion.k,
+                fusion.prune_ratio,
+                lambda i, j: self._pair_distances(state, i, j),
+            )
+            state._lazy[key] = graph
+        rows = graph_rows(
+            graph,
+            state.canonical_points,
+            (src.indices, src.canonical),
+            (dst.indices, dst.canonical),
+            fusion.k,
+        )
+        return fuse(network, rows, fusion, state.ood_score, state.n_points)
+
+    def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
+        """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical)."""
+        table = self.point_table(state)
+        out = np.empty(i.shape[0])
+        with torch.no_grad():
+            for start in range(0, i.shape[0], self.chunk_pairs):
+                a = torch.from_numpy(i[start : start + self.chunk_pairs]).to(self.device)
+                b = torch.from_numpy(j[start : start + self.chunk_pairs]).to(self.device)
+                head = self._net.head(table[a] - table[b], inplace=True)
+                eu = torch.linalg.vector_norm(
+                    state.canonical_vertices[a] - state.canonical_vertices[b], dim=-1
+                )
+                out[start : start + a.shape[0]] = self._finish(head, eu).cpu().numpy()
+        return out
 
     def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:
         out = head / self.target_scale

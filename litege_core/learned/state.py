@@ -162,10 +162,14 @@ class ShapeState:
     @property
     def nbytes(self) -> int:
         """Bytes held by the cached arrays and tensors, including the feature tables once
-        built (the full head's and a small head's, for cache accounting)."""
+        built (the full head's and a small head's) and graph-fusion graphs (sparse), for cache
+        accounting."""
         tensors = [self.canonical_vertices, self.shape_embedding, self.shape_bias]
         tensors += [v for k, v in self._lazy.items() if k.startswith("features")]
         total = sum(t.numel() * t.element_size() for t in tensors)
+        for key, graph in self._lazy.items():
+            if key.startswith("fusion.graph"):
+                total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes
         total += self.canonical_points.nbytes + self.descriptor.nbytes
         return int(total + (0 if self.faces is None else self.faces.nbytes))
 

@@ -1,0 +1,277 @@
+"""Graph fusion (issue 14): the calibration file, the network-pruned kNN graph, graph rows for
+indexed and free points, the blend, and ``Predictor(bundle, fusion=...)`` checked against a
+graph built independently."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import dijkstra
+
+from litege_core.engines.graph import knn_graph
+from litege_core.errors import ArtifactError, InputError
+from litege_core.learned import Predictor, load_bundle, save_bundle
+from litege_core.learned.fusion import (
+    FUSION_CONFIG,
+    FusionCalibration,
+    fuse,
+    graph_rows,
+    load_fusion,
+    pruned_knn_graph,
+    save_fusion,
+)
+
+
+def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
+    base = FusionCalibration(
+        k=8,
+        prune_ratio=1.6,
+        bias_log10_points=(2.5, 3.0, 3.5),
+        bias=(0.98, 1.01, 1.02),
+        gate=(0.5, -1.0, -2.0),
+        bundle_hash=bundle_hash,
+        fitted_on={"shapes": {"toy": 3}},
+    )
+    return dataclasses.replace(base, **changes)
+
+
+# ------------------------------------------------------------------ the calibration
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"k": 0},
+        {"prune_ratio": 0.9},
+        {"prune_ratio": float("nan")},
+        {"bias_log10_points": (3.0, 2.5, 3.5)},
+        {"bias": (1.0, 1.0)},
+        {"bias": (1.0, -1.0, 1.0)},
+        {"gate": (0.0, float("inf"), 0.0)},
+        {"gate": (0.0, 1.0)},
+    ],
+)
+def test_inconsistent_calibrations_are_refused(changes) -> None:
+    with pytest.raises(ArtifactError):
+        _calibration(**changes)
+
+
+def test_bias_interpolates_in_log_points_and_clamps() -> None:
+    calibration = _calibration()
+    assert calibration.graph_bias(1000) == pytest.approx(1.01)
+    assert calibration.graph_bias(10**3.25) == pytest.approx(1.015)
+    assert calibration.graph_bias(50) == pytest.approx(0.98)
+    assert calibration.graph_bias(10**6) == pytest.approx(1.02)
+
+
+def test_network_weight_is_the_gate_sigmoid() -> None:
+    calibration = _calibration()
+    assert calibration.network_weight(0.0, 1000) == pytest.approx(1 / (1 + np.exp(-0.5)))
+    # the gate here trusts the network less on unusual shapes and on dense clouds
+    assert calibration.network_weight(3.0, 1000) < calibration.network_weight(0.0, 1000)
+    assert calibration.network_weight(0.0, 5000) < calibration.network_weight(0.0, 300)
+    assert 0.0 <= calibration.network_weight(1e9, 10**9) < 1e-20
+
+
+def test_json_roundtrip_and_sidecar(tmp_path) -> None:
+    calibration = _calibration("a" * 64)
+    assert FusionCalibration.from_json(json.loads(json.dumps(calibration.to_json()))) == (
+        calibration
+    )
+    path = save_fusion(tmp_path, calibration)
+    assert path.name == FUSION_CONFIG
+    loaded = load_fusion(tmp_path, "a" * 64, "toy")
+    assert loaded == calibration and loaded.fitted_on == calibration.fitted_on
+
+
+def test_missing_foreign_and_damaged_sidecars(tmp_path) -> None:
+    with pytest.raises(InputError, match="no graph-fusion"):
+        load_fusion(tmp_path, "a" * 64, "toy")
+    with pytest.raises(InputError, match="no graph-fusion"):
+        load_fusion(None, "a" * 64, "toy")
+    save_fusion(tmp_path, _calibration("b" * 64))
+    with pytest.raises(InputError, match="fitted for bundle"):
+        load_fusion(tmp_path, "a" * 64, "toy")
+    data = json.loads((tmp_path / FUSION_CONFIG).read_text())
+    (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "format_version": 99}))
+    with pytest.raises(ArtifactError, match="format"):
+        load_fusion(tmp_path, "b" * 64, "toy")
+    (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "bias": [1.0]}))
+    with pytest.raises(ArtifactError):
+        load_fusion(tmp_path, "b" * 64, "toy")
+    (tmp_path / FUSION_CONFIG).write_text("{not json")
+    with pytest.raises(ArtifactError, match="JSON"):
+        load_fusion(tmp_path, "b" * 64, "toy")
+
+
+# ------------------------------------------------------------------ graph and blend
+
+
+def _hairpin(n_per_arm: int = 60, gap: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Points along two parallel arms ``gap`` apart joined at one end (a hairpin) and their
+    arc-length coordinate: the arms touch in space but are 2 apart along the curve."""
+    t = np.linspace(0.0, 1.0, n_per_arm)
+    arm_a = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    arm_b = np.column_stack([t, np.full_like(t, gap), np.zeros_like(t)])
+    points = np.concatenate([arm_a, arm_b])
+    arc = np.concatenate([1.0 - t, 1.0 + gap + t])  # both arms meet through the bend at x = 0
+    return points, arc
+
+
+def test_pruning_cuts_the_shortcut_between_touching_parts() -> None:
+    points, arc = _hairpin()
+    n = points.shape[0]
+
+    def truth(i, j):
+        return np.abs(arc[i] - arc[j])
+
+    plain = pruned_knn_graph(points, 4, 1.6, None)
+    pruned = pruned_knn_graph(points, 4, 1.6, truth)
+    assert pruned.nnz < plain.nnz
+    tips = (n // 2 - 1, n - 1)  # the free ends of both arms, 0.05 apart in space
+    assert dijkstra(plain, directed=False, indices=tips[0])[tips[1]] < 0.1
+    # without the shortcut the path runs around the bend (the bend itself is one kNN edge)
+    assert dijkstra(pruned, directed=False, indices=tips[0])[tips[1]] > 1.9
+    # no pruning equals the plain symmetric kNN graph
+    assert (plain != knn_graph(points, 4)).nnz == 0
+
+
+def test_graph_rows_of_free_points_on_nodes_equal_the_indexed_rows() -> None:
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(300, 3))
+    graph = pruned_knn_graph(points, 8, 1.6, None)
+    src, dst = np.array([3, 40, 3]), np.arange(0, 300, 7)
+    indexed = graph_rows(graph, points, (src, points[src]), (dst, points[dst]), 8)
+    free = graph_rows(graph, points, (None, points[src]), (None, points[dst]), 8)
+    np.testing.assert_allclose(free, indexed, atol=1e-9)
+    reference = dijkstra(graph, directed=False, indices=src)[:, dst]
+    np.testing.assert_allclose(indexed, reference)
+    # Dijkstra runs from the smaller side: the transpose is the same table
+    np.testing.assert_allclose(
+        graph_rows(graph, points, (dst, points[dst]), (src, points[src]), 8), reference.T
+    )
+
+
+def test_a_free_point_joins_through_its_nearest_chords() -> None:
+    points = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
+    graph = pruned_knn_graph(points, 1, 1.6, None)
+    query = np.array([[0.5, 0.5, 0.0]])
+    rows = graph_rows(graph, points, (None, query), (np.array([2]), points[[2]]), 2)
+    assert rows[0, 0] == pytest.approx(np.sqrt(0.5) + 1.0)
+
+
+def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails() -> None:
+    network = np.array([[0.0, 10.0, 20.0]])
+    graph = np.array([[0.0, 12.0, np.inf]])
+    only_graph = _calibration(gate=(-60.0, 0.0, 0.0), bias=(1.2, 1.2, 1.2))
+    only_network = _calibration(gate=(60.0, 0.0, 0.0))
+    np.testing.assert_allclose(fuse(network, graph, only_graph, 0.0, 1000), [[0, 10, 20]])
+    np.testing.assert_allclose(fuse(network, graph, only_network, 5.0, 300), network)
+    half = _calibration(gate=(0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0))
+    np.testing.assert_allclose(fuse(network, graph, half, 1.0, 1000), [[0, 11, 20]])
+
+
+# ------------------------------------------------------------------ through the predictor
+
+
+@pytest.fixture(scope="module")
+def bundle_dir(tmp_path_factory, toy_predictor):
+    """The toy bundle again, with residual statistics (the gate reads the OOD z-score)."""
+    source = toy_predictor.bundle
+    directory = tmp_path_factory.mktemp("fusion") / "toy"
+    save_bundle(
+        directory,
+        name="toy",
+        category="toy",
+        basis=source.basis,
+        network=source.network,
+        training={"residual_mean": 0.5, "residual_std": 0.25},
+    )
+    return directory
+
+
+def _graph_only(bundle_hash: str, prune_ratio: float = 1e9) -> FusionCalibration:
+    return _calibration(bundle_hash, gate=(-60.0, 0.0, 0.0), prune_ratio=prune_ratio)
+
+
+def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    calibration = _graph_only(bundle.content_hash)
+    predictor = Predictor(bundle, fusion=calibration)
+    assert "fusion='graph'" in repr(predictor)
+    state = predictor.register(blob(3))
+    before = state.nbytes
+    sources = np.array([0, 17, 200])
+    rows = predictor.distances(state, sources)
+    assert state.nbytes > before  # the cached graph counts
+    points = state.canonical_points
+    expected = dijkstra(knn_graph(points, 8), directed=False, indices=sources)
+    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
+    assert np.all(rows[np.arange(3), sources] == 0.0)
+
+
+def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    half = _calibration(
+        bundle.content_hash, gate=(0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0), prune_ratio=1e9
+    )
+    network, graph, fused = (
+        Predictor(bundle, fusion=fusion)
+        for fusion in ("none", _graph_only(bundle.content_hash), half)
+    )
+    shape = blob(4)
+    sources = np.array([5, 60])
+    n_points = network.register(shape).n_points
+    rows = {
+        name: p.distances(p.register(shape), sources)
+        for name, p in (("network", network), ("graph", graph), ("fused", fused))
+    }
+    # bias 1 and w = 1/2 at every point count: the plain average of network and graph
+    assert np.all(np.isfinite(rows["graph"]))
+    assert np.abs(rows["graph"] - rows["network"]).max() > 0.1 * rows["network"].max()
+    mean = 0.5 * (rows["network"] + rows["graph"] * graph.fusion.graph_bias(n_points))
+    np.testing.assert_allclose(rows["fused"], mean, rtol=1e-4, atol=1e-4)
+
+
+def test_free_query_points_join_the_graph_through_their_nearest_points(bundle_dir, blob) -> None:
+    from scipy.spatial import cKDTree
+
+    bundle = load_bundle(bundle_dir)
+    calibration = _graph_only(bundle.content_hash)
+    predictor = Predictor(bundle, fusion=calibration)
+    shape = blob(5)
+    state = predictor.register(shape)
+    centroid = np.asarray(shape.vertices)[np.asarray(shape.faces)[30]].mean(axis=0)
+    rows = predictor.distances(state, centroid[None], np.arange(50))
+    # independently: the projected point with chords to its 8 nearest points, then Dijkstra
+    canonical = state.transform.apply(np.asarray(centroid[None], np.float64))
+    points = state.canonical_points
+    chords, nearest = cKDTree(points).query(canonical[0], k=8)
+    through = dijkstra(knn_graph(points, 8), directed=False, indices=nearest)[:, :50]
+    expected = (chords[:, None] + through).min(axis=0)
+    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    # the query is projected onto the surface first: within a small fraction of an edge
+    np.testing.assert_allclose(rows[0], expected, rtol=0.02, atol=0.02 * state.spacing)
+
+
+def test_fusion_options_are_checked(bundle_dir, toy_predictor, tmp_path) -> None:
+    bundle = load_bundle(bundle_dir)
+    with pytest.raises(InputError, match="fusion must be one of"):
+        Predictor(bundle, fusion="average")
+    with pytest.raises(InputError, match="no graph-fusion"):
+        Predictor(bundle, fusion="graph")
+    with pytest.raises(InputError, match="not for bundle"):
+        Predictor(bundle, fusion=_calibration("0" * 64))
+    # a bundle without residual statistics has no z-score for the gate
+    plain = toy_predictor.bundle
+    with pytest.raises(ArtifactError, match="residual statistics"):
+        Predictor(plain, fusion=_calibration(plain.content_hash))
+    copy = tmp_path / "toy"
+    shutil.copytree(bundle_dir, copy)
+    save_fusion(copy, _calibration(bundle.content_hash))
+    assert Predictor(load_bundle(copy), fusion="graph").fusion == _calibration(bundle.content_hash)
