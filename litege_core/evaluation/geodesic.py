@@ -216,10 +216,12 @@ def generated_eval_shapes(
 
 
 def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
-    """The input of ``setting`` for ``shape`` (deterministic per seed)."""
+    """The input of ``setting`` for ``shape`` (deterministic per seed): ``"mesh"``, a cloud of
+    ``N`` surface samples ``"cloud_N"`` (the sources included), or a 2000-point cloud with
+    noise (``"noise_0.01"``) or cut by planes (``"cut_10"``)."""
     if setting == "mesh":
         return EvalInput(Shape.from_arrays(shape.vertices, shape.faces), shape.sources, shape.gt)
-    n_points = 300 if setting == "cloud_300" else 2000
+    n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
     n_sources = shape.sources.size
     samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
     corner_gt = shape.gt[:, shape.faces[samples.face_index]]  # (R, n, 3)

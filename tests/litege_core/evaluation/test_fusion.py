@@ -1,0 +1,60 @@
+"""Fitting the graph-fusion calibration (``litege_core.evaluation.fusion``) on samples whose
+best blend is known: the bias knots recover the graph's over-estimate and the gate learns to
+trust the graph on unusual shapes and the network on familiar ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from litege_core.evaluation.fusion import FusionSample, fit_fusion, fusion_table, sample_error
+
+
+def _samples() -> list[FusionSample]:
+    """Familiar shapes (z = 0): the network is nearly exact, the graph noisy. Unusual shapes
+    (z = 4): the network is off by a shape-wide factor, the graph exact up to its bias 1.05
+    (at 1000 points) or 1.10 (at 300 points)."""
+    rng = np.random.default_rng(0)
+    samples = []
+    for setting, n_points, bias in (("cloud_1000", 1000, 1.05), ("cloud_300", 300, 1.10)):
+        for i in range(12):
+            truth = rng.uniform(10.0, 200.0, size=(4, 50))
+            truth[:, 0] = 0.0
+            unusual = i % 2 == 1
+            if unusual:
+                network = truth * rng.choice([0.7, 1.3])
+                graph = truth * bias * rng.normal(1.0, 0.01, truth.shape)
+            else:
+                network = truth * rng.normal(1.0, 0.01, truth.shape)
+                graph = truth * bias * rng.normal(1.0, 0.3, truth.shape)
+            z_score = 4.0 if unusual else 0.0
+            samples.append(
+                FusionSample(f"s{i}", "toy", setting, n_points, z_score, network, graph, truth)
+            )
+    return samples
+
+
+def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> None:
+    samples = _samples()
+    calibration = fit_fusion(samples, "h" * 64, k=8, prune_ratio=1.5, fitted_on={"n": 24})
+    assert (calibration.k, calibration.prune_ratio, calibration.fitted_on) == (8, 1.5, {"n": 24})
+    assert calibration.bias_log10_points == pytest.approx((np.log10(300), 3.0))
+    assert calibration.bias == pytest.approx((1.10, 1.05), abs=0.01)
+    assert calibration.network_weight(0.0, 1000) > 0.8
+    assert calibration.network_weight(4.0, 1000) < 0.2
+    fused = np.mean([sample_error(s, calibration, "fused") for s in samples])
+    network = np.mean([sample_error(s, None, "network") for s in samples])
+    graph = np.mean([sample_error(s, None, "graph") for s in samples])
+    assert fused < 0.5 * min(network, graph)
+    table = fusion_table(samples, calibration)
+    assert "| toy | cloud_1000 | 12 |" in table and "| toy | cloud_300 | 12 |" in table
+
+
+def test_unreachable_graph_pairs_count_with_the_network_value() -> None:
+    truth = np.array([[0.0, 10.0, 20.0]])
+    sample = FusionSample(
+        "s", "toy", "cloud_300", 300, 0.0, truth * 1.1, np.array([[0.0, 10.0, np.inf]]), truth
+    )
+    # pairs with truth > 0: |10 - 10| and |22 - 20| (the network's value), GT mean 15
+    assert sample_error(sample, None, "graph") == pytest.approx(np.mean([0.0, 2.0]) * 100 / 15)
+    assert sample_error(sample, None, "network") == pytest.approx(np.mean([1.0, 2.0]) * 100 / 15)
