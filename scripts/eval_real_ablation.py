@@ -2,10 +2,13 @@
 
 Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL ...]
     [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
+    [--knn K ...]
 
 ``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` (the distilled small head,
 ``Predictor(bundle, head="small")``) and ``stride2`` / ``bcc`` (descriptor lattice), e.g.
-``quadrupeds@small+stride2``; ``--no-baselines`` leaves out heat and kNN.
+``quadrupeds@small+stride2``, and ``fusion`` (the calibrated graph fusion,
+``Predictor(bundle, fusion="graph")``); ``--no-baselines`` leaves out heat and kNN;
+``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
@@ -25,6 +28,8 @@ import torch
 
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
+    Method,
+    baseline_method,
     comparison_methods,
     comparison_table,
     evaluate_methods,
@@ -38,10 +43,11 @@ from litege_core.learned import Predictor, load_bundle, load_shipped
 
 def load_predictor(name: str) -> Predictor:
     """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
-    ``small`` (the bundle's small head), ``stride2`` / ``bcc`` (descriptor lattice)."""
+    ``small`` (the bundle's small head), ``stride2`` / ``bcc`` (descriptor lattice),
+    ``fusion`` (the bundle's calibrated graph fusion)."""
     name, _, text = name.partition("@")
     options = set(filter(None, text.split("+")))
-    unknown = options - {"small", "full", "stride2", "bcc"}
+    unknown = options - {"small", "full", "stride2", "bcc", "fusion"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
     lattices = options & {"stride2", "bcc"}
@@ -51,6 +57,7 @@ def load_predictor(name: str) -> Predictor:
         bundle,
         head="small" if "small" in options else "full",
         descriptor_lattice=lattices.pop() if lattices else "full",
+        fusion="graph" if "fusion" in options else "none",
     )
 
 
@@ -64,6 +71,9 @@ def main() -> None:
     parser.add_argument("--settings", default="mesh,cloud_2000,cloud_300")
     parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
     parser.add_argument("--no-baselines", action="store_true", help="LiteGE rows only")
+    parser.add_argument(
+        "--knn", type=int, action="append", default=[], help="extra kNN-Dijkstra rows (k)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     real = REAL_SETS[args.set]
@@ -81,7 +91,12 @@ def main() -> None:
     synthetic = generated_eval_shapes(
         real.category, args.synthetic, args.sources, cache_dir=args.cache
     )
-    methods = comparison_methods(predictors, baselines=not args.no_baselines)
+    compared = comparison_methods(predictors, baselines=not args.no_baselines)
+
+    def methods(setting: str) -> dict[str, Method]:
+        extra = {f"kNN Dijkstra (k={k})": baseline_method("knn_graph", k=k) for k in args.knn}
+        return {**compared(setting), **extra}
+
     pooled = evaluate_methods([*shapes, *synthetic], methods, settings)
     spread = {  # per-shape mean errors of each model on the real meshes
         r.method: [error for _, error in r.per_shape]
@@ -97,6 +112,7 @@ def main() -> None:
         + " ".join(f"--model {m}" for m in models)
         + f" --set {args.set} --sources {args.sources}"
         + (" --no-baselines" if args.no_baselines else "")
+        + "".join(f" --knn {k}" for k in args.knn)
         + "`\n"
     )
     print(comparison_table(pooled))

@@ -41,7 +41,7 @@ def split_list(text: str | None, allowed: Sequence[str], what: str) -> list[str]
 def predictor(args: argparse.Namespace) -> Predictor:
     """The geodesic :class:`~litege_core.learned.Predictor` of ``--model``/``--bundle`` on
     ``--device`` (see :func:`add_bundle_arguments`), with ``--head`` where the command has
-    it (:func:`add_head_argument`)."""
+    it (:func:`add_head_argument`) and ``--fusion`` (:func:`add_fusion_argument`)."""
     from pathlib import Path
 
     from litege_core.device import resolve_device
@@ -59,6 +59,7 @@ def predictor(args: argparse.Namespace) -> Predictor:
         device,
         head=getattr(args, "head", "full"),
         descriptor_lattice=getattr(args, "lattice", "full"),
+        fusion=getattr(args, "fusion", "none"),
     )
 
 
@@ -130,6 +131,25 @@ def add_head_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+FUSIONS = ("none", "graph")
+"""The learned engine's fusions (:data:`litege_core.learned.fusion.FUSIONS`, listed here for the
+same reason as :data:`VOXEL_LATTICES`; a test keeps the two equal)."""
+
+
+def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
+    """``--fusion none|graph``: the network alone, or blended with the model's calibrated,
+    network-pruned kNN-graph Dijkstra (:mod:`litege_core.learned.fusion`)."""
+    parser.add_argument(
+        "--fusion",
+        choices=FUSIONS,
+        default="none",
+        help="none (default: the network's distances) or graph (blend them with a calibrated "
+        "kNN-graph Dijkstra on the shape's points, weighted by how unusual the shape is and "
+        "how dense its points are: more accurate on real shapes far from the training "
+        "families, slower on large clouds)",
+    )
+
+
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """A shape file, its kind, the geodesic model, the descriptor seed and ``-o FILE.npy``."""
     parser.add_argument("file", help=SHAPE_FILE_HELP)
@@ -140,11 +160,13 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
+    "FUSIONS",
     "SHAPE_FILE_HELP",
     "SHAPE_KINDS",
     "VOXEL_LATTICES",
     "add_bundle_arguments",
     "add_device_argument",
+    "add_fusion_argument",
     "add_head_argument",
     "add_kind_argument",
     "add_model_arguments",

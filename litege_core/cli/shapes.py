@@ -7,6 +7,7 @@ import argparse
 from typing import Any
 
 from litege_core.cli.common import (
+    add_fusion_argument,
     add_head_argument,
     add_kind_argument,
     add_model_arguments,
@@ -56,7 +57,11 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
         state = model.register(shape, seed=args.seed)
         distances = model.distances(state, sources, targets).astype(np.float32)
         report.update(
-            engine="learned", model=model.bundle.name, head=model.head, ood_score=state.ood_score
+            engine="learned",
+            model=model.bundle.name,
+            head=model.head,
+            fusion="none" if model.fusion is None else "graph",
+            ood_score=state.ood_score,
         )
     else:
         solver = _classical(args, shape)
@@ -134,6 +139,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")
     geodesic.add_argument("--targets", default="all", help="'all' (default) or i,j,...")
     add_head_argument(geodesic)
+    add_fusion_argument(geodesic)
     _add_method_arguments(geodesic)
     geodesic.set_defaults(handler=cmd_geodesic)
 

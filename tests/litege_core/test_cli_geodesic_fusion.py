@@ -1,0 +1,53 @@
+"""``litege geodesic --fusion graph`` (issue 14): the bundle's calibrated graph fusion from the
+command line, and a clear error where the bundle has no calibration."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from litege_core.cli import main
+from litege_core.io import load_shape, save_shape
+from litege_core.learned import Predictor, load_bundle, save_bundle
+from litege_core.learned.fusion import FUSIONS, FusionCalibration, save_fusion
+
+
+def test_geodesic_with_graph_fusion(tmp_path, toy_predictor, blob, capsys) -> None:
+    source = toy_predictor.bundle
+    directory = tmp_path / "toy"
+    save_bundle(
+        directory,
+        name="toy",
+        category="toy",
+        basis=source.basis,
+        network=source.network,
+        training={"residual_mean": 0.5, "residual_std": 0.25},
+    )
+    mesh_file = tmp_path / "blob.ply"
+    save_shape(blob(3), mesh_file)
+    out = tmp_path / "d.npy"
+    args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(directory)]
+    assert main([*args, "--fusion", "graph", "-o", str(out)]) == 2
+    assert "no graph-fusion calibration" in capsys.readouterr().err and not out.exists()
+
+    bundle = load_bundle(directory)
+    save_fusion(
+        directory,
+        FusionCalibration(8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0), bundle.content_hash),
+    )
+    assert main([*args, "--fusion", "graph", "-o", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["fusion"] == "graph"
+    fused = Predictor(load_bundle(directory), fusion="graph")
+    expected = fused.distances(fused.register(load_shape(mesh_file)), [0, 7])
+    np.testing.assert_array_equal(np.load(out), expected)
+    plain_out = tmp_path / "plain.npy"
+    assert main([*args, "-o", str(plain_out)]) == 0
+    assert json.loads(capsys.readouterr().out)["fusion"] == "none"
+    assert not np.allclose(np.load(plain_out), np.load(out))
+
+
+def test_the_fusion_option_is_the_predictor_option() -> None:
+    from litege_core.cli.common import FUSIONS as CLI_FUSIONS
+
+    assert CLI_FUSIONS == FUSIONS
