@@ -473,7 +473,8 @@ class Runtime:
             predictors = {}
             for name in settings.models:
                 started = time.perf_counter()
-                predictors[name] = Predictor(load_shipped(name), device)
+                bundle = load_shipped(name)
+                predictors[name] = Predictor(bundle, device, fusion=settings.geodesic_fusion)
                 metrics.model_load_seconds.labels(name).set(time.perf_counter() - started)
             return predictors
 
@@ -545,6 +546,7 @@ class Runtime:
                         "bundle_hash": p.bundle.content_hash,
                         "version": p.bundle.manifest.get("version"),
                         "category": p.bundle.category,
+                        "fusion": "none" if p.fusion is None else "graph",
                     }
                     for name, p in self.repository.predictors.items()
                 },

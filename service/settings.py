@@ -31,6 +31,11 @@ class Settings(BaseSettings):
     scores the shape and the lowest out-of-distribution z-score wins; with one model loaded,
     that one) or the name of a loaded model (then a query naming no model uses the first model,
     this one first, that the shape is registered under)."""
+    geodesic_fusion: Literal["none", "graph"] = "none"
+    """``graph``: every learned geodesic answer blends the network with the model's calibrated,
+    network-pruned kNN-graph Dijkstra (``litege_core.learned.fusion``; more accurate on real
+    shapes far from the training families, slower on large shapes); every loaded model must
+    ship its calibration. ``none``: the network alone. Paths follow the network either way."""
     device: str = "auto"
     matching_model: str | None = "quadrupeds"
     """Matching bundle of ``POST /correspondences`` and the ``Correspond`` RPC (a shipped name

@@ -1,0 +1,64 @@
+"""``LITEGE_GEODESIC_FUSION=graph`` (issue 14) over real HTTP: the service answers learned
+geodesics with the shipped model's graph fusion, exactly as the library does, says so on
+``/readyz``, and keeps paths on the network's field; a model without a calibration refuses to
+start the service."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+import torch
+
+from litege_core.errors import InputError
+from litege_core.learned import Predictor, load_shipped
+from litege_core.shape import Shape
+from litege_core.synth import generate_shape
+from service.client import LiteGEClient
+from service.runtime import Runtime
+from service.settings import Settings
+
+from .conftest import TEST_MODEL, service_settings
+
+
+@pytest.fixture(scope="module")
+def dog() -> Shape:
+    generated = generate_shape("quadruped", "dog", seed=4, reject=False)
+    return Shape.from_arrays(generated.vertices, generated.faces)
+
+
+@pytest.fixture(scope="module")
+def fused_service(live_service_factory):
+    return live_service_factory(geodesic_fusion="graph")
+
+
+def test_the_setting_defaults_to_the_network_alone() -> None:
+    assert Settings().geodesic_fusion == "none"
+    with pytest.raises(ValueError):
+        Settings(geodesic_fusion="average")
+
+
+def test_fused_answers_are_the_library_answers(fused_service, dog) -> None:
+    library = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"), fusion="graph")
+    plain = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"))
+    state = library.register(dog)
+    sources = [0, 250, 1000]
+    with LiteGEClient(fused_service.base_url) as client:
+        assert client.ready()["models"][TEST_MODEL]["fusion"] == "graph"
+        shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
+        answer = client.geodesic(shape_id, sources)
+        path = client.path(shape_id, 0, 1000)
+    np.testing.assert_allclose(answer, library.distances(state, sources), rtol=1e-5, atol=1e-6)
+    assert not np.allclose(answer, plain.distances(plain.register(dog), sources), rtol=1e-3)
+    # paths follow the network's field, fused or not
+    expected = plain.path(plain.register(dog), 0, 1000)
+    assert path["length"] == pytest.approx(expected.length, rel=1e-4)
+
+
+def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:
+    import litege_core.learned.fusion as fusion
+
+    monkeypatch.setattr(fusion, "FUSION_CONFIG", "missing-fusion.json")
+    with pytest.raises(InputError, match="no graph-fusion calibration"):
+        asyncio.run(Runtime.start(service_settings(geodesic_fusion="graph")))
