@@ -21,10 +21,11 @@ Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes �
 (one pair each); a **1K × 1K** matrix (1000 × 1000 distinct vertices of the 5K mesh);
 **1K correspondences** (5K dog → 5K cat, 1000 query vertices).
 
-Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in four configurations: the
+Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in seven configurations: the
 defaults (float32, full descriptor), ``precision="auto"`` (bfloat16 head product where the CPU
 has AMX / AVX512-BF16), ``auto`` + ``descriptor_lattice="stride2"`` (UDF at 1/8 of the
-voxels) and ``head="small"`` (the distilled small head, where the model ships one);
+voxels), ``head="small"`` (the distilled small head, where the model ships one) and
+``fusion="graph"`` (the calibrated graph fusion, with the full or the fast configuration);
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -69,13 +70,15 @@ from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh, point_cloud
 
 LITEGE = {
-    "LiteGE": ("float32", "full", "full"),
-    "LiteGE auto": ("auto", "full", "full"),
-    "LiteGE auto + stride2": ("auto", "stride2", "full"),
-    "LiteGE small head": ("float32", "full", "small"),
-    "LiteGE small head + stride2": ("float32", "stride2", "small"),
+    "LiteGE": ("float32", "full", "full", "none"),
+    "LiteGE auto": ("auto", "full", "full", "none"),
+    "LiteGE auto + stride2": ("auto", "stride2", "full", "none"),
+    "LiteGE small head": ("float32", "full", "small", "none"),
+    "LiteGE small head + stride2": ("float32", "stride2", "small", "none"),
+    "LiteGE graph fusion": ("float32", "full", "full", "graph"),
+    "LiteGE small head + stride2 + graph fusion": ("float32", "stride2", "small", "graph"),
 }
-"""Name → (precision, descriptor lattice, head) of each LiteGE configuration."""
+"""Name → (precision, descriptor lattice, head, fusion) of each LiteGE configuration."""
 REFERENCE = "kNN Dijkstra"
 
 
@@ -141,13 +144,17 @@ def _match(method, x: Shape, y: Shape, queries):
 
 
 def litege_predictors(bundle) -> dict[str, Predictor]:
-    """The LiteGE configurations the bundle supports (``small head`` needs its sidecar)."""
+    """The LiteGE configurations the bundle supports (``small head`` and ``graph fusion``
+    need their sidecars)."""
+    from litege_core.learned.fusion import FUSION_CONFIG
     from litege_core.learned.small_head import small_head_config
 
+    has_fusion = bundle.path is not None and (bundle.path / FUSION_CONFIG).is_file()
     return {
-        name: Predictor(bundle, precision=p, descriptor_lattice=lattice, head=head)
-        for name, (p, lattice, head) in LITEGE.items()
-        if head == "full" or small_head_config(bundle) is not None
+        name: Predictor(bundle, precision=p, descriptor_lattice=lattice, head=head, fusion=fusion)
+        for name, (p, lattice, head, fusion) in LITEGE.items()
+        if (head == "full" or small_head_config(bundle) is not None)
+        and (fusion == "none" or has_fusion)
     }
 
 
