@@ -33,6 +33,7 @@ from litege_core.evaluation.geodesic import collection_eval_shapes, generated_ev
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_bundle, load_shipped
 from litege_core.learned.fusion import save_fusion
+from litege_core.learned.small_head import small_head_config
 from litege_core.synth import CATEGORIES
 
 
@@ -44,6 +45,12 @@ def main() -> None:
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--k", type=int, default=DEFAULT_K)
     parser.add_argument("--prune-ratio", type=float, default=DEFAULT_PRUNE_RATIO)
+    parser.add_argument(
+        "--veto-head",
+        choices=("auto", "small", "full"),
+        default="auto",
+        help="head that prunes the graph (auto: the small head where the bundle ships one)",
+    )
     parser.add_argument("--settings", default=",".join(CALIBRATION_SETTINGS))
     parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
     parser.add_argument("--write", action="store_true", help="write fusion.json into the bundle")
@@ -53,6 +60,9 @@ def main() -> None:
     path = Path(args.model)
     bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
     predictor = Predictor(bundle)
+    veto_head = args.veto_head
+    if veto_head == "auto":
+        veto_head = "full" if small_head_config(bundle) is None else "small"
     category = bundle.manifest.get("category")
     if category not in CATEGORIES:
         raise SystemExit(f"bundle category {category!r} has no procedural families")
@@ -63,7 +73,9 @@ def main() -> None:
             for s in collection_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
         ]
     settings = tuple(args.settings.split(","))
-    samples = collect_samples(predictor, shapes, settings, k=args.k, prune_ratio=args.prune_ratio)
+    samples = collect_samples(
+        predictor, shapes, settings, k=args.k, prune_ratio=args.prune_ratio, veto_head=veto_head
+    )
     groups = sorted({s.group for s in shapes})
     fitted_on = {
         "shapes": {g: sum(s.group == g for s in shapes) for g in groups},
@@ -73,7 +85,12 @@ def main() -> None:
         "date": f"{datetime.now(UTC):%Y-%m-%d}",
     }
     calibration = fit_fusion(
-        samples, bundle.content_hash, k=args.k, prune_ratio=args.prune_ratio, fitted_on=fitted_on
+        samples,
+        bundle.content_hash,
+        k=args.k,
+        prune_ratio=args.prune_ratio,
+        veto_head=veto_head,
+        fitted_on=fitted_on,
     )
     table = fusion_table(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
@@ -93,7 +110,8 @@ def main() -> None:
     )
     a, c_z, c_n = calibration.gate
     print(
-        f"- graph: k = {calibration.k}, edges cut above {calibration.prune_ratio} × chord; "
+        f"- graph: k = {calibration.k}, edges cut above {calibration.prune_ratio} × chord "
+        f"(predicted by the {veto_head} head); "
         f"median graph / geodesic: {knots}; network weight = sigmoid({a:.3f} + {c_z:.3f}·z "
         f"+ {c_n:.3f}·(log10 N − 3))\n"
     )

@@ -20,6 +20,7 @@ ratio against held-out procedural shapes of the same category.
 from __future__ import annotations
 
 import argparse
+import shlex
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -109,8 +110,8 @@ def main() -> None:
         f"{cpu_name()}; {len(shapes)} real shapes, "
         f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
         "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
-        + " ".join(f"--model {m}" for m in models)
-        + f" --set {args.set} --sources {args.sources}"
+        + " ".join(f"--model {shlex.quote(m)}" for m in models)
+        + f" --set {args.set} --sources {args.sources} --settings {args.settings}"
         + (" --no-baselines" if args.no_baselines else "")
         + "".join(f" --knn {k}" for k in args.knn)
         + "`\n"

@@ -41,10 +41,14 @@ class FusionSample:
     truth: NDArray
 
 
-def probe_calibration(bundle_hash: str, k: int, prune_ratio: float) -> FusionCalibration:
+def probe_calibration(
+    bundle_hash: str, k: int, prune_ratio: float, veto_head: str = "full"
+) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
-    return FusionCalibration(k, prune_ratio, (3.0,), (1.0,), (-60.0, 0.0, 0.0), bundle_hash)
+    return FusionCalibration(
+        k, prune_ratio, (3.0,), (1.0,), (-60.0, 0.0, 0.0), bundle_hash, veto_head=veto_head
+    )
 
 
 def collect_samples(
@@ -54,6 +58,7 @@ def collect_samples(
     *,
     k: int = DEFAULT_K,
     prune_ratio: float = DEFAULT_PRUNE_RATIO,
+    veto_head: str = "full",
     seed: int = 0,
 ) -> list[FusionSample]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
@@ -62,6 +67,8 @@ def collect_samples(
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
         shapes: calibration shapes (exact rows at unit area).
+        veto_head: the head that prunes the graph (see
+            :class:`~litege_core.learned.fusion.FusionCalibration`).
     """
     from litege_core.learned import Predictor
 
@@ -71,7 +78,7 @@ def collect_samples(
         predictor.device,
         descriptor_lattice=predictor.descriptor_lattice,
         head=predictor.head,
-        fusion=probe_calibration(bundle.content_hash, k, prune_ratio),
+        fusion=probe_calibration(bundle.content_hash, k, prune_ratio, veto_head),
     )
     samples = []
     for setting in settings:
@@ -117,6 +124,7 @@ def fit_fusion(
     *,
     k: int = DEFAULT_K,
     prune_ratio: float = DEFAULT_PRUNE_RATIO,
+    veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
 ) -> FusionCalibration:
     """Bias knots and gate fitted on ``samples`` (see the module docstring)."""
@@ -142,6 +150,7 @@ def fit_fusion(
         (0.0, 0.0, 0.0),
         bundle_hash,
         dict(fitted_on or {}),
+        veto_head,
     )
 
     def loss(gate: NDArray) -> float:

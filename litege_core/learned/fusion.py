@@ -8,7 +8,9 @@ generate (procedural and rigged shapes, never the real dev set)::
 
     G_graph  = Dijkstra on the symmetric k-NN graph of the points (canonical frame), after
                cutting every edge whose predicted geodesic exceeds ``prune_ratio`` × its
-               chord (the network vetoes shortcuts between touching parts)
+               chord (the network vetoes shortcuts between touching parts; the veto is the
+               bundle's small head where the calibration says so: it costs one head
+               evaluation per edge, ~8 N for N points)
     b(N)     = the graph's median over-estimate at N points (zig-zag paths), interpolated
                in log10 N from calibration knots
     w        = sigmoid(a + c_z · z + c_n · (log10 N − 3))   (z: the shape's OOD z-score)
@@ -48,6 +50,7 @@ FUSION_FORMAT = 1
 
 FUSIONS = ("none", "graph")
 """Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
+VETO_HEADS = ("full", "small")
 
 EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
 """``(i (E,), j (E,)) → (E,)`` predicted geodesics between point pairs (canonical units)."""
@@ -65,6 +68,9 @@ class FusionCalibration:
         gate: ``(a, c_z, c_n)`` of the network's weight ``w``.
         bundle_hash: content hash of the bundle the calibration belongs to.
         fitted_on: what it was fitted on (free-form JSON: data, counts, errors).
+        veto_head: the head whose edge predictions prune the graph: ``"small"`` (the
+            bundle's distilled head, ~18× cheaper per pair: what the shipped calibrations use)
+            or ``"full"``; whatever head answers the queries.
     """
 
     k: int
@@ -74,6 +80,7 @@ class FusionCalibration:
     gate: tuple[float, float, float]
     bundle_hash: str
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
+    veto_head: str = "full"
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -85,6 +92,8 @@ class FusionCalibration:
             raise ArtifactError("fusion bias knots must be increasing, one bias per knot")
         if not (np.all(np.isfinite(bias)) and np.all(bias > 0)):
             raise ArtifactError("fusion bias values must be positive and finite")
+        if self.veto_head not in VETO_HEADS:
+            raise ArtifactError(f"fusion veto_head must be {VETO_HEADS}, got {self.veto_head!r}")
         if len(self.gate) != 3 or not all(math.isfinite(v) for v in self.gate):
             raise ArtifactError(f"fusion gate must be three finite numbers, got {self.gate!r}")
 
@@ -115,6 +124,7 @@ class FusionCalibration:
                 gate=tuple(float(v) for v in data["gate"]),  # type: ignore[arg-type]
                 bundle_hash=str(data["bundle_hash"]),
                 fitted_on=dict(data.get("fitted_on") or {}),
+                veto_head=str(data["veto_head"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc

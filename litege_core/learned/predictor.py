@@ -152,7 +152,8 @@ class Predictor:
             :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
             calibration; its bundle hash must still match). Needs the bundle's residual
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
-            on it; paths follow the network's field.
+            on it; paths follow the network's field. The graph's edges are vetoed by the head
+            the calibration names (``veto_head``: the shipped ones use the small head).
 
     Raises:
         ArtifactError: the bundle's pipeline is not one this predictor implements.
@@ -230,6 +231,16 @@ class Predictor:
             raise ArtifactError(
                 f"bundle {bundle.name!r} has no residual statistics: graph fusion needs its "
                 "OOD z-score"
+            )
+        self._veto = self
+        if self.fusion is not None and self.fusion.veto_head != self.head:
+            self._veto = Predictor(
+                bundle,
+                device,
+                chunk_pairs=chunk_pairs,
+                precision=precision,
+                descriptor_lattice=descriptor_lattice,
+                head=self.fusion.veto_head,
             )
 
     def _fusion_of(self, fusion: str | FusionCalibration) -> FusionCalibration | None:
@@ -594,14 +605,14 @@ class Predictor:
         """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
         assert self.fusion is not None
         fusion = self.fusion
-        key = f"fusion.graph.{self._table_key}.{fusion.k}.{fusion.prune_ratio}"
+        key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
         graph = state._lazy.get(key)
         if graph is None:
             graph = pruned_knn_graph(
                 state.canonical_points,
                 fusion.k,
                 fusion.prune_ratio,
-                lambda i, j: self._pair_distances(state, i, j),
+                lambda i, j: self._veto._pair_distances(state, i, j),
             )
             state._lazy[key] = graph
         rows = graph_rows(

@@ -275,3 +275,47 @@ def test_fusion_options_are_checked(bundle_dir, toy_predictor, tmp_path) -> None
     shutil.copytree(bundle_dir, copy)
     save_fusion(copy, _calibration(bundle.content_hash))
     assert Predictor(load_bundle(copy), fusion="graph").fusion == _calibration(bundle.content_hash)
+
+
+def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, blob, tmp_path):
+    import torch
+
+    from litege_core.learned.small_head import save_small_head
+    from litege_core.nets.small_head import SmallHead
+
+    directory = tmp_path / "toy"
+    shutil.copytree(bundle_dir, directory)
+    bundle = load_bundle(directory)
+    torch.manual_seed(3)
+    save_small_head(directory, SmallHead(bundle.network.width, 12, 8).eval(), bundle.content_hash)
+    bundle = load_bundle(directory)
+    small = Predictor(bundle, head="small")
+    shape = blob(6)
+    state = small.register(shape)
+    # the small head's own predictions (canonical units) decide which kNN edges survive
+    predicted = small.distances(state, "all", "all").astype(np.float64) * state.transform.scale
+    chords = knn_graph(state.canonical_points, 8).tocoo()
+    ratio = predicted[chords.row, chords.col] / chords.data
+    # cut 20-40 % of the edges, at the widest gap between ratios (no edge near the threshold)
+    ordered = np.sort(ratio)
+    low, high = int(0.6 * ordered.size), int(0.8 * ordered.size)
+    widest = low + int(np.argmax(np.diff(ordered[low : high + 1])))
+    prune_ratio = float(ordered[widest : widest + 2].mean())
+    assert prune_ratio > 1.0
+    expected_graph = pruned_knn_graph(
+        state.canonical_points, 8, prune_ratio, lambda i, j: predicted[i, j]
+    )
+    calibration = _graph_only(bundle.content_hash, prune_ratio)
+    for head in ("full", "small"):
+        fused = Predictor(
+            bundle, head=head, fusion=dataclasses.replace(calibration, veto_head="small")
+        )
+        rows = fused.distances(fused.register(shape), np.array([0, 9]))
+        expected = dijkstra(expected_graph, directed=False, indices=[0, 9])
+        expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+        finite = np.isfinite(expected)
+        np.testing.assert_allclose(rows[finite], expected[finite], rtol=1e-4, atol=1e-5)
+    with pytest.raises(InputError, match="no small head"):
+        Predictor(
+            load_bundle(bundle_dir), fusion=dataclasses.replace(calibration, veto_head="small")
+        )
