@@ -108,12 +108,12 @@ def main() -> None:
         f"{10**x:.0f} pts: {b:.4f}"
         for x, b in zip(calibration.bias_log10_points, calibration.bias, strict=True)
     )
-    a, c_z, c_n = calibration.gate
+    a, c_z, c_n, c_r = calibration.gate
     print(
         f"- graph: k = {calibration.k}, edges cut above {calibration.prune_ratio} × chord "
         f"(predicted by the {veto_head} head); "
         f"median graph / geodesic: {knots}; network weight = sigmoid({a:.3f} + {c_z:.3f}·z "
-        f"+ {c_n:.3f}·(log10 N − 3))\n"
+        f"+ {c_n:.3f}·(log10 N − 3) + {c_r:.3f}·roughness)\n"
     )
     fitted_on["errors"] = table
     print(table)

@@ -82,3 +82,22 @@ def toy_predictor(tmp_path_factory):
         network=GeodesicNet(width=32, descriptor_dim=4).eval(),
     )
     return Predictor(load_bundle(directory))
+
+
+@pytest.fixture(scope="session")
+def toy_bundle_dir_with_ood(tmp_path_factory, toy_predictor):
+    """The toy bundle saved again with residual statistics (an OOD z-score: what graph fusion
+    needs); returns its directory."""
+    from litege_core.learned import save_bundle
+
+    source = toy_predictor.bundle
+    directory = tmp_path_factory.mktemp("toy-ood") / "toy"
+    save_bundle(
+        directory,
+        name="toy",
+        category="toy",
+        basis=source.basis,
+        network=source.network,
+        training={"residual_mean": 0.5, "residual_std": 0.25},
+    )
+    return directory

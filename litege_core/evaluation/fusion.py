@@ -3,7 +3,8 @@
 The calibration shapes are ones we generate (held-out procedural shapes, rigged or MakeHuman
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
-per-setting medians of the shapes' median graph / truth ratios, and the three gate constants
+per-setting medians (clean clouds) of the shapes' median graph / truth ratios, and the four
+gate constants
 minimise the mean per-shape error of the fused rows (Nelder–Mead, from ``w = 1/2``).
 """
 
@@ -17,11 +18,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import EvalShape, make_input
-from litege_core.learned.fusion import FusionCalibration, fuse
+from litege_core.learned.fusion import FusionCalibration, fuse, surface_roughness
 from litege_core.metrics import geodesic_error
 
-CALIBRATION_SETTINGS = ("mesh", "cloud_5000", "cloud_2000", "cloud_1000", "cloud_500", "cloud_300")
-"""Inputs the calibration covers: the mesh and clouds from dense to sparse."""
+CALIBRATION_SETTINGS = (
+    "mesh",
+    "cloud_5000",
+    "cloud_2000",
+    "cloud_1000",
+    "cloud_500",
+    "cloud_300",
+    "noise_0.005",
+    "noise_0.01",
+    "noise_0.02",
+)
+"""Inputs the calibration covers: the mesh, clean clouds from dense to sparse and 2000-point
+clouds with three noise levels (unit-area units)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
@@ -29,13 +41,15 @@ DEFAULT_PRUNE_RATIO = 1.6
 
 @dataclass(frozen=True)
 class FusionSample:
-    """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit)."""
+    """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit), with the
+    gate's inputs (OOD z-score, point count, surface roughness)."""
 
     shape: str
     group: str
     setting: str
     n_points: int
     z_score: float
+    roughness: float
     network: NDArray
     graph: NDArray
     truth: NDArray
@@ -47,7 +61,7 @@ def probe_calibration(
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
     return FusionCalibration(
-        k, prune_ratio, (3.0,), (1.0,), (-60.0, 0.0, 0.0), bundle_hash, veto_head=veto_head
+        k, prune_ratio, (3.0,), (1.0,), (-60.0, 0.0, 0.0, 0.0), bundle_hash, veto_head=veto_head
     )
 
 
@@ -92,6 +106,7 @@ def collect_samples(
                     setting,
                     state.n_points,
                     float(state.ood_score),
+                    surface_roughness(state.canonical_points),
                     predictor.distances(state, item.source_index).astype(np.float64),
                     graph_predictor.distances(state, item.source_index).astype(np.float64),
                     np.asarray(item.gt, np.float64),
@@ -114,7 +129,14 @@ def sample_error(sample: FusionSample, calibration: FusionCalibration | None, wh
     if what == "graph":
         return _error(graph, sample.truth)
     assert calibration is not None
-    rows = fuse(sample.network, sample.graph, calibration, sample.z_score, sample.n_points)
+    rows = fuse(
+        sample.network,
+        sample.graph,
+        calibration,
+        sample.z_score,
+        sample.n_points,
+        sample.roughness,
+    )
     return _error(rows, sample.truth)
 
 
@@ -131,7 +153,7 @@ def fit_fusion(
     from scipy.optimize import minimize
 
     knots: dict[str, tuple[float, float]] = {}
-    for setting in sorted({s.setting for s in samples} - {"mesh"}):
+    for setting in sorted({s.setting for s in samples if s.setting.startswith("cloud_")}):
         members = [s for s in samples if s.setting == setting]
         ratios = []
         for s in members:
@@ -147,27 +169,38 @@ def fit_fusion(
         prune_ratio,
         tuple(x for x, _ in ordered),
         tuple(b for _, b in ordered),
-        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.0, 0.0),
         bundle_hash,
         dict(fitted_on or {}),
         veto_head,
     )
 
     def loss(gate: NDArray) -> float:
-        calibration = replace(base, gate=(float(gate[0]), float(gate[1]), float(gate[2])))
+        calibration = replace(base, gate=tuple(float(v) for v in gate))
         return float(np.mean([sample_error(s, calibration, "fused") for s in samples]))
 
-    best = minimize(loss, np.zeros(3), method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-4})
+    start = np.zeros(4)  # w = 1/2 everywhere; unit steps (scipy's default 0.00025 from zero)
+    best = minimize(
+        loss,
+        start,
+        method="Nelder-Mead",
+        options={
+            "xatol": 1e-3,
+            "fatol": 1e-4,
+            "maxiter": 2000,
+            "initial_simplex": np.vstack([start, start + np.eye(4)]),
+        },
+    )
     return replace(base, gate=tuple(float(v) for v in best.x))  # type: ignore[arg-type]
 
 
 def fusion_table(samples: Sequence[FusionSample], calibration: FusionCalibration) -> str:
     """Markdown: mean per-shape error of the network, the raw pruned graph and the fused rows
-    per (group, setting), with the mean network weight."""
+    per (group, setting), with the mean roughness and network weight."""
     lines = [
         "| shapes | setting | n | network | pruned kNN graph (k = "
-        f"{calibration.k}) | fused | network weight |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        f"{calibration.k}) | fused | roughness | network weight |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for group in sorted({s.group for s in samples}):
         for setting in CALIBRATION_SETTINGS + tuple(
@@ -180,10 +213,13 @@ def fusion_table(samples: Sequence[FusionSample], calibration: FusionCalibration
                 what: np.mean([sample_error(s, calibration, what) for s in members])
                 for what in ("network", "graph", "fused")
             }
-            weight = np.mean([calibration.network_weight(s.z_score, s.n_points) for s in members])
+            weight = np.mean(
+                [calibration.network_weight(s.z_score, s.n_points, s.roughness) for s in members]
+            )
             lines.append(
                 f"| {group} | {setting} | {len(members)} | {errors['network']:.2f} | "
-                f"{errors['graph']:.2f} | {errors['fused']:.2f} | {weight:.2f} |"
+                f"{errors['graph']:.2f} | {errors['fused']:.2f} | "
+                f"{np.mean([s.roughness for s in members]):.3f} | {weight:.2f} |"
             )
     return "\n".join(lines)
 

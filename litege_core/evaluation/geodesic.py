@@ -218,7 +218,8 @@ def generated_eval_shapes(
 def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     """The input of ``setting`` for ``shape`` (deterministic per seed): ``"mesh"``, a cloud of
     ``N`` surface samples ``"cloud_N"`` (the sources included), or a 2000-point cloud with
-    noise (``"noise_0.01"``) or cut by planes (``"cut_10"``)."""
+    Gaussian noise of that std (``"noise_0.01"``, unit-area units) or cut by planes
+    (``"cut_10"``: 10 %)."""
     if setting == "mesh":
         return EvalInput(Shape.from_arrays(shape.vertices, shape.faces), shape.sources, shape.gt)
     n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
@@ -228,8 +229,8 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
     points = np.concatenate([shape.vertices[shape.sources], samples.points])
     gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
-    if setting == "noise_0.01":
-        points = add_noise(points, 0.01, seed)  # unit-area units; ground truth stays clean
+    if setting.startswith("noise_"):
+        points = add_noise(points, float(setting[6:]), seed)  # ground truth stays clean
     kept = np.ones(points.shape[0], dtype=bool)
     if setting.startswith("cut_"):
         kept = cut_by_planes(points, int(setting[4:]) / 100.0, seed)

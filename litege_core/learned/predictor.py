@@ -80,6 +80,7 @@ from litege_core.learned.fusion import (
     graph_rows,
     load_fusion,
     pruned_knn_graph,
+    surface_roughness,
 )
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
@@ -622,7 +623,10 @@ class Predictor:
             (dst.indices, dst.canonical),
             fusion.k,
         )
-        return fuse(network, rows, fusion, state.ood_score, state.n_points)
+        roughness = state._lazy.get("fusion.roughness")
+        if roughness is None:
+            roughness = state._lazy["fusion.roughness"] = surface_roughness(state.canonical_points)
+        return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness)
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
         """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical)."""

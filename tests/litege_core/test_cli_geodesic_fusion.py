@@ -4,26 +4,19 @@ command line, and a clear error where the bundle has no calibration."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 
 from litege_core.cli import main
 from litege_core.io import load_shape, save_shape
-from litege_core.learned import Predictor, load_bundle, save_bundle
+from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import FUSIONS, FusionCalibration, save_fusion
 
 
-def test_geodesic_with_graph_fusion(tmp_path, toy_predictor, blob, capsys) -> None:
-    source = toy_predictor.bundle
+def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, capsys) -> None:
     directory = tmp_path / "toy"
-    save_bundle(
-        directory,
-        name="toy",
-        category="toy",
-        basis=source.basis,
-        network=source.network,
-        training={"residual_mean": 0.5, "residual_std": 0.25},
-    )
+    shutil.copytree(toy_bundle_dir_with_ood, directory)
     mesh_file = tmp_path / "blob.ply"
     save_shape(blob(3), mesh_file)
     out = tmp_path / "d.npy"
@@ -34,7 +27,7 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_predictor, blob, capsys) -> No
     bundle = load_bundle(directory)
     save_fusion(
         directory,
-        FusionCalibration(8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0), bundle.content_hash),
+        FusionCalibration(8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0, 0.0), bundle.content_hash),
     )
     assert main([*args, "--fusion", "graph", "-o", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["fusion"] == "graph"

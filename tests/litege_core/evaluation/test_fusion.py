@@ -29,7 +29,7 @@ def _samples() -> list[FusionSample]:
                 graph = truth * bias * rng.normal(1.0, 0.3, truth.shape)
             z_score = 4.0 if unusual else 0.0
             samples.append(
-                FusionSample(f"s{i}", "toy", setting, n_points, z_score, network, graph, truth)
+                FusionSample(f"s{i}", "toy", setting, n_points, z_score, 0.1, network, graph, truth)
             )
     return samples
 
@@ -40,8 +40,8 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
     assert (calibration.k, calibration.prune_ratio, calibration.fitted_on) == (8, 1.5, {"n": 24})
     assert calibration.bias_log10_points == pytest.approx((np.log10(300), 3.0))
     assert calibration.bias == pytest.approx((1.10, 1.05), abs=0.01)
-    assert calibration.network_weight(0.0, 1000) > 0.8
-    assert calibration.network_weight(4.0, 1000) < 0.2
+    assert calibration.network_weight(0.0, 1000, 0.1) > 0.8
+    assert calibration.network_weight(4.0, 1000, 0.1) < 0.2
     fused = np.mean([sample_error(s, calibration, "fused") for s in samples])
     network = np.mean([sample_error(s, None, "network") for s in samples])
     graph = np.mean([sample_error(s, None, "graph") for s in samples])
@@ -53,7 +53,7 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
 def test_unreachable_graph_pairs_count_with_the_network_value() -> None:
     truth = np.array([[0.0, 10.0, 20.0]])
     sample = FusionSample(
-        "s", "toy", "cloud_300", 300, 0.0, truth * 1.1, np.array([[0.0, 10.0, np.inf]]), truth
+        "s", "toy", "cloud_300", 300, 0.0, 0.1, truth * 1.1, np.array([[0.0, 10.0, np.inf]]), truth
     )
     # pairs with truth > 0: |10 - 10| and |22 - 20| (the network's value), GT mean 15
     assert sample_error(sample, None, "graph") == pytest.approx(np.mean([0.0, 2.0]) * 100 / 15)

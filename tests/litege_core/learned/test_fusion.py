@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from litege_core.engines.graph import knn_graph
 from litege_core.errors import ArtifactError, InputError
-from litege_core.learned import Predictor, load_bundle, save_bundle
+from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import (
     FUSION_CONFIG,
     FusionCalibration,
@@ -32,7 +32,7 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         prune_ratio=1.6,
         bias_log10_points=(2.5, 3.0, 3.5),
         bias=(0.98, 1.01, 1.02),
-        gate=(0.5, -1.0, -2.0),
+        gate=(0.5, -1.0, -2.0, -10.0),
         bundle_hash=bundle_hash,
         fitted_on={"shapes": {"toy": 3}},
     )
@@ -51,8 +51,9 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"bias_log10_points": (3.0, 2.5, 3.5)},
         {"bias": (1.0, 1.0)},
         {"bias": (1.0, -1.0, 1.0)},
-        {"gate": (0.0, float("inf"), 0.0)},
-        {"gate": (0.0, 1.0)},
+        {"gate": (0.0, float("inf"), 0.0, 0.0)},
+        {"gate": (0.0, 1.0, 0.0)},
+        {"veto_head": "tiny"},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -70,11 +71,26 @@ def test_bias_interpolates_in_log_points_and_clamps() -> None:
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
     calibration = _calibration()
-    assert calibration.network_weight(0.0, 1000) == pytest.approx(1 / (1 + np.exp(-0.5)))
-    # the gate here trusts the network less on unusual shapes and on dense clouds
-    assert calibration.network_weight(3.0, 1000) < calibration.network_weight(0.0, 1000)
-    assert calibration.network_weight(0.0, 5000) < calibration.network_weight(0.0, 300)
-    assert 0.0 <= calibration.network_weight(1e9, 10**9) < 1e-20
+    assert calibration.network_weight(0.0, 1000, 0.0) == pytest.approx(1 / (1 + np.exp(-0.5)))
+    assert calibration.network_weight(0.0, 1000, 0.1) == pytest.approx(1 / (1 + np.exp(0.5)))
+    # the gate here trusts the network less on unusual shapes, dense and rough clouds
+    assert calibration.network_weight(3.0, 1000, 0.1) < calibration.network_weight(0.0, 1000, 0.1)
+    assert calibration.network_weight(0.0, 5000, 0.1) < calibration.network_weight(0.0, 300, 0.1)
+    assert 0.0 <= calibration.network_weight(1e9, 10**9, 0.1) < 1e-20
+
+
+def test_roughness_grows_with_noise_and_ignores_scale() -> None:
+    from litege_core.learned.fusion import surface_roughness
+
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(3000, 3))
+    sphere = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    clean = surface_roughness(sphere)
+    noisy = surface_roughness(sphere + rng.normal(0.0, 0.03, sphere.shape))
+    assert clean < 0.1 < noisy
+    assert surface_roughness(7.0 * sphere) == pytest.approx(clean)
+    assert surface_roughness(sphere, chunk=1000) == pytest.approx(clean)
+    assert surface_roughness(sphere[:3]) == 0.0
 
 
 def test_json_roundtrip_and_sidecar(tmp_path) -> None:
@@ -167,35 +183,24 @@ def test_a_free_point_joins_through_its_nearest_chords() -> None:
 def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails() -> None:
     network = np.array([[0.0, 10.0, 20.0]])
     graph = np.array([[0.0, 12.0, np.inf]])
-    only_graph = _calibration(gate=(-60.0, 0.0, 0.0), bias=(1.2, 1.2, 1.2))
-    only_network = _calibration(gate=(60.0, 0.0, 0.0))
-    np.testing.assert_allclose(fuse(network, graph, only_graph, 0.0, 1000), [[0, 10, 20]])
-    np.testing.assert_allclose(fuse(network, graph, only_network, 5.0, 300), network)
-    half = _calibration(gate=(0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0))
-    np.testing.assert_allclose(fuse(network, graph, half, 1.0, 1000), [[0, 11, 20]])
+    only_graph = _calibration(gate=(-60.0, 0.0, 0.0, 0.0), bias=(1.2, 1.2, 1.2))
+    only_network = _calibration(gate=(60.0, 0.0, 0.0, 0.0))
+    np.testing.assert_allclose(fuse(network, graph, only_graph, 0.0, 1000, 0.1), [[0, 10, 20]])
+    np.testing.assert_allclose(fuse(network, graph, only_network, 5.0, 300, 0.1), network)
+    half = _calibration(gate=(0.0, 0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0))
+    np.testing.assert_allclose(fuse(network, graph, half, 1.0, 1000, 0.1), [[0, 11, 20]])
 
 
 # ------------------------------------------------------------------ through the predictor
 
 
 @pytest.fixture(scope="module")
-def bundle_dir(tmp_path_factory, toy_predictor):
-    """The toy bundle again, with residual statistics (the gate reads the OOD z-score)."""
-    source = toy_predictor.bundle
-    directory = tmp_path_factory.mktemp("fusion") / "toy"
-    save_bundle(
-        directory,
-        name="toy",
-        category="toy",
-        basis=source.basis,
-        network=source.network,
-        training={"residual_mean": 0.5, "residual_std": 0.25},
-    )
-    return directory
+def bundle_dir(toy_bundle_dir_with_ood):
+    return toy_bundle_dir_with_ood
 
 
 def _graph_only(bundle_hash: str, prune_ratio: float = 1e9) -> FusionCalibration:
-    return _calibration(bundle_hash, gate=(-60.0, 0.0, 0.0), prune_ratio=prune_ratio)
+    return _calibration(bundle_hash, gate=(-60.0, 0.0, 0.0, 0.0), prune_ratio=prune_ratio)
 
 
 def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> None:
@@ -218,7 +223,7 @@ def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> N
 def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None:
     bundle = load_bundle(bundle_dir)
     half = _calibration(
-        bundle.content_hash, gate=(0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0), prune_ratio=1e9
+        bundle.content_hash, gate=(0.0, 0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0), prune_ratio=1e9
     )
     network, graph, fused = (
         Predictor(bundle, fusion=fusion)
@@ -231,7 +236,7 @@ def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None
         name: p.distances(p.register(shape), sources)
         for name, p in (("network", network), ("graph", graph), ("fused", fused))
     }
-    # bias 1 and w = 1/2 at every point count: the plain average of network and graph
+    # bias 1 and w = 1/2 for every shape: the plain average of network and graph
     assert np.all(np.isfinite(rows["graph"]))
     assert np.abs(rows["graph"] - rows["network"]).max() > 0.1 * rows["network"].max()
     mean = 0.5 * (rows["network"] + rows["graph"] * graph.fusion.graph_bias(n_points))
