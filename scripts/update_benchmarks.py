@@ -30,7 +30,10 @@ def main() -> None:
     if len(sys.argv) < 4 or sys.argv[2] != "--":
         sys.exit(__doc__)
     name, command = sys.argv[1], sys.argv[3:]
-    result = subprocess.run(command, capture_output=True, text=True, check=True)
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:  # nothing is written; show why
+        sys.stderr.write(result.stdout + result.stderr)
+        sys.exit(f"{command[0]} exited with status {result.returncode}; {name} left unchanged")
     text = BENCHMARKS.read_text() if BENCHMARKS.exists() else "# Benchmarks\n"
     BENCHMARKS.write_text(replace_section(text, name, result.stdout))
     print(result.stdout)

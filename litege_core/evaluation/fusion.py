@@ -175,9 +175,12 @@ def fit_fusion(
         veto_head,
     )
 
+    def with_gate(gate: NDArray) -> FusionCalibration:
+        a, c_z, c_n, c_r = (float(v) for v in gate)
+        return replace(base, gate=(a, c_z, c_n, c_r))
+
     def loss(gate: NDArray) -> float:
-        calibration = replace(base, gate=tuple(float(v) for v in gate))
-        return float(np.mean([sample_error(s, calibration, "fused") for s in samples]))
+        return float(np.mean([sample_error(s, with_gate(gate), "fused") for s in samples]))
 
     start = np.zeros(4)  # w = 1/2 everywhere; unit steps (scipy's default 0.00025 from zero)
     best = minimize(
@@ -191,7 +194,7 @@ def fit_fusion(
             "initial_simplex": np.vstack([start, start + np.eye(4)]),
         },
     )
-    return replace(base, gate=tuple(float(v) for v in best.x))  # type: ignore[arg-type]
+    return with_gate(best.x)
 
 
 def fusion_table(samples: Sequence[FusionSample], calibration: FusionCalibration) -> str:
