@@ -40,11 +40,11 @@ def edge_graph(n: int, edges: NDArray, weights: NDArray) -> sp.csr_array:
     high = np.maximum(edges[:, 0], edges[:, 1]).astype(np.int64)
     keep = low != high
     low, high, weights = low[keep], high[keep], np.asarray(weights, np.float64)[keep]
-    order = np.lexsort((weights, high, low))
-    low, high, weights = low[order], high[order], weights[order]
-    first = np.ones(low.size, dtype=bool)
-    first[1:] = (low[1:] != low[:-1]) | (high[1:] != high[:-1])
-    low, high, weights = low[first], high[first], weights[first]
+    by_weight = np.argsort(weights, kind="stable")
+    pairs = (low * max(n, 1) + high)[by_weight]  # one int64 key per unordered pair
+    _, first = np.unique(pairs, return_index=True)  # sorted pairs, lightest edge of each
+    chosen = by_weight[first]
+    low, high, weights = low[chosen], high[chosen], weights[chosen]
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.add.at(indptr, low + 1, 1)
     return sp.csr_array((weights, high, np.cumsum(indptr)), shape=(n, n))

@@ -629,8 +629,14 @@ class Predictor:
         return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness)
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
-        """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical)."""
-        table = self.point_table(state)
+        """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical).
+
+        Uses this head's feature table of ``state`` if a query built it, else builds one
+        that is not kept (the fusion graph that needs it is kept instead)."""
+        table = self._table(state)
+        if table is None:
+            with torch.no_grad():
+                table = self._features_of(state.canonical_vertices, state.shape_bias)
         out = np.empty(i.shape[0])
         with torch.no_grad():
             for start in range(0, i.shape[0], self.chunk_pairs):
