@@ -148,7 +148,7 @@ class Predictor:
             same bundle, each building its own feature table.
         fusion: ``"none"`` (default: the network's distances) or ``"graph"`` (opt-in: the
             network blended with a calibrated, network-pruned kNN-graph Dijkstra on the
-            shape's points, weighted per shape by its OOD z-score and point count;
+            shape's points, weighted per shape by its OOD z-score, point count and roughness;
             :mod:`litege_core.learned.fusion`, ``fusion.json`` beside the bundle files), or a
             :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
             calibration; its bundle hash must still match). Needs the bundle's residual
