@@ -8,13 +8,15 @@ Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's c
 ``--dataset`` (collection datasets such as the rigged animals or MakeHuman bodies of
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
 network / pruned graph / fused errors per setting; ``--write`` stores ``fusion.json`` beside
-the bundle files (``Predictor(bundle, fusion="graph")`` reads it).
+the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and rewrites the model
+card's sidecar section.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,14 +29,22 @@ from litege_core.evaluation.fusion import (
     DEFAULT_PRUNE_RATIO,
     collect_samples,
     fit_fusion,
+    fusion_summary,
     fusion_table,
 )
 from litege_core.evaluation.geodesic import collection_eval_shapes, generated_eval_shapes
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.fusion import save_fusion
 from litege_core.learned.small_head import small_head_config
 from litege_core.synth import CATEGORIES
+
+
+def dataset_category(directory: str) -> str:
+    """The category of a dataset directory (its manifest's spec), e.g. ``rigged``."""
+    manifest = json.loads((Path(directory) / "manifest.json").read_text())
+    return str(manifest["spec"]["category"])
 
 
 def main() -> None:
@@ -82,6 +92,7 @@ def main() -> None:
         "settings": list(settings),
         "sources_per_shape": args.sources,
         "datasets": args.dataset,
+        "dataset_categories": [dataset_category(d) for d in args.dataset],
         "date": f"{datetime.now(UTC):%Y-%m-%d}",
     }
     calibration = fit_fusion(
@@ -92,7 +103,7 @@ def main() -> None:
         veto_head=veto_head,
         fitted_on=fitted_on,
     )
-    table = fusion_table(samples, calibration)
+    summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
     print(f"### Graph fusion calibration: `{bundle.name}`\n")
     print(
@@ -115,13 +126,14 @@ def main() -> None:
         f"median graph / geodesic: {knots}; network weight = sigmoid({a:.3f} + {c_z:.3f}·z "
         f"+ {c_n:.3f}·(log10 N − 3) + {c_r:.3f}·roughness)\n"
     )
-    fitted_on["errors"] = table
-    print(table)
+    fitted_on["errors"] = summary
+    print(fusion_table(summary, calibration.k))
     if args.write:
         if bundle.path is None:
             raise SystemExit("the bundle has no directory to write fusion.json into")
         written = save_fusion(bundle.path, dataclasses.replace(calibration, fitted_on=fitted_on))
-        print(f"\nwrote {written}")
+        write_sidecar_section(bundle.path)
+        print(f"\nwrote {written} and the sidecar section of the model card")
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 
 from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.small_head import SMALL_HEAD_CONFIG, SMALL_HEAD_WEIGHTS, save_small_head
 from litege_core.train.distill import (
     DistillConfig,
@@ -113,7 +114,8 @@ def main() -> None:
             shutil.copyfile(out / name, Path(bundle.path) / name)
             (Path(bundle.path) / name).chmod(0o644)
         Predictor(load_bundle(bundle.path), head="small")  # verifies the shipped sidecar
-        log(f"shipped into {bundle.path}")
+        write_sidecar_section(bundle.path)
+        log(f"shipped into {bundle.path} (model card's sidecar section rewritten)")
 
 
 if __name__ == "__main__":

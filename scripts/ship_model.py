@@ -23,7 +23,7 @@ from pathlib import Path
 
 from litege_core.learned import load_bundle
 from litege_core.learned.bundle import MANIFEST, SHIPPED_DIR
-from litege_core.learned.cards import model_card
+from litege_core.learned.cards import model_card, sidecar_section
 from litege_core.matching.bundle import SUFFIX, load_matching_bundle
 
 BUDGET_BYTES = 30 * 1024 * 1024
@@ -57,7 +57,8 @@ def ship(args: argparse.Namespace) -> Path:
     manifest["training"].setdefault("commit", git_commit())
     evaluation = Path(args.eval).read_text() if args.eval else None
     report = json.loads(Path(args.tnet_report).read_text()) if args.tnet_report else None
-    (target / "MODEL_CARD.md").write_text(model_card(manifest, evaluation, report))
+    card = model_card(manifest, evaluation, report, sidecar_section(target))
+    (target / "MODEL_CARD.md").write_text(card)
     load(target)
     return target
 

@@ -197,33 +197,45 @@ def fit_fusion(
     return with_gate(best.x)
 
 
-def fusion_table(samples: Sequence[FusionSample], calibration: FusionCalibration) -> str:
-    """Markdown: mean per-shape error of the network, the raw pruned graph and the fused rows
-    per (group, setting), with the mean roughness and network weight."""
-    lines = [
-        "| shapes | setting | n | network | pruned kNN graph (k = "
-        f"{calibration.k}) | fused | roughness | network weight |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
-    ]
+def fusion_summary(
+    samples: Sequence[FusionSample], calibration: FusionCalibration
+) -> list[dict[str, Any]]:
+    """Per (group, setting): the shape count, the mean per-shape error of the network, the raw
+    pruned graph and the fused rows, the mean roughness and the mean network weight."""
+    summary = []
+    settings = CALIBRATION_SETTINGS + tuple(
+        sorted({s.setting for s in samples} - set(CALIBRATION_SETTINGS))
+    )
     for group in sorted({s.group for s in samples}):
-        for setting in CALIBRATION_SETTINGS + tuple(
-            sorted({s.setting for s in samples} - set(CALIBRATION_SETTINGS))
-        ):
+        for setting in settings:
             members = [s for s in samples if s.group == group and s.setting == setting]
             if not members:
                 continue
-            errors = {
-                what: np.mean([sample_error(s, calibration, what) for s in members])
-                for what in ("network", "graph", "fused")
-            }
-            weight = np.mean(
-                [calibration.network_weight(s.z_score, s.n_points, s.roughness) for s in members]
-            )
-            lines.append(
-                f"| {group} | {setting} | {len(members)} | {errors['network']:.2f} | "
-                f"{errors['graph']:.2f} | {errors['fused']:.2f} | "
-                f"{np.mean([s.roughness for s in members]):.3f} | {weight:.2f} |"
-            )
+            row: dict[str, Any] = {"group": group, "setting": setting, "shapes": len(members)}
+            for what in ("network", "graph", "fused"):
+                errors = [sample_error(s, calibration, what) for s in members]
+                row[what] = round(float(np.mean(errors)), 4)
+            row["roughness"] = round(float(np.mean([s.roughness for s in members])), 4)
+            weights = [
+                calibration.network_weight(s.z_score, s.n_points, s.roughness) for s in members
+            ]
+            row["network_weight"] = round(float(np.mean(weights)), 4)
+            summary.append(row)
+    return summary
+
+
+def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
+    """Markdown of :func:`fusion_summary`."""
+    lines = [
+        f"| shapes | setting | n | network | pruned kNN graph (k = {k}) | fused | roughness | "
+        "network weight |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {r['group']} | {r['setting']} | {r['shapes']} | {r['network']:.2f} | "
+        f"{r['graph']:.2f} | {r['fused']:.2f} | {r['roughness']:.3f} | {r['network_weight']:.2f} |"
+        for r in summary
+    ]
     return "\n".join(lines)
 
 
@@ -232,6 +244,7 @@ __all__ = [
     "FusionSample",
     "collect_samples",
     "fit_fusion",
+    "fusion_summary",
     "fusion_table",
     "probe_calibration",
     "sample_error",

@@ -6,7 +6,9 @@ user's folder of meshes. Used by ``scripts/ship_model.py`` and ``litege train ge
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 
@@ -95,12 +97,87 @@ def _json_block(data: object) -> list[str]:
     return ["```json", json.dumps(data, indent=1, sort_keys=True), "```"]
 
 
+CALIBRATION_CREDITS = {
+    "rigged": "Ultimate Animated Animals by Quaternius (CC0); Fox: model by PixelMannen (CC0), "
+    "rigging and animation by @tomkranis (CC BY 4.0), glTF conversion by @AsoboStudio and "
+    "@scurest (CC BY 4.0)",
+    "makehuman": "MakeHuman base mesh hm08, shape targets and skeleton (CC0)",
+}
+"""Credit lines of the collection categories a fusion calibration may be fitted on."""
+
+SIDECARS_TITLE = (
+    "Optional sidecars (beside the bundle files; the bundle's content hash is unchanged)"
+)
+
+
+def sidecar_section(directory: str | os.PathLike) -> str | None:
+    """The card's section on the bundle's optional sidecars (the small head, the graph-fusion
+    calibration) present in ``directory``, with the calibration data's credits; ``None`` when
+    there are none."""
+    from litege_core.learned.fusion import FUSION_CONFIG
+    from litege_core.learned.small_head import SMALL_HEAD_CONFIG
+
+    directory = Path(directory)
+    items = []
+    if (directory / SMALL_HEAD_CONFIG).is_file():
+        items.append(
+            f"- `head-small.safetensors` + `{SMALL_HEAD_CONFIG}`: the distilled small head "
+            '(issue 17), `Predictor(bundle, head="small")`, `litege geodesic --head small`.'
+        )
+    if (directory / FUSION_CONFIG).is_file():
+        data = json.loads((directory / FUSION_CONFIG).read_text())
+        fitted = data.get("fitted_on") or {}
+        shapes = " and ".join(
+            f"{n} {group} shapes" for group, n in (fitted.get("shapes") or {}).items()
+        )
+        items.append(
+            f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), "
+            '`Predictor(bundle, fusion="graph")`, `litege geodesic --fusion graph`, service '
+            "`LITEGE_GEODESIC_FUSION=graph`. The network's distances are blended with a "
+            f"Dijkstra on the shape's k = {data['k']} nearest-neighbour graph whose edges the "
+            f"{data['veto_head']} head vetoes (cut where its predicted geodesic exceeds "
+            f"{data['prune_ratio']} × the chord); the graph's density bias and the blend weight "
+            "(a sigmoid of the shape's OOD z-score, log10 of its point count and its surface "
+            f"roughness) were fitted by `scripts/calibrate_fusion.py` on {shapes} only, never "
+            "on the real dev set. Constants, fit errors and the date are in the file; dev-set "
+            "results in BENCHMARKS.md (`fusion-*` sections). Paths follow the network's field."
+        )
+        credits = [
+            CALIBRATION_CREDITS[c]
+            for c in fitted.get("dataset_categories") or []
+            if c in CALIBRATION_CREDITS
+        ]
+        if credits:
+            items.append(f"- Calibration shapes credit: {'; '.join(credits)}.")
+    return "\n".join(items) if items else None
+
+
+def write_sidecar_section(directory: str | os.PathLike) -> None:
+    """Rewrite the sidecar section of ``DIRECTORY/MODEL_CARD.md`` from the sidecars present
+    (after a small head or a fusion calibration was written beside a shipped bundle)."""
+    path = Path(directory) / "MODEL_CARD.md"
+    card = path.read_text()
+    start = card.find(f"\n## {SIDECARS_TITLE}\n")
+    if start >= 0:
+        end = card.find("\n## ", start + 1)
+        card = card[:start] + (card[end:] if end >= 0 else "\n")
+    section = sidecar_section(directory)
+    limitations = card.find("\n## Limitations")
+    if section and limitations >= 0:
+        block = f"\n## {SIDECARS_TITLE}\n\n{section}\n"
+        card = card[:limitations] + block + card[limitations:]
+    path.write_text(card)
+
+
 def model_card(
-    manifest: dict, evaluation: str | None = None, tnet_report: dict | None = None
+    manifest: dict,
+    evaluation: str | None = None,
+    tnet_report: dict | None = None,
+    sidecars: str | None = None,
 ) -> str:
     """The ``MODEL_CARD.md`` of a geodesic or matching bundle, from its manifest, an optional
-    evaluation table (``litege eval geodesic|matching``) and, for matching bundles, an optional
-    T-Net alignment report."""
+    evaluation table (``litege eval geodesic|matching``), for matching bundles an optional
+    T-Net alignment report, and the section on its sidecars (:func:`sidecar_section`)."""
     kind = manifest.get("kind", "geodesic")
     facts = CARD_FACTS[kind](manifest)
     training = manifest["training"]
@@ -124,6 +201,8 @@ def model_card(
     lines += ["", "## Training configuration", "", *_json_block(training.get("config", {}))]
     if evaluation:
         lines += ["", f"## Evaluation (`litege eval {kind}`)", "", evaluation.strip()]
+    if sidecars:
+        lines += ["", f"## {SIDECARS_TITLE}", "", sidecars.strip()]
     lines += ["", "## Limitations", "", facts.limitations]
     return "\n".join(lines) + "\n"
 

@@ -37,14 +37,16 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import write_json_atomic
+
+if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports it
+    import scipy.sparse as sp
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"

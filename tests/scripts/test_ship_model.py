@@ -52,7 +52,9 @@ def test_the_writer_reproduces_the_shipped_cards(name):
     evaluation = _section(card, "Evaluation")
     tnet = _section(card, "T-Net alignment")
     report = json.loads(tnet.removeprefix("```json\n").removesuffix("\n```")) if tnet else None
-    written = ship_model.model_card(manifest, evaluation, report)
+    sidecars = _section(card, "Optional sidecars")
+    assert sidecars == ship_model.sidecar_section(directory)  # the files the card describes
+    written = ship_model.model_card(manifest, evaluation, report, sidecars)
     if commit:
         assert written == card
     else:

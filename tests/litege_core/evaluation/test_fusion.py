@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litege_core.evaluation.fusion import FusionSample, fit_fusion, fusion_table, sample_error
+from litege_core.evaluation.fusion import (
+    FusionSample,
+    fit_fusion,
+    fusion_summary,
+    fusion_table,
+    sample_error,
+)
 
 
 def _samples() -> list[FusionSample]:
@@ -46,7 +52,10 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
     network = np.mean([sample_error(s, None, "network") for s in samples])
     graph = np.mean([sample_error(s, None, "graph") for s in samples])
     assert fused < 0.5 * min(network, graph)
-    table = fusion_table(samples, calibration)
+    summary = fusion_summary(samples, calibration)
+    assert [(r["setting"], r["shapes"]) for r in summary] == [("cloud_1000", 12), ("cloud_300", 12)]
+    assert summary[0]["fused"] < summary[0]["network"]
+    table = fusion_table(summary, calibration.k)
     assert "| toy | cloud_1000 | 12 |" in table and "| toy | cloud_300 | 12 |" in table
 
 

@@ -1,0 +1,43 @@
+"""The model card's sidecar section (``litege_core.learned.cards``): written from the sidecar
+files present, rewritten in place when they change, gone when they are."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+from litege_core.learned.bundle import SHIPPED_DIR
+from litege_core.learned.cards import SIDECARS_TITLE, sidecar_section, write_sidecar_section
+from litege_core.learned.fusion import FUSION_CONFIG
+from litege_core.learned.small_head import SMALL_HEAD_CONFIG
+
+CARD = "# Model card: toy\n\n- facts\n\n## Evaluation\n\ntable\n\n## Limitations\n\nsmall\n"
+
+
+def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
+    (tmp_path / "MODEL_CARD.md").write_text(CARD)
+    assert sidecar_section(tmp_path) is None
+    write_sidecar_section(tmp_path)
+    assert (tmp_path / "MODEL_CARD.md").read_text() == CARD
+
+    shutil.copyfile(SHIPPED_DIR / "quadrupeds" / FUSION_CONFIG, tmp_path / FUSION_CONFIG)
+    write_sidecar_section(tmp_path)
+    card = (tmp_path / "MODEL_CARD.md").read_text()
+    head, _, rest = card.partition(f"## {SIDECARS_TITLE}\n\n")
+    section, _, tail = rest.partition("\n\n## Limitations")
+    assert head == CARD.split("## Limitations")[0] and tail == "\n\nsmall\n"
+    fitted = json.loads((tmp_path / FUSION_CONFIG).read_text())["fitted_on"]
+    assert all(f"{n} {group} shapes" in section for group, n in fitted["shapes"].items())
+    assert "Quaternius (CC0)" in section and "@tomkranis (CC BY 4.0)" in section
+    assert "head-small" not in section
+
+    (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")
+    write_sidecar_section(tmp_path)
+    write_sidecar_section(tmp_path)  # idempotent
+    card = (tmp_path / "MODEL_CARD.md").read_text()
+    assert card.count(SIDECARS_TITLE) == 1 and "the distilled small head" in card
+
+    for name in (FUSION_CONFIG, SMALL_HEAD_CONFIG):
+        (tmp_path / name).unlink()
+    write_sidecar_section(tmp_path)
+    assert (tmp_path / "MODEL_CARD.md").read_text() == CARD
