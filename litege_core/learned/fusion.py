@@ -4,7 +4,7 @@ On real shapes the network's error is dominated by shapes far from its training 
 error follows the out-of-distribution score), while a kNN-graph Dijkstra on a dense cloud
 is nearly unbiased wherever its graph has no shortcuts, and on a sparse one is poor everywhere.
 The fused estimate takes the better of the two per shape, with weights fitted on data we
-generate (procedural and rigged shapes, never the real dev set)::
+generate (procedural shapes, posed rigged animals, MakeHuman bodies; never the real dev set)::
 
     G_graph  = Dijkstra on the symmetric k-NN graph of the points (canonical frame), after
                cutting every edge whose predicted geodesic exceeds ``prune_ratio`` × its
