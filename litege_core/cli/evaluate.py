@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 from litege_core.cli.common import (
     add_bundle_arguments,
     add_device_argument,
+    add_fusion_argument,
+    add_head_argument,
     predictor,
     split_list,
     write_json,
@@ -43,6 +45,7 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
         shapes += real_eval_shapes(paths, REAL_SETS[key].group, args.sources)
     settings = args.settings.split(",") if args.settings else SETTINGS
     results = evaluate(shapes, model, settings, seed=args.seed)
+    print(f"LiteGE = `{model!r}`\n")
     print(results_table(results))
     print()
     print(spread_table(results))
@@ -166,6 +169,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     geodesic = eval_commands.add_parser("geodesic", help="geodesic error vs baselines")
     add_bundle_arguments(geodesic)
+    add_head_argument(geodesic)
+    add_fusion_argument(geodesic)
     geodesic.add_argument("--seed", type=int, default=0)
     geodesic.add_argument("--dataset", help="dataset directory whose test split is evaluated")
     geodesic.add_argument("--shapes", type=int, default=20, help="synthetic shapes to evaluate")

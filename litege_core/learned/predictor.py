@@ -258,9 +258,11 @@ class Predictor:
 
     def __repr__(self) -> str:
         head = "" if self.head == "full" else f", head={self.head!r}"
+        lattice = self.descriptor_lattice
+        lattice = "" if lattice == "full" else f", descriptor_lattice={lattice!r}"
         fusion = "" if self.fusion is None else ", fusion='graph'"
         device = str(self.device)
-        return f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{fusion})"
+        return f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{lattice}{fusion})"
 
     # ----------------------------------------------------------------- registration
 

@@ -163,3 +163,16 @@ def test_eval_geodesic_cli_offers_every_real_set():
     assert list(args.real) == list(REAL_SETS)
     with pytest.raises(SystemExit):
         build_parser(plugins=False).parse_args(["eval", "geodesic", "--real", "scape"])
+
+
+def test_eval_geodesic_cli_evaluates_any_predictor_configuration(toy_predictor, capsys):
+    """``--head``, ``--lattice`` and ``--fusion`` reach the evaluated predictor: a bundle
+    without a fusion calibration is refused before any shape is read."""
+    from litege_core.cli import build_parser, main
+
+    options = ["--head", "small", "--lattice", "stride2", "--fusion", "graph"]
+    args = build_parser(plugins=False).parse_args(["eval", "geodesic", *options])
+    assert (args.head, args.lattice, args.fusion) == ("small", "stride2", "graph")
+    bundle = str(toy_predictor.bundle.path)
+    code = main(["eval", "geodesic", "--bundle", bundle, "--fusion", "graph", "--real", "tosca"])
+    assert code == 2 and "no graph-fusion calibration" in capsys.readouterr().err
