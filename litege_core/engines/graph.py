@@ -81,21 +81,36 @@ def dijkstra_path(graph: sp.csr_array, source: int, target: int) -> tuple[float,
     return length, np.asarray(nodes[::-1], dtype=np.int64)
 
 
-def knn_graph(points: NDArray, k: int) -> sp.csr_array:
+def knn_neighbours(points: NDArray, k: int) -> tuple[NDArray, NDArray]:
+    """Each point's ``k`` nearest points (clamped to ``N - 1``), itself first.
+
+    Returns:
+        ``(N, k + 1)`` float64 distances and ``(N, k + 1)`` int64 indices, nearest first.
+    """
+    k = min(k, points.shape[0] - 1)
+    lengths, neighbours = cKDTree(points).query(points, k=k + 1)
+    return lengths.reshape(points.shape[0], -1), neighbours.reshape(points.shape[0], -1)
+
+
+def knn_graph(
+    points: NDArray, k: int, neighbours: tuple[NDArray, NDArray] | None = None
+) -> sp.csr_array:
     """Symmetric k-NN graph: ``i ~ j`` when either is among the other's ``k`` nearest.
 
     Args:
         points: ``(N, 3)`` float64.
         k: neighbours per point (clamped to ``N - 1``).
+        neighbours: :func:`knn_neighbours` of ``points`` for ``k`` or more, if already known.
 
     Returns:
         ``(N, N)`` upper-triangular CSR of Euclidean edge lengths (see :func:`edge_graph`).
     """
     n = points.shape[0]
     k = min(k, n - 1)
-    lengths, neighbours = cKDTree(points).query(points, k=k + 1)
+    lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
+    lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
     sources = np.repeat(np.arange(n), k + 1)
-    edges = np.column_stack([sources, neighbours.reshape(-1)])
+    edges = np.column_stack([sources, nearest.reshape(-1)])
     return edge_graph(n, edges, lengths.reshape(-1))
 
 

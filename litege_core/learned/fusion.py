@@ -55,6 +55,10 @@ FUSION_FORMAT = 2
 FUSIONS = ("none", "graph")
 """Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
 VETO_HEADS = ("full", "small")
+ROUGHNESS_NEIGHBOURS = 16
+"""Points per neighbourhood of :func:`surface_roughness` (the point itself included)."""
+ROUGHNESS_CHUNK = 65_536
+"""Points per block of :func:`surface_roughness` (bounds its ``(C, k, 3)`` temporaries)."""
 
 EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
 """``(i (E,), j (E,)) → (E,)`` predicted geodesics between point pairs (canonical units)."""
@@ -176,7 +180,11 @@ def load_fusion(
 
 
 def pruned_knn_graph(
-    points: NDArray, k: int, prune_ratio: float, edge_geodesics: EdgeGeodesics | None
+    points: NDArray,
+    k: int,
+    prune_ratio: float,
+    edge_geodesics: EdgeGeodesics | None,
+    neighbours: tuple[NDArray, NDArray] | None = None,
 ) -> sp.csr_array:
     """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts.
 
@@ -185,19 +193,24 @@ def pruned_knn_graph(
         k: neighbours per point (clamped to ``N - 1``).
         prune_ratio: cut an edge whose predicted geodesic exceeds ``prune_ratio`` × its chord.
         edge_geodesics: predicted geodesics of ``(i, j)`` pairs, or ``None`` (no pruning).
+        neighbours: :func:`~litege_core.engines.graph.knn_neighbours` of ``points`` for
+            ``k`` or more, if already known.
 
     Returns:
         ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
         edge_graph`).
     """
-    from litege_core.engines.graph import edge_graph, knn_graph
+    import scipy.sparse as sp
 
-    graph = knn_graph(points, k).tocoo()
-    rows, cols, chords = graph.row, graph.col, graph.data
-    if edge_geodesics is not None and rows.size:
-        keep = edge_geodesics(rows, cols) <= prune_ratio * chords
-        rows, cols, chords = rows[keep], cols[keep], chords[keep]
-    return edge_graph(points.shape[0], np.column_stack([rows, cols]), chords)
+    from litege_core.engines.graph import knn_graph
+
+    graph = knn_graph(points, k, neighbours)
+    if edge_geodesics is None or graph.nnz == 0:
+        return graph
+    rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
+    keep = edge_geodesics(rows, graph.indices) <= prune_ratio * graph.data
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
+    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
 
 
 def graph_rows(
@@ -254,28 +267,33 @@ def graph_rows(
     return np.atleast_2d(rows)[order][:, sources].T
 
 
-def surface_roughness(points: NDArray, k: int = 16, chunk: int = 65536) -> float:
+def surface_roughness(
+    points: NDArray, k: int = ROUGHNESS_NEIGHBOURS, nearest: NDArray | None = None
+) -> float:
     """How far the points are from a smooth surface: the median over points of
-    ``sqrt(λ_min / λ_max)`` of the covariance of each point's ``k`` nearest points.
+    ``sqrt(λ_min / λ_max)`` of the covariance of each point's ``k`` nearest points (itself
+    included).
 
     Scale-free, ~0.05–0.15 on clean surface samples (curvature within a neighbourhood),
-    higher with noise. ``points``: ``(N, 3)`` float64.
+    higher with noise. ``points``: ``(N, 3)`` float64; ``nearest``: the indices of
+    :func:`~litege_core.engines.graph.knn_neighbours` ``(points, k)`` if already known.
     """
-    from scipy.spatial import cKDTree
+    from litege_core.engines.graph import knn_neighbours
 
     n = points.shape[0]
     count = min(k, n)
     if count < 4:
         return 0.0
-    tree = cKDTree(points)
+    if nearest is None:  # the same search as a k = 16 fusion graph's: same ties, same answer
+        nearest = knn_neighbours(points, k)[1]
+    nearest = nearest[:, :count]
     ratios = np.empty(n)
-    for start in range(0, n, chunk):
-        _, nearest = tree.query(points[start : start + chunk], k=count)
-        local = points[nearest]  # (C, k, 3)
+    for start in range(0, n, ROUGHNESS_CHUNK):
+        local = points[nearest[start : start + ROUGHNESS_CHUNK]]  # (C, k, 3)
         local = local - local.mean(axis=1, keepdims=True)
         covariance = np.einsum("cki,ckj->cij", local, local)
         eigenvalues = np.linalg.eigvalsh(covariance)  # ascending
-        ratios[start : start + chunk] = np.sqrt(
+        ratios[start : start + ROUGHNESS_CHUNK] = np.sqrt(
             np.clip(eigenvalues[:, 0], 0.0, None) / np.maximum(eigenvalues[:, 2], 1e-300)
         )
     return float(np.median(ratios))

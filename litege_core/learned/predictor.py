@@ -75,6 +75,7 @@ from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.fusion import (
     FUSIONS,
+    ROUGHNESS_NEIGHBOURS,
     FusionCalibration,
     fuse,
     graph_rows,
@@ -609,25 +610,32 @@ class Predictor:
         assert self.fusion is not None
         fusion = self.fusion
         key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
-        graph = state._lazy.get(key)
-        if graph is None:
-            graph = pruned_knn_graph(
-                state.canonical_points,
-                fusion.k,
-                fusion.prune_ratio,
-                lambda i, j: self._veto._pair_distances(state, i, j),
-            )
-            state._lazy[key] = graph
+        points = state.canonical_points
+        graph, roughness = state._lazy.get(key), state._lazy.get("fusion.roughness")
+        if graph is None or roughness is None:  # one neighbour search serves both (k = 16)
+            from litege_core.engines.graph import knn_neighbours  # scipy: on first use
+
+            neighbours = knn_neighbours(points, fusion.k)
+            if roughness is None:
+                shared = fusion.k == ROUGHNESS_NEIGHBOURS  # the shipped calibrations
+                roughness = surface_roughness(points, nearest=neighbours[1] if shared else None)
+                state._lazy["fusion.roughness"] = roughness
+            if graph is None:
+                graph = pruned_knn_graph(
+                    points,
+                    fusion.k,
+                    fusion.prune_ratio,
+                    lambda i, j: self._veto._pair_distances(state, i, j),
+                    neighbours,
+                )
+                state._lazy[key] = graph
         rows = graph_rows(
             graph,
-            state.canonical_points,
+            points,
             (src.indices, src.canonical),
             (dst.indices, dst.canonical),
             fusion.k,
         )
-        roughness = state._lazy.get("fusion.roughness")
-        if roughness is None:
-            roughness = state._lazy["fusion.roughness"] = surface_roughness(state.canonical_points)
         return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness)
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:

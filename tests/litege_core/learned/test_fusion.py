@@ -79,7 +79,9 @@ def test_network_weight_is_the_gate_sigmoid() -> None:
     assert 0.0 <= calibration.network_weight(1e9, 10**9, 0.1) < 1e-20
 
 
-def test_roughness_grows_with_noise_and_ignores_scale() -> None:
+def test_roughness_grows_with_noise_and_ignores_scale(monkeypatch) -> None:
+    from litege_core.engines.graph import knn_neighbours
+    from litege_core.learned import fusion
     from litege_core.learned.fusion import surface_roughness
 
     rng = np.random.default_rng(0)
@@ -89,7 +91,10 @@ def test_roughness_grows_with_noise_and_ignores_scale() -> None:
     noisy = surface_roughness(sphere + rng.normal(0.0, 0.03, sphere.shape))
     assert clean < 0.1 < noisy
     assert surface_roughness(7.0 * sphere) == pytest.approx(clean)
-    assert surface_roughness(sphere, chunk=1000) == pytest.approx(clean)
+    nearest = knn_neighbours(sphere, 16)[1]
+    assert surface_roughness(sphere, nearest=nearest) == clean
+    monkeypatch.setattr(fusion, "ROUGHNESS_CHUNK", 1000)
+    assert surface_roughness(sphere) == pytest.approx(clean)
     assert surface_roughness(sphere[:3]) == 0.0
 
 
