@@ -1,5 +1,5 @@
 """Files written so that a reader never sees half of one: atomic JSON and safetensors writes,
-content hashes, and safetensors reads that report damage as :class:`ArtifactError`.
+content hashes, and JSON and safetensors reads that report damage as :class:`ArtifactError`.
 
 Shared by datasets (shards, manifests) and model bundles (manifests, weights).
 """
@@ -24,6 +24,21 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def read_json_object(path: Path, what: str) -> dict:
+    """The JSON object in ``path``; ``what`` names the file in errors.
+
+    Raises:
+        ArtifactError: the file is not valid JSON, or holds something other than an object.
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise ArtifactError(f"{what} is not valid JSON") from exc
+    if not isinstance(data, dict):
+        raise ArtifactError(f"{what} is not a JSON object")
+    return data
 
 
 def write_json_atomic(path: Path, data: dict) -> None:

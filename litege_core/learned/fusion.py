@@ -30,7 +30,6 @@ written by :func:`save_fusion` (``scripts/calibrate_fusion.py``), read by :func:
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Callable
@@ -43,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import ArtifactError, InputError
-from litege_core.files import write_json_atomic
+from litege_core.files import read_json_object, write_json_atomic
 
 if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports it
     import scipy.sparse as sp
@@ -164,13 +163,7 @@ def load_fusion(
             f"model {name!r} has no graph-fusion calibration ({FUSION_CONFIG}); fit one with "
             "scripts/calibrate_fusion.py or use fusion='none'"
         )
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{FUSION_CONFIG} of {name} is not valid JSON") from exc
-    if not isinstance(data, dict):
-        raise ArtifactError(f"{FUSION_CONFIG} of {name} is not a JSON object")
-    calibration = FusionCalibration.from_json(data)
+    calibration = FusionCalibration.from_json(read_json_object(path, f"{FUSION_CONFIG} of {name}"))
     if calibration.bundle_hash != bundle_hash:
         raise InputError(
             f"the graph fusion of {name!r} was fitted for bundle {calibration.bundle_hash[:12]}…, "
@@ -226,10 +219,9 @@ def graph_rows(
     canonical coordinates for points that are not nodes (they join the graph through chords to
     their ``k`` nearest points). Dijkstra runs from the smaller side.
     """
-    from scipy.sparse.csgraph import dijkstra
     from scipy.spatial import cKDTree
 
-    from litege_core.engines.graph import edge_graph
+    from litege_core.engines.graph import dijkstra_rows, edge_graph
 
     n = points.shape[0]
     ids: list[NDArray] = []
@@ -258,13 +250,11 @@ def graph_rows(
         )
         graph = edge_graph(next_node, edges, np.concatenate([coo.data, *extra_chords]))
     sources, targets = ids
-    if sources.size <= targets.size:
-        rows = dijkstra(graph, directed=False, indices=np.unique(sources))
-        order = np.searchsorted(np.unique(sources), sources)
-        return np.atleast_2d(rows)[order][:, targets]
-    rows = dijkstra(graph, directed=False, indices=np.unique(targets))
-    order = np.searchsorted(np.unique(targets), targets)
-    return np.atleast_2d(rows)[order][:, sources].T
+    flip = sources.size > targets.size  # Dijkstra from the smaller side
+    near, far = (targets, sources) if flip else (sources, targets)
+    unique, order = np.unique(near, return_inverse=True)
+    rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far]
+    return rows.T if flip else rows
 
 
 def surface_roughness(

@@ -18,7 +18,6 @@ Written by :func:`save_small_head` (``scripts/distill_head.py``), read by
 
 from __future__ import annotations
 
-import json
 import os
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,7 +26,7 @@ from typing import Any
 import torch
 
 from litege_core.errors import ArtifactError, InputError
-from litege_core.files import file_sha256, write_json_atomic
+from litege_core.files import file_sha256, read_json_object, write_json_atomic
 from litege_core.learned.bundle import ModelBundle, load_weights
 from litege_core.nets import state_to_tensors
 from litege_core.nets.small_head import SmallHead
@@ -86,13 +85,8 @@ def small_head_config(bundle: ModelBundle) -> dict[str, Any] | None:
     """The sidecar config of ``bundle`` (unverified), or ``None`` when it has none."""
     if bundle.path is None or not (Path(bundle.path) / SMALL_HEAD_CONFIG).is_file():
         return None
-    try:
-        config = json.loads((Path(bundle.path) / SMALL_HEAD_CONFIG).read_text())
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{SMALL_HEAD_CONFIG} of {bundle.name} is not valid JSON") from exc
-    if not isinstance(config, dict):
-        raise ArtifactError(f"{SMALL_HEAD_CONFIG} of {bundle.name} is not a JSON object")
-    return config
+    path = Path(bundle.path) / SMALL_HEAD_CONFIG
+    return read_json_object(path, f"{SMALL_HEAD_CONFIG} of {bundle.name}")
 
 
 def load_small_head(
