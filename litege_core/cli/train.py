@@ -78,7 +78,13 @@ def cmd_train_geodesic(args: argparse.Namespace) -> int:
         raise InputError("give --config FILE (a dataset run) or --meshes DIR (a folder of meshes)")
     _ensure_console_logging()
     config = load_config(args.config)
-    manifest = run_training(config, resume=args.resume, out=args.out, init=args.init)
+    manifest = run_training(
+        config,
+        resume=args.resume,
+        out=args.out,
+        init=args.init,
+        time_budget_s=None if args.time_budget is None else 60.0 * args.time_budget,
+    )
     out = Path(args.out or config.output.dir) / "bundle"
     print_json(
         {
@@ -211,14 +217,15 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
         default=None,
         help="warm start: a shipped model name (quadrupeds, humans) or a bundle directory",
     )
-    folder = geodesic.add_argument_group("--meshes runs")
-    folder.add_argument(
+    geodesic.add_argument(
         "--time-budget",
         type=float,
         default=None,
         metavar="MINUTES",
-        help="wall-clock budget of the whole command (data, training, evaluation)",
+        help="wall-clock budget: with --meshes of the whole command (data, training, "
+        "evaluation); with --config of the training (the best checkpoint is exported)",
     )
+    folder = geodesic.add_argument_group("--meshes runs")
     folder.add_argument("--workers", type=int, default=1, help="ground-truth processes")
     folder.add_argument("--work", default=None, help="dataset and run directory (OUT/work)")
     folder.add_argument("--seed", type=int, default=0, help="seed of the file split and run")

@@ -346,6 +346,7 @@ def train_geodesic(
     init: str | Path | None = None,
     max_epochs: int | None = None,
     export_bundle: bool = True,
+    time_budget_s: float | None = None,
 ) -> RunResult:
     """Run (or resume) a training and export the bundle.
 
@@ -357,6 +358,9 @@ def train_geodesic(
         max_epochs: stop after this many epochs in this call (no export unless the run is
             finished); ``None``: train to the end.
         export_bundle: write ``RUN_DIR/bundle`` when training is finished.
+        time_budget_s: wall-clock budget of this call's training, in seconds (the trainer's
+            deadline, counted from the start of training): a run stopped by it exports its
+            best checkpoint as a finished run does, and can be resumed for more epochs.
     """
     start = time.perf_counter()
     run_dir = config.run_dir
@@ -397,10 +401,13 @@ def train_geodesic(
             )
         elif init is not None:
             prepared.trainer.start_from_baseline()
-        state = prepared.trainer.fit(max_epochs)
+        deadline = None if time_budget_s is None else time.monotonic() + time_budget_s
+        state = prepared.trainer.fit(max_epochs, deadline=deadline)
         if distributed is not None:
             revert_sync_batchnorm(prepared.network)  # a plain network to export and return
-        finished = state.stopped_early or state.epoch >= config.train.epochs
+        finished = (
+            state.stopped_early or state.stopped_by_budget or state.epoch >= config.train.epochs
+        )
         manifest = None
         if export_bundle and finished:
             if main:

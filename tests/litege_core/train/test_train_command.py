@@ -53,3 +53,27 @@ def test_resume_from_a_foreign_file_fails_clearly(make_config, tmp_path):
     bogus.write_bytes(b"not a checkpoint")
     with pytest.raises(ArtifactError, match="cannot read checkpoint"):
         train_geodesic(make_config(), resume=bogus)
+
+
+def test_config_run_stops_at_its_time_budget_and_exports_the_best(make_config, tmp_path, capsys):
+    config = make_config("budgeted", train={"epochs": 5, "steps_per_epoch": 40})
+    path = tmp_path / "toy.toml"
+    path.write_text(_toml(config.to_dict()))
+    out = tmp_path / "run"
+    args = _parser().parse_args(
+        ["train", "geodesic", "--config", str(path), "--out", str(out), "--time-budget", "0"]
+    )
+    assert args.handler(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    # the deadline is looked at every BUDGET_CHECK_STEPS steps: a spent budget ends the first
+    # epoch there, and no second epoch starts; the run still exports a bundle
+    assert summary["steps"] < 40
+    bundle = load_bundle(out / "bundle")
+    assert bundle.manifest["training"]["steps"] == summary["steps"]
+
+
+def test_config_run_without_a_budget_runs_every_epoch(make_config):
+    config = make_config("unbudgeted", train={"epochs": 2, "steps_per_epoch": 3})
+    result = train_geodesic(config, time_budget_s=None)
+    assert result.state.epoch == 2 and not result.state.stopped_by_budget
+    assert result.manifest is not None
