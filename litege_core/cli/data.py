@@ -17,18 +17,26 @@ from litege_core.cli.common import print_json
 
 
 def cmd_data_build(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from litege_core.datasets import build_dataset, preset
     from litege_core.datasets.build import merge_dataset, missing_shards
     from litege_core.datasets.factories import factory_for
-    from litege_core.datasets.spec import WorkShare
+    from litege_core.datasets.spec import WorkShare, parse_split_counts
 
     spec = preset(args.preset, args.category)
+    changes: dict = {}
+    if args.shapes is not None:
+        changes["n_shapes"] = {**spec.n_shapes, **parse_split_counts(args.shapes)}
+    if args.name is not None:
+        changes["name"] = args.name
+    spec = dataclasses.replace(spec, **changes)
     directory = args.out or f"data/{spec.name}"
     share = None if args.shard is None else WorkShare.parse(args.shard)
     manifest = build_dataset(
         spec,
         directory,
-        factory_for(args.category),
+        factory_for(args.category, args.train_data),
         workers=args.workers,
         solver=args.solver,
         part=share,
@@ -78,9 +86,32 @@ def register(commands: argparse._SubParsersAction) -> None:
     data = commands.add_parser("data", help="ground-truth geodesic datasets")
     data_commands = data.add_subparsers(dest="data_command", required=True)
     build = data_commands.add_parser("build", help="build or resume a dataset")
-    build.add_argument("--category", choices=["quadruped", "biped"], default="quadruped")
+    build.add_argument(
+        "--category",
+        choices=["quadruped", "biped", "rigged", "makehuman"],
+        default="quadruped",
+        help="procedural quadrupeds / bipeds, posed rigged animals or MakeHuman bodies (the "
+        "last two read their assets from --train-data)",
+    )
     build.add_argument("--preset", choices=["small", "large", "full", "matching"], default="small")
-    build.add_argument("--out", default=None, help="directory (default data/CATEGORY-PRESET)")
+    build.add_argument(
+        "--shapes",
+        default=None,
+        metavar="SPLIT=N,...",
+        help="shapes per split instead of the preset's, e.g. train=896,val=48,test=48 "
+        "(splits left out keep the preset's count)",
+    )
+    build.add_argument(
+        "--name", default=None, help="dataset name (default CATEGORY-PRESET; kept in the manifest)"
+    )
+    build.add_argument("--out", default=None, help="directory (default data/NAME)")
+    build.add_argument(
+        "--train-data",
+        default=None,
+        metavar="DIR",
+        help="train-data directory of --category rigged / makehuman (default "
+        "$LITEGE_TRAIN_DATA or ../shared/train-data)",
+    )
     build.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     build.add_argument(
         "--solver",

@@ -180,6 +180,28 @@ class WorkShare:
         return f"{self.index}/{self.count}"
 
 
+def parse_split_counts(text: str) -> dict[str, int]:
+    """``"train=896,val=48,test=48"`` → ``{"train": 896, "val": 48, "test": 48}`` (splits left
+    out keep their preset size: merge the result into a preset's ``n_shapes``).
+
+    Raises:
+        InputError: an unknown split, a repeated one, or a count that is not an integer ≥ 0.
+    """
+    counts: dict[str, int] = {}
+    for item in str(text).split(","):
+        split, sep, value = item.strip().partition("=")
+        split, value = split.strip(), value.strip()
+        if not sep or split not in SPLITS or not value.isdigit():
+            raise InputError(
+                f"shape counts must read SPLIT=N[,SPLIT=N...] with SPLIT in {SPLITS} and "
+                f"integers N >= 0, got {text!r}"
+            )
+        if split in counts:
+            raise InputError(f"split {split!r} is given twice in {text!r}")
+        counts[split] = int(value)
+    return counts
+
+
 def preset(name: str, category: str) -> DatasetSpec:
     """Named presets of the procedural categories (and, for ``rigged`` / ``makehuman``, of
     :func:`collection_preset`): ``small`` (≥ 500 shapes, builds on 2 cores in ≤ 30 min), ``large``
@@ -263,5 +285,6 @@ __all__ = [
     "DatasetSpec",
     "WorkShare",
     "collection_preset",
+    "parse_split_counts",
     "preset",
 ]

@@ -17,7 +17,7 @@ from litege_core.datasets.build import (
     part_manifest_name,
     planned_shards,
 )
-from litege_core.datasets.spec import WorkShare
+from litege_core.datasets.spec import WorkShare, parse_split_counts
 from litege_core.datasets.storage import MANIFEST
 from litege_core.engines import compute_distances
 from litege_core.errors import ArtifactError, InputError
@@ -256,3 +256,32 @@ def test_cli_merge_and_shard_option(tmp_path, capsys):
     assert cli_main(["data", "verify", str(tmp_path)]) == 0
     capsys.readouterr()
     assert cli_main(["data", "build", "--shard", "2/2", "--out", str(tmp_path / "x")]) != 0
+
+
+def test_parse_split_counts():
+    assert parse_split_counts("train=896, val=48,test=0") == {"train": 896, "val": 48, "test": 0}
+    assert parse_split_counts("val=3") == {"val": 3}
+    for bad in ("train=-1", "train=1.5", "tran=3", "train", "train=2,train=3", ""):
+        with pytest.raises(InputError):
+            parse_split_counts(bad)
+
+
+def test_cli_build_takes_shape_counts_a_name_and_the_solver(tmp_path, capsys):
+    out = tmp_path / "tiny"
+    argv = ["data", "build", "--category", "quadruped", "--shapes", "train=2,val=1,test=0"]
+    argv += ["--name", "tiny-heat", "--solver", "heat", "--workers", "1", "--out", str(out)]
+    assert cli_main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["counts"] == {"train": 2, "val": 1, "test": 0}
+    manifest = json.loads((out / "manifest.json").read_text())
+    spec = json.loads(manifest["spec"]) if isinstance(manifest["spec"], str) else manifest["spec"]
+    assert spec["name"] == "tiny-heat" and spec["category"] == "quadruped"
+    assert manifest["solver"].startswith("heat method")
+    assert cli_main(["data", "verify", str(out)]) == 0
+
+
+def test_cli_build_of_a_collection_names_a_missing_train_data_directory(tmp_path, capsys):
+    missing = tmp_path / "nowhere"
+    argv = ["data", "build", "--category", "rigged", "--train-data", str(missing)]
+    assert cli_main(argv + ["--out", str(tmp_path / "rigged")]) != 0
+    assert "nowhere" in capsys.readouterr().err
