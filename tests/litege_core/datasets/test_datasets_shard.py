@@ -283,5 +283,5 @@ def test_cli_build_takes_shape_counts_a_name_and_the_solver(tmp_path, capsys):
 def test_cli_build_of_a_collection_names_a_missing_train_data_directory(tmp_path, capsys):
     missing = tmp_path / "nowhere"
     argv = ["data", "build", "--category", "rigged", "--train-data", str(missing)]
-    assert cli_main(argv + ["--out", str(tmp_path / "rigged")]) != 0
+    assert cli_main([*argv, "--out", str(tmp_path / "rigged")]) != 0
     assert "nowhere" in capsys.readouterr().err
