@@ -212,49 +212,70 @@ def graph_rows(
     src: tuple[NDArray | None, NDArray],
     dst: tuple[NDArray | None, NDArray],
     k: int,
+    tree: Any = None,
 ) -> NDArray:
     """``(S, T)`` graph distances between query points (``inf`` where no path joins them).
 
     A query is ``(indices, canonical)``: its node indices, or ``None`` with its ``(Q, 3)``
     canonical coordinates for points that are not nodes (they join the graph through chords to
-    their ``k`` nearest points). Dijkstra runs from the smaller side.
+    their ``k`` nearest points). Dijkstra runs from the smaller side. ``tree``: a
+    ``scipy.spatial.cKDTree`` of ``points`` if the caller keeps one (built here otherwise).
+    The free points are appended to ``graph`` as new nodes (a block of chord edges beside the
+    unchanged CSR), so a query never rebuilds the shape's own edges.
     """
-    from scipy.spatial import cKDTree
-
-    from litege_core.engines.graph import dijkstra_rows, edge_graph
+    from litege_core.engines.graph import dijkstra_rows
 
     n = points.shape[0]
     ids: list[NDArray] = []
-    extra_rows, extra_cols, extra_chords = [], [], []
-    next_node = n
-    tree = None
+    chord_nodes, chord_neighbours, chord_lengths = [], [], []
+    n_free = 0
     for indices, canonical in (src, dst):
         if indices is not None:
             ids.append(np.asarray(indices, dtype=np.int64))
             continue
         if tree is None:
+            from scipy.spatial import cKDTree
+
             tree = cKDTree(points)
         count = min(k, n)
         chords, nearest = tree.query(canonical, k=count)
         chords, nearest = chords.reshape(len(canonical), count), nearest.reshape(len(canonical), -1)
-        nodes = np.arange(next_node, next_node + len(canonical))
-        next_node += len(canonical)
-        extra_rows.append(np.repeat(nodes, count))
-        extra_cols.append(nearest.reshape(-1))
-        extra_chords.append(chords.reshape(-1))
-        ids.append(nodes)
-    if next_node > n:
-        coo = graph.tocoo()
-        edges = np.column_stack(
-            [np.concatenate([coo.row, *extra_rows]), np.concatenate([coo.col, *extra_cols])]
+        nodes = np.arange(n_free, n_free + len(canonical))
+        n_free += len(canonical)
+        chord_nodes.append(np.repeat(nodes, count))
+        chord_neighbours.append(nearest.reshape(-1))
+        chord_lengths.append(chords.reshape(-1))
+        ids.append(nodes + n)
+    if n_free:
+        graph = _with_free_nodes(
+            graph,
+            np.concatenate(chord_neighbours),
+            np.concatenate(chord_nodes),
+            np.concatenate(chord_lengths),
+            n_free,
         )
-        graph = edge_graph(next_node, edges, np.concatenate([coo.data, *extra_chords]))
     sources, targets = ids
     flip = sources.size > targets.size  # Dijkstra from the smaller side
     near, far = (targets, sources) if flip else (sources, targets)
     unique, order = np.unique(near, return_inverse=True)
     rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far]
     return rows.T if flip else rows
+
+
+def _with_free_nodes(
+    graph: sp.csr_array, neighbours: NDArray, free: NDArray, lengths: NDArray, n_free: int
+) -> sp.csr_array:
+    """``graph`` (upper-triangular ``(n, n)`` CSR, as :func:`~litege_core.engines.graph.edge_graph`
+    builds it) with ``n_free`` new nodes ``n + f`` joined to node ``neighbours[e]`` by an edge
+    of length ``lengths[e]`` for ``f = free[e]``: the block ``[[graph, C], [0, 0]]``, still
+    upper-triangular (every new node's index exceeds its neighbours'); explicit zero lengths
+    stay edges. The new nodes are never joined to each other."""
+    import scipy.sparse as sp
+
+    n = graph.shape[0]
+    chords = sp.coo_array((lengths, (neighbours, free)), shape=(n, n_free))
+    empty = sp.csr_array((n_free, n + n_free), dtype=np.float64)
+    return sp.vstack([sp.hstack([graph, chords], format="csr"), empty], format="csr")
 
 
 def surface_roughness(

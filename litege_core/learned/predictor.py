@@ -629,12 +629,20 @@ class Predictor:
                     neighbours,
                 )
                 state._lazy[key] = graph
+        tree = None
+        if src.indices is None or dst.indices is None:  # free points join through a KD-tree
+            tree = state._lazy.get("fusion.tree")
+            if tree is None:
+                from scipy.spatial import cKDTree
+
+                tree = state._lazy["fusion.tree"] = cKDTree(points)
         rows = graph_rows(
             graph,
             points,
             (src.indices, src.canonical),
             (dst.indices, dst.canonical),
             fusion.k,
+            tree,
         )
         return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness)
 

@@ -185,6 +185,46 @@ def test_a_free_point_joins_through_its_nearest_chords() -> None:
     assert rows[0, 0] == pytest.approx(np.sqrt(0.5) + 1.0)
 
 
+def _reference_free_rows(graph, points, src_points, dst_points, k):
+    """Slow reference: every free point appended by rebuilding the whole edge graph."""
+    from scipy.spatial import cKDTree
+
+    from litege_core.engines.graph import edge_graph
+
+    n = points.shape[0]
+    coo = graph.tocoo()
+    rows, cols, weights = [coo.row], [coo.col], [coo.data]
+    nodes = []
+    for block in (src_points, dst_points):
+        chords, nearest = cKDTree(points).query(block, k=k)
+        ids = n + sum(len(b) for b in nodes) + np.arange(len(block))
+        rows.append(np.repeat(ids, k))
+        cols.append(nearest.reshape(-1))
+        weights.append(chords.reshape(-1))
+        nodes.append(ids)
+    edges = np.column_stack([np.concatenate(rows), np.concatenate(cols)])
+    full = edge_graph(n + sum(len(b) for b in nodes), edges, np.concatenate(weights))
+    return dijkstra(full, directed=False, indices=nodes[0])[:, nodes[1]]
+
+
+def test_free_points_join_the_cached_graph_as_the_rebuilt_graph_does() -> None:
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(400, 3))
+    graph = pruned_knn_graph(points, 8, 1.6, None)
+    src_points = np.vstack([rng.normal(size=(3, 3)), points[[7]]])  # one exactly on a node
+    dst_points = rng.normal(size=(25, 3))
+    reference = _reference_free_rows(graph, points, src_points, dst_points, 8)
+    rows = graph_rows(graph, points, (None, src_points), (None, dst_points), 8)
+    np.testing.assert_allclose(rows, reference, rtol=1e-12)
+    kept_tree = graph_rows(
+        graph, points, (None, src_points), (None, dst_points), 8, tree=cKDTree(points)
+    )
+    np.testing.assert_array_equal(kept_tree, rows)
+    assert graph.shape == (400, 400)  # the cached graph itself is left as it was
+
+
 def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails() -> None:
     network = np.array([[0.0, 10.0, 20.0]])
     graph = np.array([[0.0, 12.0, np.inf]])
