@@ -52,8 +52,9 @@ T = TypeVar("T")
 CORRESPOND_CHUNK_QUERIES = 512
 """Correspondence queries per compute job: a large request runs as several jobs, so that other
 requests interleave with it and a timed-out or cancelled one stops after the current chunk.
-A refined request (``refine`` other than ``"none"``) runs as one job whatever its size: the
-refinement computes one map of the whole pair (seconds), which every chunk would redo."""
+A refined request (``refine`` other than ``"none"``) runs in the same chunks: its first chunk
+computes the refined map of the pair (seconds), which the library keeps on the prepared source
+shape, and every later chunk (and stream batch) maps its queries through that map."""
 NO_REFINEMENT = "none"
 """The default ``refine`` of a correspondence: LiteGE's matches as they are."""
 GEODESIC_CHUNK_PAIRS = 1 << 18
@@ -739,8 +740,9 @@ class Runtime:
         requests interleave with a large one; a request that times out or is cancelled stops
         before its next chunk. ``refine`` (``None`` → ``"none"``; one of the library's
         ``REFINE_METHODS``) refines the matches of two meshes
-        (:meth:`~litege_core.matching.model.MatchingModel.match`); such a request runs as one
-        job (see :data:`CORRESPOND_CHUNK_QUERIES`).
+        (:meth:`~litege_core.matching.model.MatchingModel.match`); the pair's refined map is
+        computed by the first chunk and reused by the others (see
+        :data:`CORRESPOND_CHUNK_QUERIES`).
 
         Raises:
             RequestError: ``refine`` is not one of ``REFINE_METHODS``.
@@ -759,10 +761,8 @@ class Runtime:
                 n_points = await self._submit("prepare_pair", prepare, deadline, token)
                 self._check_match_count(n_points)
                 query = PointQuery(indices=np.arange(n_points, dtype=np.int64))
-            refined = refine != NO_REFINEMENT
-            blocks = [query] if refined else _blocks(query, self.correspond_chunk)
             parts: list[Correspondence] = []
-            for block in blocks:
+            for block in _blocks(query, self.correspond_chunk):
                 job = _CorrespondJob(
                     source_shape_id, target_shape_id, name, block, token, refine=refine
                 )

@@ -24,6 +24,7 @@ computed once per shape and a search step is the head alone on feature differenc
 from __future__ import annotations
 
 import os
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,11 +58,12 @@ from litege_core.matching.frame import (
 from litege_core.matching.judge import DEFAULT_MARGIN, FrameJudge, choose
 from litege_core.matching.refine import (
     REFINE_METHODS,
+    RefinedMap,
+    Spectrum,
     ZoomOutSettings,
     heat_engine,
-    hybrid_refine,
+    refined_map,
     spectrum,
-    zoomout_refine,
 )
 from litege_core.matching.search import (
     ScoreFn,
@@ -80,6 +82,9 @@ SIDES: tuple[str, ...] = ("frame", "network")
 and keep the lower mean predicted distance."""
 
 MAX_PAIRS_PER_CALL = 16_384
+REFINED_MAPS_PER_SHAPE = 8
+"""Refined functional maps (``refine`` other than ``"none"``) kept per source shape, one per
+target (and side, refinement and settings), newest last."""
 """(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
 _EMBED_ROWS = 8192
 
@@ -90,6 +95,18 @@ def _text(value: str) -> NDArray:
 
 def _untext(array: ArrayLike) -> str:
     return bytes(np.asarray(array, dtype=np.uint8)).decode("utf-8")
+
+
+def _lazy_nbytes(value: Any) -> int:
+    """Bytes of one computed attachment of a prepared shape: a feature table, a spectrum, the
+    kept refined maps (other attachments, e.g. a projector, count 0)."""
+    if isinstance(value, torch.Tensor):
+        return value.element_size() * value.nelement()
+    if isinstance(value, OrderedDict):
+        return sum(_lazy_nbytes(item) for item in value.values())
+    if isinstance(value, (np.ndarray, Spectrum, RefinedMap)):
+        return int(value.nbytes)
+    return 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,12 +157,7 @@ class MatchingShape:
     def nbytes(self) -> int:
         """Bytes of the arrays and of any computed feature tables."""
         own = sum(a.nbytes for a in self.to_arrays().values())
-        lazy = sum(
-            t.element_size() * t.nelement()
-            for t in self._lazy.values()
-            if isinstance(t, torch.Tensor)
-        )
-        return int(own + lazy)
+        return int(own + sum(_lazy_nbytes(value) for value in self._lazy.values()))
 
     @property
     def projector(self) -> Projector:
@@ -670,30 +682,17 @@ class MatchingModel:
             settings = zoomout or ZoomOutSettings()
             source_spectrum = spectrum(source, settings)
             target_spectrum = spectrum(target, settings)
-            seed_rows = torch.from_numpy(source_spectrum.samples).to(self.device)
-            seed_query = [t.index_select(0, seed_rows) for t in self.features(source)]
-            seed_map, _, extra = self._search(seed_query, chosen, beams, exhaustive)
+            refined, spent = self._refined_map(
+                source, target, chosen, refine, settings, beams, exhaustive
+            )
             rows = self._query_vertex_rows(source, queries)
-            if refine == "zoomout":
-                found = zoomout_refine(seed_map, source_spectrum, target_spectrum, rows, settings)
-                refinement = "zoomout"
-            else:
-                hybrid = hybrid_refine(
-                    seed_map,
-                    source_spectrum,
-                    target_spectrum,
-                    rows,
-                    settings,
-                    heat_engine(source),
-                    heat_engine(target),
-                    np.asarray(source.aligned, dtype=np.float64),
-                )
-                found, refinement = hybrid.indices, f"zoomout:{hybrid.seed}"
+            found = refined.matches(source_spectrum, target_spectrum, rows)
+            refinement = refined.refinement
             cols = torch.from_numpy(found).to(self.device)
             score = self._score_fn(query, self.features(chosen))
             index = torch.arange(cols.shape[0], device=self.device)
             value = score(index, cols[:, None])[:, 0].float().cpu().numpy()
-            evaluations += extra + int(cols.shape[0])
+            evaluations += spent + int(cols.shape[0])
         distance = value / self.pipeline.target_scale
         return MatchResult(
             indices=found,
@@ -701,6 +700,51 @@ class MatchingModel:
             evaluations=int(evaluations),
             refinement=refinement,
         )
+
+    def _refined_map(
+        self,
+        source: MatchingShape,
+        target: MatchingShape,
+        chosen: MatchingShape,
+        refine: str,
+        settings: ZoomOutSettings,
+        beams: int | None,
+        exhaustive: bool,
+    ) -> tuple[RefinedMap, int]:
+        """``(map, evaluations)``: the refined map of ``source`` → ``chosen`` (``target`` or
+        its mirror image) and the network evaluations spent on it (0 when it was kept).
+
+        The map is computed once and kept on ``source`` (its last
+        :data:`REFINED_MAPS_PER_SHAPE` pairs), so every batch of a refined correspondence
+        stream reuses it: its seed map is the search of the spectrum's samples, which does not
+        depend on a batch's queries."""
+        kept: OrderedDict = source._lazy.setdefault("refined", OrderedDict())
+        mirrored = chosen is not target
+        key = (target.shape_id, target.bundle_hash, mirrored, refine, settings, beams, exhaustive)
+        refined = kept.get(key)
+        if refined is not None:
+            kept.move_to_end(key)
+            return refined, 0
+        source_spectrum = spectrum(source, settings)
+        target_spectrum = spectrum(target, settings)
+        seed_rows = torch.from_numpy(source_spectrum.samples).to(self.device)
+        seed_query = [t.index_select(0, seed_rows) for t in self.features(source)]
+        seed_map, _, spent = self._search(seed_query, chosen, beams, exhaustive)
+        hybrid = refine == "zoomout-hybrid"
+        refined = refined_map(
+            refine,
+            seed_map,
+            source_spectrum,
+            target_spectrum,
+            settings,
+            heat_engine(source) if hybrid else None,
+            heat_engine(target) if hybrid else None,
+            np.asarray(source.aligned, dtype=np.float64) if hybrid else None,
+        )
+        kept[key] = refined
+        while len(kept) > REFINED_MAPS_PER_SHAPE:
+            kept.popitem(last=False)
+        return refined, spent
 
     @torch.no_grad()
     def cross_distances(

@@ -31,7 +31,7 @@ A refined map is a few seconds per pair on a CPU (the eigenpairs dominate), not 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -129,6 +129,11 @@ class Spectrum:
     samples: NDArray
     mesh: Any = None
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the eigenvectors and samples (the pyFM mesh shares its eigenvectors)."""
+        return int(self.eigenvectors.nbytes + self.samples.nbytes)
+
 
 def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
     """The (memoized) spectrum of a prepared mesh.
@@ -172,7 +177,7 @@ def _zoomout(fmap: NDArray, source: Spectrum, target: Spectrum, settings: ZoomOu
     )
 
 
-def _pointwise(fmap: NDArray, source: Spectrum, target: Spectrum, rows: NDArray) -> NDArray:
+def pointwise_matches(fmap: NDArray, source: Spectrum, target: Spectrum, rows: NDArray) -> NDArray:
     """Y vertex of each X vertex in ``rows`` under the functional map (spectral nearest)."""
     _, spectral, _ = import_pyfm()
     k2, k1 = fmap.shape
@@ -180,6 +185,23 @@ def _pointwise(fmap: NDArray, source: Spectrum, target: Spectrum, rows: NDArray)
         fmap, target.eigenvectors[:, :k1], source.eigenvectors[np.asarray(rows), :k2], n_jobs=1
     )
     return np.asarray(found, dtype=np.int64)
+
+
+def zoomout_map(
+    seed_map: NDArray, source: Spectrum, target: Spectrum, settings: ZoomOutSettings
+) -> NDArray:
+    """The ZoomOut-refined functional map (``k2 × k1``, Y → X functions) started from the map
+    fitted to ``seed_map``: ``(S,)`` the Y vertex of each of ``source.samples`` (LiteGE's
+    matches). Query any X vertices with :func:`pointwise_matches`."""
+    _, spectral, _ = import_pyfm()
+    phi_x, phi_y = source.eigenvectors, target.eigenvectors
+    k_init = min(settings.k_init, phi_x.shape[1], phi_y.shape[1])
+    # pyFM's convention: mesh1 = Y, mesh2 = X, FM_12 (k2 × k1) maps functions on Y to X and
+    # the pointwise map p2p_21 sends X points to Y points.
+    fmap = spectral.p2p_to_FM(
+        np.asarray(seed_map, dtype=np.int64), phi_y[:, :k_init], phi_x[source.samples, :k_init]
+    )
+    return _zoomout(fmap, source, target, settings)
 
 
 def zoomout_refine(
@@ -200,15 +222,7 @@ def zoomout_refine(
     Returns:
         ``(N,)`` int64 vertices of Y.
     """
-    _, spectral, _ = import_pyfm()
-    phi_x, phi_y = source.eigenvectors, target.eigenvectors
-    k_init = min(settings.k_init, phi_x.shape[1], phi_y.shape[1])
-    # pyFM's convention: mesh1 = Y, mesh2 = X, FM_12 (k2 × k1) maps functions on Y to X and
-    # the pointwise map p2p_21 sends X points to Y points.
-    fmap = spectral.p2p_to_FM(
-        np.asarray(seed_map, dtype=np.int64), phi_y[:, :k_init], phi_x[source.samples, :k_init]
-    )
-    return _pointwise(_zoomout(fmap, source, target, settings), source, target, rows)
+    return pointwise_matches(zoomout_map(seed_map, source, target, settings), source, target, rows)
 
 
 def descriptor_map(source: Spectrum, target: Spectrum, settings: ZoomOutSettings) -> NDArray:
@@ -284,6 +298,76 @@ class HybridResult:
     distortion: dict[str, float]
 
 
+@dataclass(frozen=True, eq=False)
+class RefinedMap:
+    """The refined functional map of one pair (X → Y), reusable for any queries of X: a
+    correspondence stream computes it once and maps each batch with :meth:`matches`.
+
+    Attributes:
+        fmap: ``(k2, k1)`` functional map (Y → X functions, pyFM's convention).
+        refinement: ``"zoomout"``, or ``"zoomout:litege"`` / ``"zoomout:descriptors"`` for
+            ``zoomout-hybrid`` (the start of the kept map).
+        distortion: the hybrid's check ``{"litege": float, "descriptors": float}`` (empty for
+            plain ZoomOut).
+    """
+
+    fmap: NDArray
+    refinement: str
+    distortion: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.fmap.nbytes)
+
+    def matches(self, source: Spectrum, target: Spectrum, rows: NDArray) -> NDArray:
+        """``(N,)`` int64 Y vertices of the X vertices ``rows``."""
+        return pointwise_matches(self.fmap, source, target, rows)
+
+
+def refined_map(
+    method: str,
+    seed_map: NDArray,
+    source: Spectrum,
+    target: Spectrum,
+    settings: ZoomOutSettings,
+    source_heat: Any = None,
+    target_heat: Any = None,
+    source_points: NDArray | None = None,
+) -> RefinedMap:
+    """The refined map of a pair by ``method`` (``"zoomout"`` or ``"zoomout-hybrid"``).
+
+    Args:
+        method: one of :data:`REFINE_METHODS` other than ``"none"``.
+        seed_map, source, target, settings: as :func:`zoomout_refine`.
+        source_heat, target_heat: :func:`heat_engine` of X and Y (``zoomout-hybrid`` only).
+        source_points: ``(V, 3)`` X's vertices, for the farthest points of the hybrid's
+            distortion check (``zoomout-hybrid`` only).
+    """
+    if method == "zoomout":
+        return RefinedMap(zoomout_map(seed_map, source, target, settings), "zoomout")
+    if method != "zoomout-hybrid":
+        raise InputError(f"no refined map for refine={method!r}")
+    if source_heat is None or target_heat is None or source_points is None:
+        raise InputError("zoomout-hybrid needs both heat engines and the source's points")
+    sources = farthest_point_sampling(source_points, min(settings.n_sources, len(source_points)))
+    samples = farthest_point_sampling(
+        source_points, min(settings.n_distortion_samples, len(source_points))
+    )
+    checked = np.concatenate([sources, samples])
+    maps = {
+        "litege": zoomout_map(seed_map, source, target, settings),
+        "descriptors": descriptor_map(source, target, settings),
+    }
+    distortion = {}
+    for name, fmap in maps.items():
+        found = pointwise_matches(fmap, source, target, checked)
+        distortion[name] = geodesic_distortion(
+            source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
+        )
+    seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
+    return RefinedMap(maps[seed], f"zoomout:{seed}", distortion)
+
+
 def hybrid_refine(
     seed_map: NDArray,
     source: Spectrum,
@@ -301,31 +385,26 @@ def hybrid_refine(
         source_heat, target_heat: :func:`heat_engine` of X and Y.
         source_points: ``(V, 3)`` X's vertices (for the farthest points of the check).
     """
-    rows = np.asarray(rows, dtype=np.int64)
-    sources = farthest_point_sampling(source_points, min(settings.n_sources, len(source_points)))
-    samples = farthest_point_sampling(
-        source_points, min(settings.n_distortion_samples, len(source_points))
+    refined = refined_map(
+        "zoomout-hybrid",
+        seed_map,
+        source,
+        target,
+        settings,
+        source_heat,
+        target_heat,
+        source_points,
     )
-    wanted = np.concatenate([rows, sources, samples])
-    n, m = rows.size, sources.size
-    maps = {
-        "litege": zoomout_refine(seed_map, source, target, wanted, settings),
-        "descriptors": _pointwise(descriptor_map(source, target, settings), source, target, wanted),
-    }
-    distortion = {
-        name: geodesic_distortion(
-            source_heat, target_heat, sources, samples, found[n : n + m], found[n + m :]
-        )
-        for name, found in maps.items()
-    }
-    seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
-    return HybridResult(maps[seed][:n], seed, distortion)
+    rows = np.asarray(rows, dtype=np.int64)
+    seed = refined.refinement.split(":", 1)[1]
+    return HybridResult(refined.matches(source, target, rows), seed, refined.distortion)
 
 
 __all__ = [
     "REFINE_METHODS",
     "HybridResult",
     "PreparedShape",
+    "RefinedMap",
     "Spectrum",
     "ZoomOutSettings",
     "descriptor_map",
@@ -333,6 +412,9 @@ __all__ = [
     "heat_engine",
     "hybrid_refine",
     "import_pyfm",
+    "pointwise_matches",
+    "refined_map",
     "spectrum",
+    "zoomout_map",
     "zoomout_refine",
 ]

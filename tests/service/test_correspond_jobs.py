@@ -1,7 +1,8 @@
 """Large requests run as several compute jobs: a big correspondence lets a small geodesic
 request through between its chunks, answers the same as one call of the library, and stops
 computing once its caller has given up (deadline or cancellation). A refined correspondence
-(``refine``) runs as one job: its refinement is one map of the whole pair."""
+(``refine``) runs in the same chunks: the first computes the pair's refined map, which the
+library keeps, and every chunk answers through it."""
 
 from __future__ import annotations
 
@@ -180,10 +181,11 @@ def test_a_cancelled_request_stops_computing(service, ids, recorder):
     importlib.util.find_spec("pyFM") is None,
     reason="refine='zoomout' needs pyFM (PyPI pyfmaps, the 'eval' extra)",
 )
-def test_a_refined_request_runs_as_one_job(service, blob):
-    """More queries than a chunk: the unrefined request runs in chunks, the refined one as a
-    single job with ``refine`` passed to the library (every chunk would redo the refinement);
-    each answers what one call of the library answers."""
+def test_a_refined_request_runs_in_chunks_through_one_kept_map(service, blob):
+    """More queries than a chunk: the unrefined and the refined request both run in chunks,
+    ``refine`` passed to the library with each; the refined map of the pair is computed once
+    (kept on the prepared source shape) and each request answers what one call of the library
+    answers."""
     shapes = [blob(seed, subdivisions=2) for seed in (31, 32)]  # 162 vertices: > 2 chunks
     ids = []
     for shape in shapes:
@@ -205,8 +207,11 @@ def test_a_refined_request_runs_as_one_job(service, blob):
     sizes = [size for kind, size in recorder.events if kind == "match"]
     n_chunks = -(-n_points // CHUNK)
     assert sizes[:n_chunks] == [CHUNK] * (n_chunks - 1) + [n_points - CHUNK * (n_chunks - 1)]
-    assert sizes[n_chunks:] == [n_points], "the refined request is one job"
-    assert recorder.refines == ["none"] * n_chunks + ["zoomout"]
+    assert sizes[n_chunks:] == sizes[:n_chunks], "the refined request runs in the same chunks"
+    assert recorder.refines == ["none"] * n_chunks + ["zoomout"] * n_chunks
+    model = service.runtime.matching.default_model
+    source = service.runtime.matching._live.peek((model, ids[0]))
+    assert len(source._lazy["refined"]) == 1, "one refined map serves every chunk"
     assert plain.json()["refinement"] == "none" and refined.json()["refinement"] == "zoomout"
     reference = MatchingModel.tiny_random(SEED)
     prepared = [reference.prepare(shape, seed=0) for shape in shapes]

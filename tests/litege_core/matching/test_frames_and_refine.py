@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import numpy as np
@@ -337,3 +338,43 @@ def test_match_refine_hybrid_reports_its_seed(model, shapes):
     assert result.refinement in ("zoomout:litege", "zoomout:descriptors")
     assert result.indices.shape == queries.shape
     assert model.match(x, y, queries).refinement == "none"
+
+
+@pytest.mark.parametrize("refine", ["zoomout", "zoomout-hybrid"])
+def test_a_refined_pair_is_computed_once_and_every_batch_reuses_it(model, shapes, refine):
+    pytest.importorskip("pyFM")
+    x, y = model.prepare_many(list(shapes))
+    settings = ZoomOutSettings(k_init=10, n_eigen=30, step=5, n_samples=200, k_fit=20)
+    queries = np.arange(0, x.n_points, 53)
+    whole = model.match(x, y, queries, refine=refine, zoomout=settings)
+    first, second = queries[: queries.size // 2], queries[queries.size // 2 :]
+    batch_a = model.match(x, y, first, refine=refine, zoomout=settings)
+    batch_b = model.match(x, y, second, refine=refine, zoomout=settings)
+    # the batches of a stream answer exactly as the whole request, from the one kept map
+    np.testing.assert_array_equal(np.concatenate([batch_a.indices, batch_b.indices]), whole.indices)
+    np.testing.assert_allclose(
+        np.concatenate([batch_a.distance, batch_b.distance]), whole.distance, rtol=1e-6
+    )
+    assert batch_a.refinement == batch_b.refinement == whole.refinement
+    plain = model.match(x, y, first)
+    assert batch_a.evaluations == plain.evaluations + first.size  # no second seed search
+    assert len(x._lazy["refined"]) == 1
+    other = ZoomOutSettings(k_init=10, n_eigen=25, step=5, n_samples=200, k_fit=20)
+    model.match(x, y, first, refine=refine, zoomout=other)  # other settings: another map
+    assert len(x._lazy["refined"]) == 2
+    assert x.nbytes > sum(a.nbytes for a in x.to_arrays().values())  # spectra and maps counted
+
+
+def test_kept_refined_maps_are_bounded_per_source(model, shapes, monkeypatch):
+    pytest.importorskip("pyFM")
+    from litege_core.matching import model as model_module
+
+    monkeypatch.setattr(model_module, "REFINED_MAPS_PER_SHAPE", 1)
+    x, y = model.prepare_many(list(shapes))
+    settings = ZoomOutSettings(k_init=10, n_eigen=30, step=5, n_samples=200, k_fit=20)
+    for n_eigen in (30, 25):
+        model.match(
+            x, y, [0, 1], refine="zoomout", zoomout=dataclasses.replace(settings, n_eigen=n_eigen)
+        )
+    (kept,) = x._lazy["refined"]
+    assert kept[4].n_eigen == 25  # the newest map stays
