@@ -239,7 +239,13 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     folder.add_argument(
         "--vertices", default="2000,4000", help="vertex counts of the remeshed shapes: MIN,MAX"
     )
-    folder.add_argument("--solver", choices=("exact", "heat"), default="exact", help="ground truth")
+    folder.add_argument(
+        "--solver",
+        choices=("exact", "heat", "heat-fine"),
+        default="exact",
+        help="ground truth: exact MMP, or the heat method (heat-fine: a shorter diffusion "
+        "time, half the error at the same cost)",
+    )
     geodesic.set_defaults(handler=cmd_train_geodesic, one_of=("config", "meshes"))
     tnet = commands.add_parser(
         "tnet",

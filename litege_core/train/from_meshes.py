@@ -128,7 +128,8 @@ class FolderTrainOptions:
         shapes_per_mesh / eval_shapes_per_mesh: augmented shapes per train / val-test file.
         vertex_range: vertex counts of the remeshed shapes (log-uniform).
         n_sources / n_extra_sources: farthest-point and random ground-truth sources per shape.
-        solver: ``"exact"`` (MMP) or ``"heat"``.
+        solver: ``"exact"`` (MMP), ``"heat"`` or ``"heat-fine"`` (see
+            :data:`~litege_core.datasets.build.SOLVERS`).
         config: a TOML config whose tables override the generated one (``data.dataset`` and
             ``output.dir`` are always the command's).
         name: the bundle name (default: the folder's name).
