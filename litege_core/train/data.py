@@ -124,7 +124,8 @@ class ViewTables:
 
 
 def dataset_fingerprint(directory: str | Path) -> dict[str, object]:
-    """SHA-256 of the dataset's manifest file and its split counts (for provenance)."""
+    """SHA-256 of the dataset's manifest file, its split counts and its ground-truth solver
+    (for provenance and the model card)."""
     path = Path(directory) / MANIFEST
     dataset = GeodesicDataset(directory)
     return {
@@ -134,6 +135,7 @@ def dataset_fingerprint(directory: str | Path) -> dict[str, object]:
         "kind": dataset.kind,
         "manifest_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
         "counts": dict(dataset.manifest["counts"]),
+        "solver": dataset.manifest.get("solver"),
     }
 
 

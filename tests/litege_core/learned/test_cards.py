@@ -41,3 +41,40 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / name).unlink()
     write_sidecar_section(tmp_path)
     assert (tmp_path / "MODEL_CARD.md").read_text() == CARD
+
+
+def test_a_card_names_every_dataset_its_solver_the_warm_start_and_the_credits() -> None:
+    from litege_core.learned.cards import model_card
+
+    manifest = json.loads((SHIPPED_DIR / "quadrupeds" / "manifest.json").read_text())
+    single = model_card(manifest)
+    assert "- **Training data**: procedural `" in single and "Warm start" not in single
+    manifest["training"]["dataset"] = {
+        "datasets": [
+            {
+                "name": "quadruped-heat",
+                "category": "quadruped",
+                "kind": "template",
+                "counts": {"train": 416, "val": 48, "test": 48},
+                "manifest_sha256": "a" * 64,
+                "solver": "heat method (t_coef=1)",
+            },
+            {
+                "name": "rigged-heat",
+                "category": "rigged",
+                "kind": "collection",
+                "counts": {"train": 1500, "val": 120, "test": 120},
+                "manifest_sha256": "b" * 64,
+                "solver": "heat method (t_coef=0.35)",
+            },
+        ],
+        "manifest_sha256": "c" * 64,
+    }
+    manifest["training"]["init_bundle"] = "d" * 64
+    card = model_card(manifest)
+    assert "`quadruped-heat`: procedural quadrupeds" in card
+    assert "`rigged-heat`: posed rigged animals" in card
+    assert "ground truth: heat method (t_coef=1)" in card
+    assert "ground truth: heat method (t_coef=0.35)" in card
+    assert "**Warm start**: fine-tuned from the bundle `dddddddddddddddd`" in card
+    assert "@tomkranis (CC BY 4.0)" in card  # the Khronos fox's rig is CC BY
