@@ -197,8 +197,12 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
 
 def write_sidecar_section(directory: str | os.PathLike) -> None:
     """Rewrite the sidecar section of ``DIRECTORY/MODEL_CARD.md`` from the sidecars present
-    (after a small head or a fusion calibration was written beside a shipped bundle)."""
+    (after a small head or a fusion calibration was written beside a shipped bundle). A bundle
+    with no card yet (a training run's output) is left alone: ``scripts/ship_model.py`` writes
+    its card, sidecar section included."""
     path = Path(directory) / "MODEL_CARD.md"
+    if not path.exists():
+        return
     card = path.read_text()
     start = card.find(f"\n## {SIDECARS_TITLE}\n")
     if start >= 0:

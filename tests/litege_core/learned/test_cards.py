@@ -78,3 +78,9 @@ def test_a_card_names_every_dataset_its_solver_the_warm_start_and_the_credits() 
     assert "ground truth: heat method (t_coef=0.35)" in card
     assert "**Warm start**: fine-tuned from the bundle `dddddddddddddddd`" in card
     assert "@tomkranis (CC BY 4.0)" in card  # the Khronos fox's rig is CC BY
+
+
+def test_a_bundle_without_a_card_is_left_alone(tmp_path) -> None:
+    shutil.copyfile(SHIPPED_DIR / "quadrupeds" / FUSION_CONFIG, tmp_path / FUSION_CONFIG)
+    write_sidecar_section(tmp_path)  # a training run's bundle: the card comes when it ships
+    assert not (tmp_path / "MODEL_CARD.md").exists()
