@@ -82,10 +82,10 @@ SIDES: tuple[str, ...] = ("frame", "network")
 and keep the lower mean predicted distance."""
 
 MAX_PAIRS_PER_CALL = 16_384
+"""(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
 REFINED_MAPS_PER_SHAPE = 8
 """Refined functional maps (``refine`` other than ``"none"``) kept per source shape, one per
 target (and side, refinement and settings), newest last."""
-"""(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
 _EMBED_ROWS = 8192
 
 
@@ -155,7 +155,8 @@ class MatchingShape:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays and of any computed feature tables."""
+        """Bytes of the arrays and of what was computed later: feature tables, spectra and
+        kept refined maps."""
         own = sum(a.nbytes for a in self.to_arrays().values())
         return int(own + sum(_lazy_nbytes(value) for value in self._lazy.values()))
 
