@@ -305,15 +305,20 @@ class RefinedMap:
 
     Attributes:
         fmap: ``(k2, k1)`` functional map (Y → X functions, pyFM's convention).
-        refinement: ``"zoomout"``, or ``"zoomout:litege"`` / ``"zoomout:descriptors"`` for
-            ``zoomout-hybrid`` (the start of the kept map).
+        seed: ``zoomout-hybrid``'s start of the kept map, ``"litege"`` or ``"descriptors"``
+            (``None`` for plain ZoomOut, which starts from LiteGE's matches).
         distortion: the hybrid's check ``{"litege": float, "descriptors": float}`` (empty for
             plain ZoomOut).
     """
 
     fmap: NDArray
-    refinement: str
+    seed: str | None = None
     distortion: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def refinement(self) -> str:
+        """``"zoomout"``, or ``"zoomout:litege"`` / ``"zoomout:descriptors"`` (hybrid)."""
+        return "zoomout" if self.seed is None else f"zoomout:{self.seed}"
 
     @property
     def nbytes(self) -> int:
@@ -344,7 +349,7 @@ def refined_map(
             distortion check (``zoomout-hybrid`` only).
     """
     if method == "zoomout":
-        return RefinedMap(zoomout_map(seed_map, source, target, settings), "zoomout")
+        return RefinedMap(zoomout_map(seed_map, source, target, settings))
     if method != "zoomout-hybrid":
         raise InputError(f"no refined map for refine={method!r}")
     if source_heat is None or target_heat is None or source_points is None:
@@ -365,7 +370,7 @@ def refined_map(
             source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
         )
     seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
-    return RefinedMap(maps[seed], f"zoomout:{seed}", distortion)
+    return RefinedMap(maps[seed], seed, distortion)
 
 
 def hybrid_refine(
@@ -395,9 +400,9 @@ def hybrid_refine(
         target_heat,
         source_points,
     )
-    rows = np.asarray(rows, dtype=np.int64)
-    seed = refined.refinement.split(":", 1)[1]
-    return HybridResult(refined.matches(source, target, rows), seed, refined.distortion)
+    assert refined.seed is not None  # a hybrid map always names its start
+    matches = refined.matches(source, target, np.asarray(rows, dtype=np.int64))
+    return HybridResult(matches, refined.seed, refined.distortion)
 
 
 __all__ = [
