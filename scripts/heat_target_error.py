@@ -22,11 +22,9 @@ import numpy as np
 import torch
 
 from litege_core.datasets import GeodesicDataset
-from litege_core.datasets.build import exact_distance_rows
+from litege_core.datasets.build import exact_distance_rows, heat_distance_rows
 from litege_core.datasets.reader import shape_mesh
-from litege_core.engines import compute_distances
 from litege_core.evaluation.speed import cpu_name
-from litege_core.shape import Shape
 
 
 def compare(directory: str, split: str, timed: int, t_coef: float) -> dict[str, object]:
@@ -40,8 +38,7 @@ def compare(directory: str, split: str, timed: int, t_coef: float) -> dict[str, 
         sources = np.asarray(arrays["sources"][index], dtype=np.int64)
         exact = np.asarray(arrays["distances"][index][:, : vertices.shape[0]], dtype=np.float64)
         start = time.process_time()
-        mesh = Shape.from_arrays(vertices, faces)
-        heat = compute_distances(mesh, sources, method="heat", t_coef=t_coef).distances
+        heat = heat_distance_rows(vertices, faces, sources, t_coef)
         heat_s.append(time.process_time() - start)
         if index < timed:
             start = time.process_time()
