@@ -103,6 +103,12 @@ def cmd_train_tnet(args: argparse.Namespace) -> int:
 
     _ensure_console_logging()
     config = load_tnet_config(args.config)
+    if args.workers is not None:
+        config = config.replace(
+            data={"workers": args.workers}, train={"loader_workers": args.workers}
+        )
+    if args.time_budget is not None:
+        config = config.replace(train={"time_budget_minutes": args.time_budget})
     report = run_tnet_training(config, out=args.out)
     alignment = report["alignment"] or {}
     print_json(
@@ -111,6 +117,7 @@ def cmd_train_tnet(args: argparse.Namespace) -> int:
             "best_step": report["training"]["best_step"],
             "best_val": report["training"]["best_val"],
             "steps_per_second": report["training"]["steps_per_second"],
+            "steps_run": report["training"]["steps_run"],
             "alignment": {
                 name: {k: stats[k] for k in ("mean", "std", "median", "max", "n_failures", "n")}
                 for name, stats in alignment.items()
@@ -253,6 +260,21 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     )
     tnet.add_argument("--config", required=True, help="TOML T-Net config (configs/tnet-*.toml)")
     tnet.add_argument("--out", default=None, help="run directory (overrides output.dir)")
+    tnet.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes generating the shapes and sampling the batches "
+        "(overrides data.workers and train.loader_workers)",
+    )
+    tnet.add_argument(
+        "--time-budget",
+        type=float,
+        default=None,
+        metavar="MINUTES",
+        help="fit the run to this many minutes of training (train.time_budget_minutes); "
+        "the report comes on top",
+    )
     tnet.set_defaults(handler=cmd_train_tnet)
     matching = commands.add_parser(
         "matching",

@@ -46,6 +46,7 @@ import logging
 import math
 import os
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -84,6 +85,9 @@ PREDICT_MAX_POINTS = 2000
 FAILURE_THRESHOLD = 0.66
 """Angular error (rad) above which a training shape is rejected (spec §1.6)."""
 
+PLAN_AFTER_STEPS = 100
+"""With ``train.time_budget_minutes``, the steps timed before the run is re-planned."""
+
 _VAL_MODES = ("mesh", "cloud500", "broken")
 
 
@@ -100,10 +104,13 @@ class TNetDataConfig:
     cache_dir: str = ""
     """When set, the canonical shapes of a split are stored there (``.npz``, keyed by category,
     split, count and generator version) and reused by later runs (generation ≈ 0.5 s/shape)."""
+    workers: int = 1
+    """Processes generating the shapes (the same shapes for any count)."""
 
     def __post_init__(self) -> None:
         _check(bool(self.category), "data.category is required")
         _check(self.n_train >= 1 and self.n_val >= 1, "data.n_train and data.n_val must be ≥ 1")
+        _check(self.workers >= 1, "data.workers must be ≥ 1")
 
 
 @dataclass(frozen=True)
@@ -166,6 +173,12 @@ class TNetOptimConfig:
         log_every: a training log line every this many steps.
         seed: network initialization, batches, validation set.
         device: ``"auto"``, ``"cpu"``, ``"cuda"``…; threads: torch CPU threads (0: default).
+        loader_workers: processes sampling the batches ahead of the optimizer (0: the training
+            process samples them itself); the batches are the same either way.
+        time_budget_minutes: when positive, the run is re-planned after its first
+            :data:`PLAN_AFTER_STEPS` steps to the step count that fits this many minutes of
+            training at the measured rate (at most ``steps``; the cosine schedule spans the
+            planned count, which the summary records); the final report comes on top.
     """
 
     batch_size: int = 32
@@ -179,9 +192,13 @@ class TNetOptimConfig:
     seed: int = 0
     device: str = "cpu"
     threads: int = 1
+    loader_workers: int = 0
+    time_budget_minutes: float = 0.0
 
     def __post_init__(self) -> None:
         _check(self.batch_size >= 2, "train.batch_size must be ≥ 2 (BatchNorm in the FC head)")
+        _check(self.loader_workers >= 0, "train.loader_workers must be ≥ 0")
+        _check(self.time_budget_minutes >= 0.0, "train.time_budget_minutes must be ≥ 0")
         _check(self.steps >= 1, "train.steps must be ≥ 1")
         _check(0.0 < self.eta_min <= self.lr, "need 0 < eta_min ≤ lr")
         _check(self.point_weight >= 0.0, "train.point_weight must be ≥ 0")
@@ -251,32 +268,63 @@ class ShapeSet(NamedTuple):
         return len(self.vertices)
 
 
+def _canonical_mesh(verts: ArrayLike, tris: ArrayLike, index: int) -> tuple[NDArray, NDArray]:
+    """One mesh in the template orientation → its centred, unit-area copy (identity rotation);
+    ``index`` seeds the area-weighted samples of the centre."""
+    verts = np.asarray(verts, dtype=np.float64)
+    tris = np.asarray(tris, dtype=np.int64)
+    return canonicalize_unit_area(verts, tris, seed=index).apply(verts), tris
+
+
 def canonical_shape_set(
     meshes: Sequence[tuple[ArrayLike, ArrayLike]], keys: Sequence[tuple[str, int]] | None = None
 ) -> ShapeSet:
     """Meshes in the template orientation → centred, unit-area copies (identity rotation)."""
-    vertices, faces = [], []
-    for index, (verts, tris) in enumerate(meshes):
-        verts = np.asarray(verts, dtype=np.float64)
-        tris = np.asarray(tris, dtype=np.int64)
-        transform = canonicalize_unit_area(verts, tris, seed=index)
-        vertices.append(transform.apply(verts))
-        faces.append(tris)
+    canonical = [_canonical_mesh(verts, tris, index) for index, (verts, tris) in enumerate(meshes)]
     if keys is None:
-        keys = [("", index) for index in range(len(vertices))]
-    return ShapeSet(vertices, faces, list(keys))
+        keys = [("", index) for index in range(len(canonical))]
+    return ShapeSet([v for v, _ in canonical], [f for _, f in canonical], list(keys))
+
+
+def _generated_canonical(job: tuple[str, str, int, int]) -> tuple[NDArray, NDArray]:
+    """``(category, family, seed, index)`` → the canonical mesh of that procedural shape."""
+    from litege_core.synth import generate_shape
+
+    category, family, seed, index = job
+    shape = generate_shape(category, family, seed)
+    return _canonical_mesh(shape.vertices, shape.faces, index)
+
+
+def _generate_canonical(category: str, keys: Sequence[tuple[str, int]], workers: int) -> ShapeSet:
+    """The procedural shapes ``keys`` in the canonical frame, on ``workers`` processes (each
+    shape is a pure function of its key and position, so the count does not change them)."""
+    jobs = [(category, family, seed, index) for index, (family, seed) in enumerate(keys)]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+
+        context = multiprocessing.get_context("fork")
+        with context.Pool(min(workers, len(jobs))) as pool:
+            meshes = pool.map(_generated_canonical, jobs, chunksize=4)
+    else:
+        meshes = [_generated_canonical(job) for job in jobs]
+    return ShapeSet([v for v, _ in meshes], [f for _, f in meshes], list(keys))
 
 
 def generate_shape_set(
-    category: str, split: str, n_shapes: int, cache_dir: str | Path | None = None
+    category: str,
+    split: str,
+    n_shapes: int,
+    cache_dir: str | Path | None = None,
+    workers: int = 1,
 ) -> ShapeSet:
     """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical.
 
     With ``cache_dir`` the set is kept in
     ``<cache_dir>/tnet-shapes-<category>-<split>-<n>-<generator version>.npz``: the largest
     cached set of the split is reused (sliced, or extended by generating the missing shapes).
+    ``workers`` processes generate the missing shapes.
     """
-    from litege_core.synth import GENERATOR_VERSION, families, generate_shape
+    from litege_core.synth import GENERATOR_VERSION, families
 
     names = families(category)
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
@@ -292,11 +340,7 @@ def generate_shape_set(
         if sizes:
             with np.load(Path(cache_dir) / f"{prefix}{max(sizes)}{suffix}") as data:
                 cached, faces = list(data["vertices"][:n_shapes]), data["faces"]
-    meshes = []
-    for family, seed in keys[len(cached) :]:
-        shape = generate_shape(category, family, seed)
-        meshes.append((shape.vertices, shape.faces))
-    fresh = canonical_shape_set(meshes, keys[len(cached) :])
+    fresh = _generate_canonical(category, keys[len(cached) :], workers)
     if faces is None:
         faces = fresh.faces[0] if fresh.faces else np.zeros((0, 3), dtype=np.int64)
     shared = all(np.array_equal(f, faces) for f in fresh.faces)
@@ -347,17 +391,37 @@ def _item_cloud(
     return points * scale
 
 
+class _BatchArrays(NamedTuple):
+    """A batch as float32 numpy arrays (what a loader process sends back) and the indices of
+    its :data:`~litege_core.nets.tnet.CUBE_ROTATIONS` frame turns (``None``: no turns)."""
+
+    canonical: NDArray
+    rotated: NDArray
+    R_gt: NDArray
+    turn_indices: NDArray | None = None
+
+    def tensors(self) -> TNetBatch:
+        turns = None if self.turn_indices is None else CUBE_ROTATIONS[self.turn_indices].float()
+        return TNetBatch(
+            torch.from_numpy(self.canonical),
+            torch.from_numpy(self.rotated),
+            torch.from_numpy(self.R_gt),
+            turns,
+        )
+
+
+def _batch_arrays(canonical: NDArray, rotations: NDArray) -> _BatchArrays:
+    rotated = np.einsum("bnj,bij->bni", canonical, rotations)
+    return _BatchArrays(*(np.asarray(a, dtype=np.float32) for a in (canonical, rotated, rotations)))
+
+
 def _make_batch(canonical: NDArray, rotations: NDArray) -> TNetBatch:
-    canon = torch.as_tensor(canonical, dtype=torch.float32)
-    R_gt = torch.as_tensor(rotations, dtype=torch.float32)
-    rotated = torch.as_tensor(np.einsum("bnj,bij->bni", canonical, rotations), dtype=torch.float32)
-    return TNetBatch(canon, rotated, R_gt)
+    return _batch_arrays(canonical, rotations).tensors()
 
 
-def sample_batch(
+def _sample_batch_arrays(
     shapes: ShapeSet, config: TNetTrainConfig, step: int, batch_size: int | None = None
-) -> TNetBatch:
-    """The training batch of (0-based) ``step``; a pure function of ``(seed, step)``."""
+) -> _BatchArrays:
     augment = config.augment
     rng = np.random.default_rng([config.train.seed, 1, step])
     batch = config.train.batch_size if batch_size is None else batch_size
@@ -369,11 +433,78 @@ def sample_batch(
     clouds = np.stack(
         [_item_cloud(shapes.vertices[i], shapes.faces[i], n_points, augment, rng) for i in index]
     )
-    batch_out = _make_batch(clouds, rotations)
+    arrays = _batch_arrays(clouds, rotations)
     if augment.frame_turns:
-        turns = CUBE_ROTATIONS[rng.integers(len(CUBE_ROTATIONS), size=batch)].float()
-        batch_out = batch_out._replace(frame_turns=turns)
-    return batch_out
+        arrays = arrays._replace(turn_indices=rng.integers(len(CUBE_ROTATIONS), size=batch))
+    return arrays
+
+
+def sample_batch(
+    shapes: ShapeSet, config: TNetTrainConfig, step: int, batch_size: int | None = None
+) -> TNetBatch:
+    """The training batch of (0-based) ``step``; a pure function of ``(seed, step)``."""
+    return _sample_batch_arrays(shapes, config, step, batch_size).tensors()
+
+
+_LOADER_INPUTS: tuple[ShapeSet, TNetTrainConfig] | None = None
+"""What the forked loader processes sample from (set by :class:`BatchLoader` before the fork)."""
+
+
+def _loader_batch(step: int) -> _BatchArrays:
+    assert _LOADER_INPUTS is not None, "loader process started without its inputs"
+    shapes, config = _LOADER_INPUTS
+    return _sample_batch_arrays(shapes, config, step)
+
+
+class BatchLoader:
+    """The training batches of steps ``0, 1, 2, …`` in order, sampled ``workers`` processes
+    ahead of the optimizer (at most ``2 × workers`` batches in flight), or in this process when
+    ``workers`` is 0. Either way batch ``t`` is :func:`sample_batch` of step ``t``.
+
+    Use as a context manager; the processes are forked on entry (before any CUDA work of the
+    caller is safest: they only run numpy) and stopped on exit.
+    """
+
+    def __init__(self, shapes: ShapeSet, config: TNetTrainConfig, workers: int) -> None:
+        self.shapes, self.config, self.workers = shapes, config, workers
+        self._pool: Any = None
+        self._pending: deque[Any] = deque()
+        self._next_submit = 0
+
+    def __enter__(self) -> BatchLoader:
+        global _LOADER_INPUTS
+        if self.workers > 0:
+            import multiprocessing
+
+            _LOADER_INPUTS = (self.shapes, self.config)
+            try:
+                self._pool = multiprocessing.get_context("fork").Pool(self.workers)
+            finally:
+                _LOADER_INPUTS = None
+            for _ in range(2 * self.workers):
+                self._submit()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
+
+    def _submit(self) -> None:
+        self._pending.append(self._pool.apply_async(_loader_batch, (self._next_submit,)))
+        self._next_submit += 1
+
+    def batch(self, step: int) -> TNetBatch:
+        """The batch of ``step`` (steps must be asked for in order, from 0)."""
+        if self._pool is None:
+            return sample_batch(self.shapes, self.config, step)
+        expected = self._next_submit - len(self._pending)
+        if step != expected:
+            raise InputError(f"BatchLoader serves steps in order: asked {step}, next {expected}")
+        arrays = self._pending.popleft().get()
+        self._submit()
+        return arrays.tensors()
 
 
 class ValidationSet(NamedTuple):
@@ -612,9 +743,9 @@ def predict_rotation(net: TNet, points: ArrayLike) -> NDArray:
 # --------------------------------------------------------------------------- training
 
 
-def cosine_lr(step: int, config: TNetOptimConfig) -> float:
-    """``η_min + (η_0 − η_min)(1 + cos(π·step/steps))/2``."""
-    fraction = min(max(step / config.steps, 0.0), 1.0)
+def cosine_lr(step: int, config: TNetOptimConfig, total: int | None = None) -> float:
+    """``η_min + (η_0 − η_min)(1 + cos(π·step/total))/2`` (``total``: ``steps`` by default)."""
+    fraction = min(max(step / (total or config.steps), 0.0), 1.0)
     return config.eta_min + (config.lr - config.eta_min) * 0.5 * (1 + math.cos(math.pi * fraction))
 
 
@@ -647,6 +778,8 @@ class TNetRunResult:
     history: list[dict[str, Any]]
     seconds: float
     steps_per_second: float
+    steps: int = 0
+    """Optimizer steps run (``train.steps``, or the count a time budget planned)."""
     report: dict[str, Any] | None = None
 
 
@@ -676,28 +809,80 @@ def train_tnet(
     started = time.perf_counter()
     if train_shapes is None:
         train_shapes = generate_shape_set(
-            config.data.category, "train", config.data.n_train, config.data.cache_dir
+            config.data.category,
+            "train",
+            config.data.n_train,
+            config.data.cache_dir,
+            config.data.workers,
         )
         LOG.info(
             "generated %d train shapes in %.1f s", len(train_shapes), time.perf_counter() - started
         )
     if val_shapes is None:
         mark = time.perf_counter()
+        data = config.data
         val_shapes = generate_shape_set(
-            config.data.category, "val", config.data.n_val, config.data.cache_dir
+            data.category, "val", data.n_val, data.cache_dir, data.workers
         )
         LOG.info("generated %d val shapes in %.1f s", len(val_shapes), time.perf_counter() - mark)
     val = validation_set(val_shapes, config)
+    with BatchLoader(train_shapes, config, opt.loader_workers) as loader:
+        run = _optimize(config, loader, val, device, weights_path)
+    net, best_val, best_step, history, train_seconds, steps_done = run
+    result = TNetRunResult(
+        net=net,
+        best_val=best_val,
+        best_step=best_step,
+        history=history,
+        seconds=time.perf_counter() - started,
+        steps_per_second=steps_done / train_seconds if train_seconds > 0 else 0.0,
+        steps=steps_done,
+    )
+    if make_report:
+        mark = time.perf_counter()
+        result.report = alignment_report(net, train_shapes, val_shapes, config.report)
+        LOG.info("alignment report in %.1f s", time.perf_counter() - mark)
+    return result
 
+
+class _OptimizeResult(NamedTuple):
+    net: TNet
+    best_val: dict[str, float]
+    best_step: int
+    history: list[dict[str, Any]]
+    train_seconds: float
+    steps: int
+
+
+def _planned_steps(config: TNetOptimConfig, done: int, elapsed: float) -> int:
+    """The step count that fits ``time_budget_minutes`` at the rate of the first ``done`` steps
+    (``elapsed`` wall seconds, validation included), at least ``done`` and at most ``steps``."""
+    budget = config.time_budget_minutes * 60.0
+    fitting = done + int((budget - elapsed) * done / max(elapsed, 1e-9))
+    return min(config.steps, max(done, fitting))
+
+
+def _optimize(
+    config: TNetTrainConfig,
+    loader: BatchLoader,
+    val: ValidationSet,
+    device: torch.device,
+    weights_path: str | Path | None,
+) -> _OptimizeResult:
+    """The optimization loop of :func:`train_tnet`; the network comes back with the best
+    validation weights, in eval mode (also written to ``weights_path`` at each improvement)."""
+    opt = config.train
     torch.manual_seed(opt.seed)
     network = config.network
     net = TNet(network.conv_widths, network.fc_widths, network.prealign).to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=opt.lr)
     n_params = sum(p.numel() for p in net.parameters())
     LOG.info(
-        "T-Net %s (%d parameters) on %s, %d steps × %d clouds of %d..%d points",
-        net.config(), n_params, device, opt.steps, opt.batch_size,
-        config.augment.min_points, config.augment.max_points,
+        "T-Net %s (%d parameters) on %s, %d steps × %d clouds of %d..%d points, %d loader "
+        "processes%s",
+        net.config(), n_params, device, opt.steps, opt.batch_size, config.augment.min_points,
+        config.augment.max_points, opt.loader_workers,
+        f", budget {opt.time_budget_minutes:g} min" if opt.time_budget_minutes else "",
     )  # fmt: skip
 
     best_val: dict[str, float] = {"mean": math.inf}
@@ -706,24 +891,35 @@ def train_tnet(
     history: list[dict[str, Any]] = []
     window: list[dict[str, float]] = []
     train_seconds = 0.0
-    for step in range(opt.steps):
+    total = opt.steps
+    started = time.perf_counter()
+    step = 0
+    while step < total:
         tick = time.perf_counter()
         for group in optimizer.param_groups:
-            group["lr"] = cosine_lr(step, opt)
+            group["lr"] = cosine_lr(step, opt, total)
         net.train()
-        batch = sample_batch(train_shapes, config, step)
+        batch = loader.batch(step)
         window.append(train_step(net, optimizer, batch, opt.point_weight))
         train_seconds += time.perf_counter() - tick
-        done = step + 1
-        if done % opt.log_every == 0 or done == opt.steps:
+        step = done = step + 1
+        if opt.time_budget_minutes > 0:
+            elapsed = time.perf_counter() - started
+            if done == min(PLAN_AFTER_STEPS, total):
+                total = _planned_steps(opt, done, elapsed)
+                LOG.info("time budget %g min: %d steps planned", opt.time_budget_minutes, total)
+            elif elapsed > opt.time_budget_minutes * 60.0:
+                LOG.info("time budget spent at step %d of %d planned", done, total)
+                total = done
+        if done % opt.log_every == 0 or done == total:
             means = {k: float(np.mean([w[k] for w in window])) for k in window[0]}
             LOG.info(
                 "step %d/%d lr %.2e loss %.4f angle %.4f point %.4f (N=%d, %.2f steps/s)",
-                done, opt.steps, optimizer.param_groups[0]["lr"], means["loss"], means["angle"],
+                done, total, optimizer.param_groups[0]["lr"], means["loss"], means["angle"],
                 means["point"], batch.canonical.shape[1], done / train_seconds,
             )  # fmt: skip
             window = []
-        if done % opt.val_every == 0 or done == opt.steps:
+        if done % opt.val_every == 0 or done == total:
             scores = validate(net, val)
             improved = scores["mean"] < best_val["mean"]
             history.append({"step": done, "val": scores, "improved": improved})
@@ -739,19 +935,7 @@ def train_tnet(
             )  # fmt: skip
     load_state(net, best_state)
     net.eval()
-    result = TNetRunResult(
-        net=net,
-        best_val=best_val,
-        best_step=best_step,
-        history=history,
-        seconds=time.perf_counter() - started,
-        steps_per_second=opt.steps / train_seconds if train_seconds > 0 else 0.0,
-    )
-    if make_report:
-        mark = time.perf_counter()
-        result.report = alignment_report(net, train_shapes, val_shapes, config.report)
-        LOG.info("alignment report in %.1f s", time.perf_counter() - mark)
-    return result
+    return _OptimizeResult(net, best_val, best_step, history, train_seconds, total)
 
 
 def _training_summary(config: TNetTrainConfig, best_step: int, best_val: dict) -> dict[str, Any]:
@@ -792,6 +976,7 @@ def run_tnet_training(
         summary.update(
             seconds=round(result.seconds, 1),
             steps_per_second=round(result.steps_per_second, 3),
+            steps_run=result.steps,
             threads=torch.get_num_threads(),
         )
         save_tnet(result.net, weights, summary)
@@ -821,6 +1006,7 @@ __all__ = [
     "FAILURE_THRESHOLD",
     "PREDICT_MAX_POINTS",
     "TNET_FORMAT",
+    "BatchLoader",
     "ShapeSet",
     "TNetAugmentConfig",
     "TNetBatch",

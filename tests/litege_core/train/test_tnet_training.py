@@ -19,6 +19,7 @@ from litege_core.nets.tnet import CUBE_ROTATIONS
 from litege_core.sampling import sample_surface
 from litege_core.train.tnet import (
     PREDICT_MAX_POINTS,
+    BatchLoader,
     TNetTrainConfig,
     alignment_report,
     angle_statistics,
@@ -387,3 +388,85 @@ def test_frame_turns_are_drawn_per_item_and_used_in_training(toy_shapes, tmp_pat
     assert torch.equal(again.frame_turns, turns)
     result = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
     assert result.net.prealign == "pca" and math.isfinite(result.best_val["mean"])
+
+
+# --------------------------------------------------------------------------- parallel runs
+
+
+def test_parallel_shape_generation_gives_the_serial_shapes() -> None:
+    serial = generate_shape_set("quadruped", "val", 3)
+    parallel = generate_shape_set("quadruped", "val", 3, workers=2)
+    assert parallel.keys == serial.keys
+    for a, b in zip(parallel.vertices, serial.vertices, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_batch_loader_processes_serve_the_sampled_batches_in_order(toy_shapes, tmp_path) -> None:
+    train, _ = toy_shapes
+    config = tiny_config(tmp_path, augment={"frame_turns": True}, network={"prealign": "pca"})
+    with BatchLoader(train, config, workers=2) as loader:
+        for step in range(6):  # more steps than the batches first put in flight (2 × workers)
+            served, sampled = loader.batch(step), sample_batch(train, config, step)
+            assert all(torch.equal(a, b) for a, b in zip(served, sampled, strict=True))
+        with pytest.raises(InputError, match="in order"):
+            loader.batch(9)
+    with BatchLoader(train, config, workers=0) as inline:  # no processes: sampled on demand
+        assert torch.equal(inline.batch(5).R_gt, sample_batch(train, config, 5).R_gt)
+
+
+def test_training_with_loader_processes_is_the_same_run(toy_shapes, tmp_path) -> None:
+    train, val = toy_shapes
+    config = tiny_config(tmp_path)
+    inline = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    forked = train_tnet(
+        config.replace(train={"loader_workers": 2}),
+        train_shapes=train,
+        val_shapes=val,
+        make_report=False,
+    )
+    a, b = state_to_tensors(inline.net), state_to_tensors(forked.net)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert forked.best_val == inline.best_val and forked.steps == inline.steps == 6
+
+
+def test_time_budget_plans_the_steps_that_fit() -> None:
+    opt = TNetTrainConfig.from_dict({"train": {"steps": 10_000, "time_budget_minutes": 1.0}}).train
+    # 100 steps in 6 s: 54 s left at ~16.7 steps/s → 900 more
+    assert tnet_module._planned_steps(opt, 100, 6.0) == 1000
+    assert tnet_module._planned_steps(opt, 100, 0.01) == 10_000  # capped at train.steps
+    assert tnet_module._planned_steps(opt, 100, 90.0) == 100  # already over: stop now
+
+
+def test_time_budget_run_records_the_steps_it_ran(toy_shapes, tmp_path, monkeypatch) -> None:
+    train, val = toy_shapes
+    monkeypatch.setattr(tnet_module, "PLAN_AFTER_STEPS", 2)
+    monkeypatch.setattr(tnet_module, "_planned_steps", lambda opt, done, elapsed: 4)
+    config = tiny_config(tmp_path, train={"steps": 50, "time_budget_minutes": 5.0})
+    result = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    assert result.steps == 4
+    assert [h["step"] for h in result.history] == [3, 4]  # val_every 3, then the last step
+    assert cosine_lr(4, config.train, result.steps) == pytest.approx(config.train.eta_min)
+
+
+def test_cli_overrides_workers_and_time_budget(monkeypatch, tmp_path) -> None:
+    captured = {}
+
+    def fake_run(config, out=None):
+        captured["config"] = config
+        return {
+            "weights": "w",
+            "training": {"best_step": 1, "best_val": {}, "steps_per_second": 1.0, "steps_run": 1},
+            "alignment": {},
+        }
+
+    monkeypatch.setattr(tnet_module, "run_tnet_training", fake_run)
+    parser = argparse.ArgumentParser(prog="litege")
+    add_train_parser(parser.add_subparsers(dest="command", required=True))
+    config_path = REPO / "configs" / "tnet-quadrupeds.toml"
+    args = parser.parse_args(
+        ["train", "tnet", "--config", str(config_path), "--workers", "3", "--time-budget", "2.5"]
+    )
+    assert args.handler(args) == 0
+    config = captured["config"]
+    assert (config.data.workers, config.train.loader_workers) == (3, 3)
+    assert config.train.time_budget_minutes == 2.5
