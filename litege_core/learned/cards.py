@@ -72,6 +72,7 @@ def _matching_facts(manifest: dict) -> CardFacts:
             f"{json.dumps(manifest['pipeline'])}.",
             f"- **Networks**: {json.dumps(manifest['networks'])}; search "
             f"{json.dumps(manifest['search'])}.",
+            *_tnet_swap_line(training.get("tnet_swap")),
         ],
         training=f"{training.get('train_views')} views ({training.get('rejected_views')} "
         f"rejected by the 0.66 rad T-Net filter), {len(training.get('first_passes', []))} first "
@@ -85,6 +86,25 @@ def _matching_facts(manifest: dict) -> CardFacts:
         "targets, ~2 % error) at width 200 and 64 components (the 30 MB shipping budget); see "
         "BENCHMARKS.md for where the design targets are met and missed.",
     )
+
+
+def _tnet_swap_line(swap: dict | None) -> list[str]:
+    """The card line of a T-Net replaced after the networks were trained
+    (``scripts/swap_tnet.py``): its training run and what it replaced."""
+    if not swap:
+        return []
+    run = swap.get("tnet_training", {})
+    config = run.get("config", {})
+    shapes = config.get("data", {}).get("n_train")
+    train = config.get("train", {})
+    return [
+        f"- **T-Net**: replaced after the networks were trained (`scripts/swap_tnet.py`): "
+        f"trained on {shapes} procedural shapes, batch {train.get('batch_size')}, best "
+        f"validation step {run.get('best_step')} (mean angle "
+        f"{run.get('best_val', {}).get('mean', float('nan')):.3f} rad), frame turns "
+        f"{config.get('augment', {}).get('frame_turns')}; it replaced the T-Net "
+        f"{json.dumps(swap.get('replaced'))} the networks were trained with."
+    ]
 
 
 CARD_FACTS: dict[str, Callable[[dict], CardFacts]] = {

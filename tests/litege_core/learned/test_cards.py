@@ -84,3 +84,26 @@ def test_a_bundle_without_a_card_is_left_alone(tmp_path) -> None:
     shutil.copyfile(SHIPPED_DIR / "quadrupeds" / FUSION_CONFIG, tmp_path / FUSION_CONFIG)
     write_sidecar_section(tmp_path)  # a training run's bundle: the card comes when it ships
     assert not (tmp_path / "MODEL_CARD.md").exists()
+
+
+def test_a_matching_card_says_when_its_t_net_was_replaced() -> None:
+    from litege_core.learned.cards import model_card
+
+    manifest = json.loads((SHIPPED_DIR / "quadrupeds-matching" / "manifest.json").read_text())
+    assert "replaced after the networks were trained" not in model_card(manifest)
+    manifest["training"]["tnet_swap"] = {
+        "source": "out/tnet-gpu-a/tnet.safetensors",
+        "replaced": manifest["tnet"],
+        "tnet_training": {
+            "best_step": 4000,
+            "best_val": {"mean": 0.5624},
+            "config": {
+                "data": {"n_train": 5000},
+                "train": {"batch_size": 144},
+                "augment": {"frame_turns": True},
+            },
+        },
+    }
+    card = model_card(manifest)
+    assert "trained on 5000 procedural shapes, batch 144, best validation step 4000" in card
+    assert "(mean angle 0.562 rad), frame turns True" in card
