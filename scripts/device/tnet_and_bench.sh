@@ -3,13 +3,16 @@
 #   1. issue 17: the paper's Table 1 (B clouds × 1 query) on CPU and CUDA, and the CUDA tests;
 #   2. issue 15: procedural T-Net shapes generated on the CPU cores, then two T-Nets trained on
 #      the GPU side by side (batches sampled by loader processes), each fit to a time budget.
-# Everything comes back under $OUT (at most 8 files): gpu.md, tnet-a/*, tnet-b/*.
+# Everything comes back under $OUT (8 files, the limit): gpu.md, shapes.log, tnet-a/*, tnet-b/*.
+# Sizing (H100 machine, 2026-11-26): ~1 s per shape per generating process (2,000 shapes on 14:
+# ~150 s), benchmarks + CUDA tests ~140 s meanwhile, ~23 steps/s per training with 7 loader
+# processes; a 9.5-minute call fits BUDGET=5 with the reports.
 # Usage (repository root; the device's python3 has torch; our wheels come in .whl/):
-#   OUT=/tmp/out N_TRAIN=5000 BUDGET=5 bash scripts/device/tnet_and_bench.sh
+#   OUT=/tmp/out N_TRAIN=2000 BUDGET=5 bash scripts/device/tnet_and_bench.sh
 # Scaled down for a rehearsal on a laptop: N_TRAIN=24 N_VAL=4 BUDGET=0.2 WORKERS=2 BENCH_RUNS=1.
 set -u
 PY=${PY:-python3}
-N_TRAIN=${N_TRAIN:-5000}
+N_TRAIN=${N_TRAIN:-2000}
 N_VAL=${N_VAL:-40}
 BUDGET=${BUDGET:-5}
 WORKERS=${WORKERS:-14}          # shape generation; each training gets half as loader processes
@@ -52,17 +55,16 @@ wait "$shapes_pid"
 stamp "shapes done: $(tail -1 "$OUT/shapes.log")"
 
 half=$(( WORKERS / 2 > 0 ? WORKERS / 2 : 1 ))
-train_tnet() {  # NAME CONV_WIDTHS
-  local dir="$OUT/tnet-$1"
-  mkdir -p "$dir"
+train_tnet() {  # NAME CONV_WIDTHS; only tnet.safetensors, report.json, train.log land in $OUT
+  local dir="$OUT/tnet-$1" scratch="/tmp/tnet-$1"
+  mkdir -p "$dir" "$scratch"
   sed -e "s|^n_train = .*|n_train = $N_TRAIN|" -e "s|^n_val = .*|n_val = $N_VAL|" \
       -e "s|^cache_dir = .*|cache_dir = \"$SHAPES\"|" -e "s|^conv_widths = .*|conv_widths = $2|" \
-      configs/tnet-quadrupeds-gpu.toml > "$dir/config.toml"
-  taskset -c "$WORK_CPUS" "$PY" -m litege_core.cli train tnet --config "$dir/config.toml" \
-    --out "$dir" --workers "$half" --time-budget "$BUDGET" > "$dir/result.json" 2> "$dir/stderr.log" \
-    || tail -40 "$dir/stderr.log" > "$dir/result.json"
-  cat "$dir/result.json" >> "$dir/train.log"
-  rm -f "$dir/config.toml" "$dir/result.json" "$dir/stderr.log"
+      configs/tnet-quadrupeds-gpu.toml > "$scratch/config.toml"
+  taskset -c "$WORK_CPUS" "$PY" -m litege_core.cli train tnet --config "$scratch/config.toml" \
+    --out "$dir" --workers "$half" --time-budget "$BUDGET" > "$scratch/result.json" \
+    2> "$scratch/stderr.log" || tail -40 "$scratch/stderr.log" > "$scratch/result.json"
+  cat "$scratch/result.json" >> "$dir/train.log"
 }
 stamp "training two T-Nets, $BUDGET min each"
 train_tnet a "[64, 128, 256]" &
