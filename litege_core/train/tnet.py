@@ -827,31 +827,13 @@ def train_tnet(
         LOG.info("generated %d val shapes in %.1f s", len(val_shapes), time.perf_counter() - mark)
     val = validation_set(val_shapes, config)
     with BatchLoader(train_shapes, config, opt.loader_workers) as loader:
-        run = _optimize(config, loader, val, device, weights_path)
-    net, best_val, best_step, history, train_seconds, steps_done = run
-    result = TNetRunResult(
-        net=net,
-        best_val=best_val,
-        best_step=best_step,
-        history=history,
-        seconds=time.perf_counter() - started,
-        steps_per_second=steps_done / train_seconds if train_seconds > 0 else 0.0,
-        steps=steps_done,
-    )
+        result = _optimize(config, loader, val, device, weights_path)
+    result.seconds = time.perf_counter() - started
     if make_report:
         mark = time.perf_counter()
-        result.report = alignment_report(net, train_shapes, val_shapes, config.report)
+        result.report = alignment_report(result.net, train_shapes, val_shapes, config.report)
         LOG.info("alignment report in %.1f s", time.perf_counter() - mark)
     return result
-
-
-class _OptimizeResult(NamedTuple):
-    net: TNet
-    best_val: dict[str, float]
-    best_step: int
-    history: list[dict[str, Any]]
-    train_seconds: float
-    steps: int
 
 
 def _planned_steps(config: TNetOptimConfig, done: int, elapsed: float) -> int:
@@ -868,9 +850,10 @@ def _optimize(
     val: ValidationSet,
     device: torch.device,
     weights_path: str | Path | None,
-) -> _OptimizeResult:
+) -> TNetRunResult:
     """The optimization loop of :func:`train_tnet`; the network comes back with the best
-    validation weights, in eval mode (also written to ``weights_path`` at each improvement)."""
+    validation weights, in eval mode (also written to ``weights_path`` at each improvement).
+    ``seconds`` of the result counts the optimizer steps only."""
     opt = config.train
     torch.manual_seed(opt.seed)
     network = config.network
@@ -935,7 +918,15 @@ def _optimize(
             )  # fmt: skip
     load_state(net, best_state)
     net.eval()
-    return _OptimizeResult(net, best_val, best_step, history, train_seconds, total)
+    return TNetRunResult(
+        net=net,
+        best_val=best_val,
+        best_step=best_step,
+        history=history,
+        seconds=train_seconds,
+        steps_per_second=total / train_seconds if train_seconds > 0 else 0.0,
+        steps=total,
+    )
 
 
 def _training_summary(config: TNetTrainConfig, best_step: int, best_val: dict) -> dict[str, Any]:
