@@ -6,7 +6,8 @@ Usage:
 
 The networks, basis, pipeline and search settings are copied unchanged; the T-Net comes from a
 ``litege train tnet`` weights file; the manifest's training summary gains a ``tnet_swap`` entry
-(source file and that T-Net's own training summary) and the bundle gets a new content hash.
+(source file and that T-Net's own training summary) and the bundle gets a new content hash;
+its weights are written in float16, as in the shipped bundles.
 The copy's ``metrics`` are the original bundle's: re-measure before shipping it
 (``litege eval matching``, ``scripts/frame_report.py``).
 """

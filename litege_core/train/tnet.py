@@ -447,7 +447,13 @@ def sample_batch(
 
 
 _LOADER_INPUTS: tuple[ShapeSet, TNetTrainConfig] | None = None
-"""What the forked loader processes sample from (set by :class:`BatchLoader` before the fork)."""
+"""What a loader process samples from (set in each one by :func:`_set_loader_inputs`)."""
+
+
+def _set_loader_inputs(shapes: ShapeSet, config: TNetTrainConfig) -> None:
+    """Pool initializer of :class:`BatchLoader` (forked: the inputs are inherited, not pickled)."""
+    global _LOADER_INPUTS
+    _LOADER_INPUTS = (shapes, config)
 
 
 def _loader_batch(step: int) -> _BatchArrays:
@@ -472,15 +478,12 @@ class BatchLoader:
         self._next_submit = 0
 
     def __enter__(self) -> BatchLoader:
-        global _LOADER_INPUTS
         if self.workers > 0:
             import multiprocessing
 
-            _LOADER_INPUTS = (self.shapes, self.config)
-            try:
-                self._pool = multiprocessing.get_context("fork").Pool(self.workers)
-            finally:
-                _LOADER_INPUTS = None
+            self._pool = multiprocessing.get_context("fork").Pool(
+                self.workers, _set_loader_inputs, (self.shapes, self.config)
+            )
             for _ in range(2 * self.workers):
                 self._submit()
         return self
