@@ -23,6 +23,10 @@ from litege_core.datasets import build_dataset, folder_spec
 from litege_core.datasets.collection import folder_factory
 from litege_core.synth.folder import list_meshes
 
+CATEGORY = "static-meshes"
+"""The set's category in its manifest: the model card credits its authors by it
+(``litege_core.learned.cards.COLLECTION_CREDITS``)."""
+
 CALIBRATION_MESHES = (
     "odedstein-meshes/cat-low-resolution.obj",
     "odedstein-meshes/koala_low_resolution.obj",
@@ -53,10 +57,12 @@ def main() -> None:
         )
         spec = dataclasses.replace(
             spec,
+            category=CATEGORY,
             split_families={"train": (), "val": (), "test": files},
             n_shapes={"train": 0, "val": 0, "test": args.shapes * len(files)},
         )
-        build_dataset(spec, args.out, folder_factory(meshes, spec), workers=1, solver="exact")
+        factory = dataclasses.replace(folder_factory(meshes, spec), category=CATEGORY)
+        build_dataset(spec, args.out, factory, workers=1, solver="exact")
     print(f"built {args.out}: {args.shapes * len(files)} test shapes of {', '.join(files)}")
 
 

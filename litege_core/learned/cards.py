@@ -164,6 +164,9 @@ COLLECTION_CREDITS = {
     "rigging and animation by @tomkranis (CC BY 4.0), glTF conversion by @AsoboStudio and "
     "@scurest (CC BY 4.0)",
     "makehuman": "MakeHuman base mesh hm08, shape targets and skeleton (CC0)",
+    "static-meshes": '"Cat" by billyd (thingiverse.com/thing:1565405), CC BY 4.0, and "Koala" by '
+    "YahooJAPAN (thingiverse.com/thing:182225), CC BY 3.0, both remeshed by Oded Stein "
+    "(odedstein/meshes, same licences); Spot by Keenan Crane (public domain)",
 }
 """Credit lines of the collection categories (the training shapes of a bundle, the shapes of a
 fusion calibration)."""

@@ -20,7 +20,9 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
     write_sidecar_section(tmp_path)
     assert (tmp_path / "MODEL_CARD.md").read_text() == CARD
 
-    shutil.copyfile(SHIPPED_DIR / "quadrupeds" / FUSION_CONFIG, tmp_path / FUSION_CONFIG)
+    fusion = json.loads((SHIPPED_DIR / "quadrupeds" / FUSION_CONFIG).read_text())
+    fusion["fitted_on"]["dataset_categories"] = ["rigged", "static-meshes"]
+    (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
     write_sidecar_section(tmp_path)
     card = (tmp_path / "MODEL_CARD.md").read_text()
     head, _, rest = card.partition(f"## {SIDECARS_TITLE}\n\n")
@@ -29,6 +31,7 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
     fitted = json.loads((tmp_path / FUSION_CONFIG).read_text())["fitted_on"]
     assert all(f"{n} {group} shapes" in section for group, n in fitted["shapes"].items())
     assert "Quaternius (CC0)" in section and "@tomkranis (CC BY 4.0)" in section
+    assert '"Cat" by billyd' in section and "YahooJAPAN" in section  # CC BY calibration meshes
     assert "head-small" not in section
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")
