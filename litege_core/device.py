@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
 
 from litege_core.errors import InputError
+
+if TYPE_CHECKING:
+    import torch
 
 
 def resolve_device(spec: str | torch.device = "auto") -> torch.device:
@@ -13,6 +16,8 @@ def resolve_device(spec: str | torch.device = "auto") -> torch.device:
     Raises:
         InputError: a malformed device, or CUDA requested on a machine without it.
     """
+    import torch  # on first use: the torch-free CLI path never resolves a device
+
     if isinstance(spec, str) and spec == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:

@@ -23,8 +23,9 @@ by :class:`~litege_core.validate.ShapeLimits` *before* anything of the declared 
 * ASCII PLY, OFF and XYZ are parsed by a typed numpy tokenizer (:func:`_line_counts`,
   :func:`_numbers`): a few byte masks and ``np.fromstring`` into float64, no Python object per
   number. Parse time and memory are then linear in the file with small constants (measured in
-  ``scripts/bench_parse.py``); binary PLY, STL, GLB and OBJ keep trimesh's numpy-based
-  readers, behind the size checks above.
+  ``scripts/bench_parse.py``); plain binary PLY (scalar vertices, triangle faces) is read as
+  fixed-size records by ``np.frombuffer``; other binary PLY, STL, GLB and OBJ keep trimesh's
+  numpy-based readers, behind the size checks above.
 * Scene formats are bounded by :attr:`ShapeLimits.max_scene_nodes` (trimesh needs about a
   minute for a GLB of 200,000 nodes).
 
@@ -448,6 +449,7 @@ class _PlyProperty:
     name: str
     dtype: str  # numpy type code of the value (of the list items for lists)
     is_list: bool
+    count_dtype: str = ""  # numpy type code of a list's length
 
 
 @dataclass(frozen=True)
@@ -490,7 +492,7 @@ def _ply_header(data: bytes) -> tuple[str, list[_PlyElement], int]:
                 if words[1] == "list":
                     if words[2] not in _PLY_TYPES:
                         raise ValueError(f"unknown list count type {words[2]!r}")
-                    prop = _PlyProperty(words[4], _PLY_TYPES[words[3]], True)
+                    prop = _PlyProperty(words[4], _PLY_TYPES[words[3]], True, _PLY_TYPES[words[2]])
                 else:
                     prop = _PlyProperty(words[2], _PLY_TYPES[words[1]], False)
                 elements[-1][2].append(prop)
@@ -519,6 +521,10 @@ def _read_ply(data: bytes, limits: ShapeLimits) -> tuple[NDArray, NDArray | None
             raise ShapeFileError(
                 f"PLY header declares at least {minimum} bytes of data, the file holds {body}"
             )
+        if vertex is not None and vertex.count and _ply_is_plain(vertex, face):
+            records = _read_ply_binary(data, offset, file_format, elements, vertex, face)
+            if records is not None:
+                return records
         return _read_with_trimesh(data, "ply")
     text = data[offset:]
     counts = _line_counts(text)
@@ -530,13 +536,13 @@ def _read_ply(data: bytes, limits: ShapeLimits) -> tuple[NDArray, NDArray | None
         )
     if vertex is None or vertex.count == 0:
         raise ShapeFileError("no geometry found in PLY file")
-    if not _ply_ascii_is_plain(vertex, face):
+    if not _ply_is_plain(vertex, face):
         return _read_with_trimesh(data, "ply")
     return _read_ply_ascii(text, counts, elements, vertex, face)
 
 
-def _ply_ascii_is_plain(vertex: _PlyElement, face: _PlyElement | None) -> bool:
-    """Whether the typed ASCII reader gives what trimesh gives: scalar ``x y z`` vertices and
+def _ply_is_plain(vertex: _PlyElement, face: _PlyElement | None) -> bool:
+    """Whether the typed readers give what trimesh gives: scalar ``x y z`` vertices and
     faces with one list of corners and no per-face texture (texture unmerges vertices)."""
     if any(p.is_list for p in vertex.properties):
         return False
@@ -587,6 +593,49 @@ def _read_ply_ascii(
                 ]
             ).astype(np.float64)
     return vertices, faces
+
+
+def _read_ply_binary(
+    data: bytes,
+    offset: int,
+    file_format: str,
+    elements: Sequence[_PlyElement],
+    vertex: _PlyElement,
+    face: _PlyElement | None,
+) -> tuple[NDArray, NDArray | None] | None:
+    """The typed reader of plain binary PLY (see :func:`_ply_is_plain`): every element a run
+    of fixed-size records read by ``np.frombuffer`` (faces: triangles only), the body exactly
+    as long as they are. ``None`` for any other layout (a list outside the faces, polygons
+    other than triangles, trailing bytes): trimesh reads those. Equal to trimesh's result
+    (``tests/litege_core/test_io.py``) and about 1 s less start-up: trimesh imports scipy."""
+    order = "<" if file_format == "binary_little_endian" else ">"
+    position = offset
+    vertices, faces = np.zeros((0, 3)), None
+    for element in elements:
+        fields: list[tuple[str, str] | tuple[str, str, tuple[int]]] = []
+        for i, prop in enumerate(element.properties):
+            if prop.is_list and element is not face:
+                return None
+            if prop.is_list:
+                fields += [(f"n{i}", order + prop.count_dtype), (f"p{i}", order + prop.dtype, (3,))]
+            else:
+                fields.append((f"p{i}", order + prop.dtype))
+        record = np.dtype(fields)  # packed, as PLY stores them
+        if position + record.itemsize * element.count > len(data):
+            return None
+        table = np.frombuffer(data, record, element.count, position)
+        position += record.itemsize * element.count
+        names = [prop.name for prop in element.properties]
+        if element is vertex:
+            vertices = np.column_stack(
+                [table[f"p{names.index(axis)}"].astype(np.float64) for axis in "xyz"]
+            )
+        elif element is face and element.count:
+            corners = next(i for i, prop in enumerate(element.properties) if prop.is_list)
+            if (table[f"n{corners}"] != 3).any():
+                return None
+            faces = table[f"p{corners}"].astype(np.int64)
+    return (vertices, faces) if position == len(data) else None
 
 
 def _ply_faces(values: NDArray, counts: NDArray, face: _PlyElement) -> NDArray:

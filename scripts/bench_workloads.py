@@ -48,9 +48,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import argparse
 import platform
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -323,30 +321,6 @@ def run_cases(cases: list[Case], runs: int) -> None:
         print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
 
 
-def cli_wall_seconds(cloud: Shape, runs: int) -> float:
-    """Median wall time of ``litege geodesic`` on a 300-point cloud (a fresh process each)."""
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "cloud300.npy"
-        np.save(path, np.asarray(cloud.vertices, dtype=np.float64))
-        command = [
-            sys.executable,
-            "-m",
-            "litege_core.cli",
-            "geodesic",
-            str(path),
-            "--sources",
-            "0",
-            "-o",
-            str(Path(folder) / "out.npy"),
-        ]
-        times = []
-        for _ in range(runs):
-            start = time.perf_counter()
-            subprocess.run(command, check=True, capture_output=True)
-            times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def _cpu_name() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -385,13 +359,9 @@ def main() -> None:
         memory[name] = peak_memory(query)
     cli = None
     if not args.no_cli:
-        sample = point_cloud(
-            generate_shape("quadruped", "dog", 2_000_000).vertices,
-            generate_shape("quadruped", "dog", 2_000_000).faces,
-            300,
-            0,
-        ).points
-        cli = cli_wall_seconds(Shape.from_arrays(sample), max(3, args.runs))
+        from bench_cli import cli_wall_seconds, cloud_300  # scripts/ is sys.path[0]
+
+        cli = cli_wall_seconds(cloud_300(), max(3, args.runs))
 
     med = {(c.workload, c.data, c.method): c for c in cases}
 

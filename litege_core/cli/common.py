@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from litege_core.errors import InputError
 
 if TYPE_CHECKING:
-    from litege_core.learned import Predictor
+    from litege_core.learned import NumpyPredictor, Predictor
 
 SHAPE_KINDS = ("mesh", "point_cloud")
 SHAPE_FILE_HELP = "mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)"
@@ -61,6 +61,20 @@ def predictor(args: argparse.Namespace) -> Predictor:
         descriptor_lattice=getattr(args, "lattice", "full"),
         fusion=getattr(args, "fusion", "none"),
     )
+
+
+def numpy_predictor(args: argparse.Namespace) -> NumpyPredictor:
+    """The torch-free runtime of ``--model``/``--bundle`` (see :func:`predictor`)."""
+    from pathlib import Path
+
+    from litege_core.learned.manifest import DEFAULT_MODEL
+    from litege_core.learned.numpy_predictor import NumpyPredictor
+
+    if args.bundle is not None:
+        return NumpyPredictor(args.bundle)
+    if args.model is not None and Path(args.model).is_dir():
+        return NumpyPredictor(args.model)
+    return NumpyPredictor.shipped(args.model or DEFAULT_MODEL)
 
 
 def save_npy(path: str, array: Any) -> None:
@@ -170,6 +184,7 @@ __all__ = [
     "add_head_argument",
     "add_kind_argument",
     "add_model_arguments",
+    "numpy_predictor",
     "parse_indices",
     "predictor",
     "print_json",

@@ -11,11 +11,13 @@ from litege_core.cli.common import (
     add_head_argument,
     add_kind_argument,
     add_model_arguments,
+    numpy_predictor,
     parse_indices,
     predictor,
     print_json,
     save_npy,
 )
+from litege_core.errors import InputError
 from litege_core.io import load_shape
 
 
@@ -45,6 +47,29 @@ def _classical(args: argparse.Namespace, shape: Any) -> Any:
     return ClassicalSolver(shape, args.method, max_exact_vertices=args.max_exact_vertices)
 
 
+RUNTIMES = ("auto", "numpy", "torch")
+
+
+def _numpy_runtime(args: argparse.Namespace) -> bool:
+    """Whether ``litege geodesic`` runs the torch-free :class:`~litege_core.learned.
+    numpy_predictor.NumpyPredictor`: ``--runtime numpy``, or ``auto`` (default) with options
+    it implements (CPU, full head and lattice, no fusion). Raises :class:`InputError` for
+    ``--runtime numpy`` with options it does not implement."""
+    needs_torch = [
+        f"--{flag} {value}"
+        for flag, value, default in (
+            ("device", args.device, "cpu"),
+            ("head", args.head, "full"),
+            ("lattice", args.lattice, "full"),
+            ("fusion", args.fusion, "none"),
+        )
+        if value != default
+    ]
+    if args.runtime == "numpy" and needs_torch:
+        raise InputError(f"--runtime numpy does not implement {', '.join(needs_torch)}")
+    return args.runtime == "numpy" or (args.runtime == "auto" and not needs_torch)
+
+
 def cmd_geodesic(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -52,12 +77,25 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
     targets = None if args.targets.strip() == "all" else parse_indices(args.targets, "targets")
     shape = load_shape(args.file, kind=args.kind)
     report: dict[str, Any] = {"file": str(args.file), "method": args.method}
-    if args.method == "learned":
+    if args.method == "learned" and _numpy_runtime(args):
+        runtime = numpy_predictor(args)
+        registered = runtime.register(shape, seed=args.seed)
+        distances = runtime.distances(registered, sources, targets)
+        report.update(
+            engine="learned",
+            runtime="numpy",
+            model=runtime.name,
+            head="full",
+            fusion="none",
+            ood_score=registered.ood_score,
+        )
+    elif args.method == "learned":
         model = predictor(args)
         state = model.register(shape, seed=args.seed)
         distances = model.distances(state, sources, targets).astype(np.float32)
         report.update(
             engine="learned",
+            runtime="torch",
             model=model.bundle.name,
             head=model.head,
             fusion="none" if model.fusion is None else "graph",
@@ -138,6 +176,13 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_model_arguments(geodesic)
     geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")
     geodesic.add_argument("--targets", default="all", help="'all' (default) or i,j,...")
+    geodesic.add_argument(
+        "--runtime",
+        choices=RUNTIMES,
+        default="auto",
+        help="auto (default: numpy where the options allow, else torch), numpy (torch-free, "
+        "CPU, full head, no fusion: the fastest start) or torch",
+    )
     add_head_argument(geodesic)
     add_fusion_argument(geodesic)
     _add_method_arguments(geodesic)
@@ -154,4 +199,4 @@ def register(commands: argparse._SubParsersAction) -> None:
     path.set_defaults(handler=cmd_path)
 
 
-__all__ = ["cmd_geodesic", "cmd_info", "cmd_path", "register"]
+__all__ = ["RUNTIMES", "cmd_geodesic", "cmd_info", "cmd_path", "register"]

@@ -12,7 +12,9 @@ its saved copy are identical and share one :attr:`UdfPcaBasis.content_hash`.
 
 Precompute-then-query: :meth:`UdfPcaBasis.engine` moves centres, mean and components to a
 device once and returns a :class:`DescriptorEngine` (cached per device and UDF backend);
-:meth:`UdfPcaBasis.describe` and :meth:`UdfPcaBasis.describe_batch` go through it.
+:meth:`UdfPcaBasis.describe` and :meth:`UdfPcaBasis.describe_batch` go through it. torch is
+imported by the engine on first use, not by this module: the torch-free runtime
+(:mod:`litege_core.learned.numpy_predictor`) loads a basis with numpy alone.
 """
 
 from __future__ import annotations
@@ -22,10 +24,9 @@ import json
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-import torch
 from numpy.typing import ArrayLike, NDArray
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save_file
@@ -37,6 +38,9 @@ from litege_core.descriptor.pca import PcaResult
 from litege_core.descriptor.udf import UdfBackend, UdfEvaluator, resolve_backend
 from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError, LiteGEError
+
+if TYPE_CHECKING:  # imported where an engine needs it: loading a basis takes numpy only
+    import torch
 
 FORMAT_NAME = "litege-udf-pca"
 FORMAT_VERSION = 1
@@ -113,6 +117,8 @@ class DescriptorEngine:
         udf_backend: UdfBackend,
         lattice: str = "full",
     ) -> None:
+        import torch
+
         self.device = device
         self.n_components = basis.n_components
         self.lattice = lattice
@@ -147,11 +153,15 @@ class DescriptorEngine:
 
     def describe_batch(self, clouds: ArrayLike | torch.Tensor) -> torch.Tensor:
         """``(B, P, 3)`` canonical clouds (or a list of ``(P_b, 3)``) → ``(B, k)`` float32."""
+        import torch
+
         with torch.no_grad():
             return (self.udf(clouds) - self.mean) @ self._components_t
 
     def describe_with_residual(self, clouds: ArrayLike | torch.Tensor) -> DescriptorResult:
         """Descriptors plus the reconstruction residual and the UDF itself."""
+        import torch
+
         with torch.no_grad():
             udf = self.udf(clouds)
             centred = udf - self.mean
@@ -164,6 +174,8 @@ class DescriptorEngine:
         ``(B, k)`` codes, computed directly: the expanded form ``‖c‖² − 2z·Pc + zᵀGz`` is
         cheaper but cancels catastrophically when the residual is small against ``‖c‖``, and
         the residual is the out-of-distribution score, compared across batches and models."""
+        import torch
+
         fitted = codes @ self.components  # (B, |S|): the fit at the evaluated voxels
         return torch.linalg.vector_norm(centred - fitted, dim=1) * self._residual_scale
 

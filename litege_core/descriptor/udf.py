@@ -43,16 +43,18 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Sequence
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
-import torch
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.descriptor._arrays import as_clouds, as_points, positive_int
 from litege_core.device import resolve_device
 from litege_core.enums import ParsableEnum
 from litege_core.errors import ArrayShapeError, MissingDependencyError
+
+if TYPE_CHECKING:  # torch is imported where a backend needs it (the numpy runtime never does)
+    import torch
 
 #: Elements of the (B, chunk, P) distance block materialised at once by the torch backend.
 TORCH_BLOCK_ELEMENTS = 1 << 24
@@ -77,9 +79,14 @@ def resolve_backend(backend: str | UdfBackend, device: torch.device | str = "cpu
     chosen = UdfBackend.parse(backend)
     if chosen is not UdfBackend.AUTO:
         return chosen
-    if torch.device(device).type != "cpu":
+    if device_type(device) != "cpu":
         return UdfBackend.TORCH
     return UdfBackend.PYKDTREE if pykdtree_available() else UdfBackend.KDTREE
+
+
+def device_type(device: torch.device | str) -> str:
+    """``"cpu"``, ``"cuda"``, ... of a torch device or its name (without importing torch)."""
+    return str(getattr(device, "type", device)).split(":", 1)[0]
 
 
 # --------------------------------------------------------------------------- single cloud
@@ -149,6 +156,8 @@ def udf_torch(
     Returns:
         ``(B, M)`` distances in the dtype of the inputs.
     """
+    import torch
+
     if clouds.ndim != 3 or clouds.shape[2] != 3 or centers.ndim != 2 or centers.shape[1] != 3:
         raise ArrayShapeError(
             f"expected clouds (B, P, 3) and centers (M, 3), got {tuple(clouds.shape)} and "
@@ -199,6 +208,8 @@ class UdfEvaluator:
         device: torch.device | str = "cpu",
         workers: int = -1,
     ) -> None:
+        import torch
+
         self.device = resolve_device(device)
         self.backend = resolve_backend(backend, self.device)
         if self.backend is UdfBackend.PYKDTREE and not pykdtree_available():
@@ -227,6 +238,8 @@ class UdfEvaluator:
         Returns:
             ``(B, M)`` float32 tensor on ``self.device``.
         """
+        import torch
+
         batch = stack_clouds(clouds)
         if self.backend is UdfBackend.TORCH:
             assert self._centers_t is not None
@@ -245,7 +258,7 @@ class UdfEvaluator:
 def stack_clouds(clouds: ArrayLike | torch.Tensor | Sequence[ArrayLike]) -> NDArray:
     """Validate clouds into one ``(B, P, 3)`` float32 array (ragged lists padded, see
     :meth:`UdfEvaluator.__call__`)."""
-    if isinstance(clouds, torch.Tensor):
+    if hasattr(clouds, "detach"):  # a torch tensor
         clouds = clouds.detach().cpu().numpy()
     if isinstance(clouds, (list, tuple)):
         if not clouds:
@@ -273,6 +286,8 @@ def compute_udf(
         return udf_kdtree(points, centers, workers=workers)
     if chosen is UdfBackend.PYKDTREE:
         return udf_pykdtree(points, centers)
+    import torch
+
     pts = torch.from_numpy(as_points(points, "points", dtype=np.float32))
     ctr = torch.from_numpy(as_points(centers, "centers", dtype=np.float32))
     return udf_torch(pts[None], ctr)[0].double().numpy()
@@ -283,6 +298,7 @@ __all__ = [
     "UdfBackend",
     "UdfEvaluator",
     "compute_udf",
+    "device_type",
     "pykdtree_available",
     "resolve_backend",
     "stack_clouds",

@@ -12,22 +12,20 @@ network = number of basis components, canonicalization the bundle was trained wi
 network is never paired with the wrong basis or constants (reference-spec §10.6). No pickle.
 Shipped bundles live in ``litege_core/models/NAME/`` (package data).
 
-The format is shared with matching bundles (:mod:`litege_core.matching.bundle`): both are a
-:class:`Bundle`, written by :func:`write_bundle` (basis + weight files + manifest with file hashes
-and a content hash) and opened by :func:`open_bundle` (hashes, kind, format version and basis
-verified). A manifest without a ``kind`` is a geodesic bundle (the key came with matching).
+The directory format itself (constants, manifests, hashes) is :mod:`litege_core.learned.manifest`,
+torch-free and re-exported here. The format is shared with matching bundles
+(:mod:`litege_core.matching.bundle`): both are a :class:`Bundle`, written by :func:`write_bundle`
+(basis + weight files + manifest with file hashes and a content hash) and opened by
+:func:`open_bundle` (hashes, kind, format version and basis verified). A manifest without a
+``kind`` is a geodesic bundle (the key came with matching).
 """
 
 from __future__ import annotations
 
 import abc
-import hashlib
-import json
 import os
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,18 +33,24 @@ import torch
 
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import ArtifactError, InputError
-from litege_core.files import file_sha256, write_json_atomic
+from litege_core.learned.manifest import (
+    BASIS_FILE,
+    DEFAULT_MODEL,
+    FORMAT_VERSION,
+    GEODESIC,
+    MANIFEST,
+    NETWORK_FILE,
+    SHIPPED_DIR,
+    PipelineConfig,
+    consistent_manifest,
+    descriptor_summary,
+    open_bundle,
+    read_verified_manifest,
+    shipped_bundles,
+    shipped_directories,
+    write_manifest,
+)
 from litege_core.nets import GeodesicNet, load_state, state_to_tensors
-
-FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
-BASIS_FILE = "basis.safetensors"
-NETWORK_FILE = "geodesic.safetensors"
-SHIPPED_DIR = Path(__file__).resolve().parent.parent / "models"
-DEFAULT_MODEL = "quadrupeds"
-GEODESIC = "geodesic"
-"""Kind of a bundle whose manifest has no ``kind`` key."""
-
 
 # --------------------------------------------------------------------------- the shared format
 
@@ -82,12 +86,6 @@ class Bundle(abc.ABC):
         return next(self.modules[0].parameters()).device
 
 
-def _content_hash(file_hashes: dict[str, str], manifest_core: dict[str, Any]) -> str:
-    digest = hashlib.sha256(json.dumps(file_hashes, sort_keys=True).encode())
-    digest.update(json.dumps(manifest_core, sort_keys=True, default=str).encode())
-    return digest.hexdigest()
-
-
 def narrowed_state(module: torch.nn.Module, dtype: torch.dtype) -> dict[str, torch.Tensor]:
     """State tensors with floating *parameters* cast to ``dtype``. Buffers (BatchNorm running
     statistics, coordinate normalization) keep float32: a running variance can exceed
@@ -103,15 +101,6 @@ def narrowed_state(module: torch.nn.Module, dtype: torch.dtype) -> dict[str, tor
     return tensors
 
 
-def descriptor_summary(basis: UdfPcaBasis) -> dict[str, Any]:
-    """The manifest's ``descriptor`` entry: what a network must be paired with."""
-    return {
-        "n_components": basis.n_components,
-        "n_voxels": basis.n_voxels,
-        "basis_hash": basis.content_hash,
-    }
-
-
 def check_descriptor_width(
     networks: Sequence[GeodesicNet], basis: UdfPcaBasis, error: type[Exception] = InputError
 ) -> None:
@@ -124,28 +113,6 @@ def check_descriptor_width(
                 f"network expects {net.descriptor_dim}-d descriptors, "
                 f"basis has {basis.n_components} components"
             )
-
-
-def write_manifest(
-    directory: Path,
-    core: dict[str, Any],
-    filenames: list[str],
-    training: dict[str, Any] | None,
-    metrics: dict[str, Any] | None,
-) -> dict[str, Any]:
-    """Hash ``filenames`` of ``directory`` and write ``manifest.json`` (``core`` + file hashes,
-    training summary, metrics, creation time, content hash); returns the manifest."""
-    files = {f: file_sha256(directory / f) for f in filenames}
-    manifest = {
-        **core,
-        "files": files,
-        "training": training or {},
-        "metrics": metrics or {},
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-        "content_hash": _content_hash(files, core),
-    }
-    write_json_atomic(directory / MANIFEST, manifest)
-    return manifest
 
 
 def write_bundle(
@@ -172,61 +139,6 @@ def write_bundle(
     return write_manifest(directory, core, [BASIS_FILE, *weights], training, metrics)
 
 
-def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[str, Any]:
-    """``manifest.json`` of a bundle directory, after checking every listed file's hash.
-
-    Raises:
-        ArtifactError: no or invalid manifest, a missing file or a hash mismatch.
-    """
-    try:
-        manifest = json.loads((directory / MANIFEST).read_text())
-    except FileNotFoundError as exc:
-        raise ArtifactError(f"no {what} at {directory} ({MANIFEST} missing)") from exc
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
-    if not isinstance(manifest, dict):
-        raise ArtifactError(f"{directory / MANIFEST} is not a JSON object")
-    for filename, expected in manifest.get("files", {}).items():
-        if not (directory / filename).exists():
-            raise ArtifactError(f"bundle {directory.name} lacks {filename}")
-        if file_sha256(directory / filename) != expected:
-            raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")
-    return manifest
-
-
-def open_bundle(
-    path: str | os.PathLike, kind: str, what: str
-) -> tuple[Path, dict[str, Any], UdfPcaBasis]:
-    """The verified manifest and basis of a bundle directory of ``kind``.
-
-    Raises:
-        ArtifactError: damaged files, another kind or format version, or a basis other than
-            the one the networks were trained with.
-    """
-    directory = Path(path)
-    manifest = read_verified_manifest(directory, what)
-    found = (manifest.get("kind", GEODESIC), manifest.get("format_version"))
-    if found != (kind, FORMAT_VERSION):
-        raise ArtifactError(
-            f"{directory} is not a {what} of format {FORMAT_VERSION} "
-            f"(kind {found[0]!r}, format {found[1]!r})"
-        )
-    basis = UdfPcaBasis.load(directory / BASIS_FILE)
-    if basis.content_hash != manifest.get("descriptor", {}).get("basis_hash"):
-        raise ArtifactError("bundle basis differs from the one it was trained with")
-    return directory, manifest, basis
-
-
-@contextmanager
-def consistent_manifest(what: str) -> Iterator[None]:
-    """Turn a missing key or a bad value while building from a manifest into an
-    :class:`ArtifactError`."""
-    try:
-        yield
-    except (KeyError, TypeError, ValueError, InputError) as exc:
-        raise ArtifactError(f"{what} manifest is inconsistent: {exc}") from exc
-
-
 def load_weights(module: torch.nn.Module, path: Path, device: str | torch.device) -> None:
     """Load a safetensors weight file into ``module``, move it to ``device``, eval mode."""
     from safetensors import SafetensorError
@@ -240,30 +152,7 @@ def load_weights(module: torch.nn.Module, path: Path, device: str | torch.device
     module.to(device).eval()
 
 
-def shipped_directories(kind: str) -> list[Path]:
-    """The bundle directories of ``kind`` shipped inside the package, by name."""
-    if not SHIPPED_DIR.is_dir():
-        return []
-    found = []
-    for directory in sorted(SHIPPED_DIR.iterdir()):
-        manifest = directory / MANIFEST
-        if manifest.is_file() and json.loads(manifest.read_text()).get("kind", GEODESIC) == kind:
-            found.append(directory)
-    return found
-
-
 # --------------------------------------------------------------------------- geodesic bundles
-
-
-@dataclass(frozen=True)
-class PipelineConfig:
-    """Constants of the regression pipeline that a bundle was trained with."""
-
-    canonicalization: str = "bbox"
-    bbox_sqrt_area: float = 1.7
-    n_mesh_samples: int = 2000
-    residual: bool = True
-    target_scale: float = 1.42
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,12 +219,6 @@ def load_bundle(path: str | os.PathLike, device: str | torch.device = "cpu") -> 
     check_descriptor_width([network], basis, ArtifactError)
     load_weights(network, directory / NETWORK_FILE, device)
     return ModelBundle(manifest["name"], basis, network, pipeline, manifest, directory)
-
-
-def shipped_bundles() -> list[str]:
-    """Names of the geodesic bundles shipped inside the package (matching bundles, kind
-    ``"matching"``, are listed by :func:`litege_core.matching.shipped_matching_bundles`)."""
-    return [directory.name for directory in shipped_directories(GEODESIC)]
 
 
 def load_shipped(name: str = DEFAULT_MODEL, device: str | torch.device = "cpu") -> ModelBundle:

@@ -12,15 +12,18 @@ candidate frame of :func:`litege_core.learned.frame.select_frame` (issue 14).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 from numpy.typing import NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
+
+if TYPE_CHECKING:
+    import torch
 
 DEFAULT_MESH_SAMPLES = 2000
 

@@ -59,7 +59,6 @@ calibration to compare with).
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -68,7 +67,7 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.arrays import frozen
-from litege_core.canonical import BBOX_SQRT_AREA, canonicalize_bbox
+from litege_core.canonical import canonicalize_bbox
 from litege_core.descriptor.basis import VOXEL_LATTICES
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
@@ -83,6 +82,7 @@ from litege_core.learned.fusion import (
     pruned_knn_graph,
     surface_roughness,
 )
+from litege_core.learned.manifest import check_pipeline, residual_statistics
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
@@ -173,18 +173,7 @@ class Predictor:
         fusion: str | FusionCalibration = "none",
     ) -> None:
         pipeline = bundle.pipeline
-        if pipeline.canonicalization != "bbox":
-            raise ArtifactError(
-                f"bundle {bundle.name!r} uses canonicalization {pipeline.canonicalization!r}; "
-                "the geodesic predictor implements 'bbox'"
-            )
-        if not math.isclose(pipeline.bbox_sqrt_area, BBOX_SQRT_AREA, rel_tol=1e-12):
-            raise ArtifactError(
-                f"bundle {bundle.name!r} was trained with bbox_sqrt_area "
-                f"{pipeline.bbox_sqrt_area}, this library canonicalizes to {BBOX_SQRT_AREA}"
-            )
-        if not (pipeline.target_scale > 0 and pipeline.n_mesh_samples >= 4):
-            raise ArtifactError(f"bundle {bundle.name!r} has an invalid pipeline: {pipeline}")
+        check_pipeline(bundle.name, pipeline)
         if isinstance(chunk_pairs, bool) or int(chunk_pairs) < 1:
             raise InputError(f"chunk_pairs must be a positive integer, got {chunk_pairs!r}")
         self.bundle = bundle
@@ -220,15 +209,7 @@ class Predictor:
         self.target_scale = float(pipeline.target_scale)
         self.residual = bool(pipeline.residual)
         self.n_mesh_samples = int(pipeline.n_mesh_samples)
-        training = bundle.manifest.get("training") or {}
-        mean, std = training.get("residual_mean"), training.get("residual_std")
-        self._ood: tuple[float, float] | None = None
-        if mean is not None and std is not None:
-            if not (math.isfinite(float(mean)) and math.isfinite(float(std)) and std > 0):
-                raise ArtifactError(
-                    f"bundle {bundle.name!r} has invalid residual statistics {mean}, {std}"
-                )
-            self._ood = (float(mean), float(std))
+        self._ood = residual_statistics(bundle.name, bundle.manifest)
         if self.fusion is not None and self._ood is None:
             raise ArtifactError(
                 f"bundle {bundle.name!r} has no residual statistics: graph fusion needs its "

@@ -72,12 +72,15 @@ def test_geodesic_round_trip(tmp_path, bundle_dir, mesh_file, predictor, capsys)
         ]
     )
     assert code == 0
-    assert '"shape": [' in capsys.readouterr().out
+    report = json.loads(capsys.readouterr().out)
+    assert report["shape"] == [3, 642] and report["runtime"] == "numpy"  # torch-free default
     distances = np.load(out)
     shape = load_shape(mesh_file)
     assert distances.dtype == np.float32 and distances.shape == (3, shape.n_points)
     state = predictor.register(shape)
-    np.testing.assert_array_equal(distances, predictor.distances(state, [0, 17, 42]))
+    expected = predictor.distances(state, [0, 17, 42])
+    np.testing.assert_allclose(distances, expected, rtol=1e-5, atol=1e-5 * expected.max())
+    assert report["ood_score"] == pytest.approx(state.ood_score, rel=1e-5)
     assert distances[1, 17] == 0.0
     # input units: the blob is tens of units across
     assert 5.0 < np.median(distances) < 200.0
@@ -100,7 +103,25 @@ def test_geodesic_round_trip(tmp_path, bundle_dir, mesh_file, predictor, capsys)
     assert code == 0
     targets = np.load(out_targets)
     assert targets.shape == (1, 3)
-    np.testing.assert_array_equal(targets, predictor.distances(state, [5], [1, 2, 3]))
+    np.testing.assert_allclose(targets, predictor.distances(state, [5], [1, 2, 3]), rtol=1e-5)
+
+
+def test_the_torch_runtime_is_the_predictor(tmp_path, bundle_dir, mesh_file, predictor, capsys):
+    out = tmp_path / "d.npy"
+    argv = ["geodesic", str(mesh_file), "--sources", "0,17", "--bundle", str(bundle_dir)]
+    assert main([*argv, "--runtime", "torch", "-o", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["runtime"] == "torch"
+    state = predictor.register(load_shape(mesh_file))
+    np.testing.assert_array_equal(np.load(out), predictor.distances(state, [0, 17]))
+    # options only the torch predictor implements: auto switches, numpy refuses
+    assert main([*argv, "--lattice", "stride2", "-o", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["runtime"] == "torch"
+    assert (
+        main([*argv, "--runtime", "numpy", "--lattice", "stride2", "-o", str(tmp_path / "x")]) == 2
+    )
+    err = capsys.readouterr().err
+    assert "[invalid-input]" in err and "--lattice stride2" in err
+    assert not (tmp_path / "x").exists()
 
 
 def test_geodesic_on_a_point_cloud_file(tmp_path, bundle_dir, predictor):
@@ -113,12 +134,14 @@ def test_geodesic_on_a_point_cloud_file(tmp_path, bundle_dir, predictor):
     )
     assert code == 0
     state = predictor.register(load_shape(cloud_file))
-    np.testing.assert_array_equal(np.load(out), predictor.distances(state, [3]))
+    np.testing.assert_allclose(np.load(out), predictor.distances(state, [3]), rtol=1e-5)
 
 
-# Modules `litege geodesic` on a point cloud must not import (issue 17: CLI start-up time). scipy
-# alone cost ~0.3 s; it, trimesh and the engines load on first use (paths, meshes, baselines).
+# Modules `litege geodesic` on a point cloud must not import (issue 17: CLI start-up time). torch
+# cost ~2 s, scipy alone ~0.3 s; it, trimesh and the engines load on first use (paths, meshes,
+# baselines).
 NOT_FOR_A_CLOUD_GEODESIC = (
+    "torch",  # the numpy runtime (about 2 s of start-up less)
     "scipy",
     "trimesh",
     "PIL",

@@ -194,3 +194,55 @@ def test_garbage_after_a_ply_magic_is_a_malformed_file():
     with pytest.raises(ShapeFileError) as error:
         load_shape(b"ply\nthis is not a ply file\n", file_format="ply")
     assert not isinstance(error.value, FaceIndexError)
+
+
+def _binary_ply(vertices, faces, order="<", corners=3, extra_vertex_property=False):
+    """A binary PLY with ``float x y z`` (+ a ``uchar red``) and ``uchar int`` face lists."""
+    endian = "binary_little_endian" if order == "<" else "binary_big_endian"
+    header = [f"ply\nformat {endian} 1.0\nelement vertex {len(vertices)}\n"]
+    header.append("property float x\nproperty float y\nproperty float z\n")
+    fields = [("xyz", f"{order}f4", (3,))]
+    if extra_vertex_property:
+        header.append("property uchar red\n")
+        fields.append(("red", "u1"))
+    header.append(f"element face {len(faces)}\nproperty list uchar int vertex_indices\n")
+    header.append("end_header\n")
+    table = np.zeros(len(vertices), dtype=fields)
+    table["xyz"] = vertices
+    lists = np.zeros(len(faces), dtype=[("n", "u1"), ("i", f"{order}i4", (corners,))])
+    lists["n"], lists["i"] = corners, faces
+    return "".join(header).encode() + table.tobytes() + lists.tobytes()
+
+
+@pytest.mark.parametrize(
+    ("order", "extra"), [("<", False), (">", False), ("<", True)], ids=["le", "be", "colour"]
+)
+def test_binary_ply_is_read_without_trimesh_and_as_trimesh_reads_it(
+    mesh, monkeypatch, order, extra
+):
+    from litege_core import io as shape_io
+
+    data = _binary_ply(mesh.vertices, mesh.faces, order, extra_vertex_property=extra)
+    reference = shape_io._read_with_trimesh(data, "ply")  # the slow reference
+
+    def refuse(*_args):
+        raise AssertionError("a plain binary PLY went to trimesh")
+
+    monkeypatch.setattr(shape_io, "_read_with_trimesh", refuse)
+    vertices, faces = read_arrays(data, "ply")
+    np.testing.assert_array_equal(vertices, reference[0])
+    np.testing.assert_array_equal(faces, reference[1])
+    cloud = _binary_ply(mesh.vertices, np.zeros((0, 3), int), order)
+    vertices, faces = read_arrays(cloud, "ply")
+    assert faces is None
+    np.testing.assert_array_equal(vertices, reference[0])
+
+
+def test_binary_ply_other_layouts_go_to_trimesh():
+    quad = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    data = _binary_ply(quad, np.array([[0, 1, 2, 3]]), corners=4)
+    vertices, faces = read_arrays(data, "ply")
+    np.testing.assert_array_equal(vertices, quad)
+    assert faces.shape == (2, 3)  # fan-triangulated by trimesh
+    with pytest.raises(ShapeFileError):  # a body shorter than its header says
+        read_arrays(data[:-10], "ply")

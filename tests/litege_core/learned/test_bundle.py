@@ -8,12 +8,12 @@ import trimesh
 from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import load_bundle, save_bundle
-from litege_core.learned.bundle import (
+from litege_core.learned.bundle import Bundle
+from litege_core.learned.manifest import (
     BASIS_FILE,
     GEODESIC,
     MANIFEST,
     NETWORK_FILE,
-    Bundle,
     _content_hash,
     shipped_directories,
 )

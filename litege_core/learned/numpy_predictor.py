@@ -1,0 +1,357 @@
+"""A torch-free CPU runtime of a geodesic bundle: numpy in, numpy out (issue 17).
+
+:class:`NumpyPredictor` answers what a one-shot ``litege geodesic`` call needs (register one
+shape, distances between indexed points, distance fields) with numpy and a k-d tree, so a
+process that uses it never imports torch (about 2 s of a 300-point CLI call on this machine's
+CPU). It reads the same bundle files as :class:`~litege_core.learned.Predictor` (hashes
+verified by :mod:`litege_core.learned.manifest`) and folds the network the same way
+(:mod:`litege_core.nets.folded`: BatchNorm into the linear layers, the coordinate z-score into
+the first layer, the shape half of the fusion layer into a per-shape bias, ``project_embed``
+into the head's first layer), in float64, then evaluates in float32::
+
+    f_p  = point_features(p | shape)                    (N, 2n) once per shape
+    G    = |w · relu(W₂ relu(f_s − f_d + b₁) + b₂) + b| / 1.42 + ‖s − d‖   (canonical units)
+
+and divides by the canonicalization scale. Pairs whose points coincide get an exact 0.
+
+Scope: the trained (full) head, float32, the full descriptor lattice, no graph fusion,
+integer-index queries. Everything else (small head, reduced precision, fusion, xyz queries,
+paths, GPUs) is the torch :class:`~litege_core.learned.Predictor`'s; the two agree to float32
+rounding (``tests/litege_core/learned/test_numpy_predictor.py``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from litege_core.canonical import Transform, canonicalize_bbox
+from litege_core.descriptor.udf import pykdtree_available, udf_kdtree, udf_pykdtree
+from litege_core.errors import ArtifactError, InputError
+from litege_core.learned.describe import shape_samples
+from litege_core.learned.manifest import (
+    GEODESIC,
+    NETWORK_FILE,
+    SHIPPED_DIR,
+    PipelineConfig,
+    check_pipeline,
+    consistent_manifest,
+    open_bundle,
+    residual_statistics,
+    shipped_bundles,
+)
+from litege_core.query import parse_query
+from litege_core.shape import Shape
+
+PAIR_CHUNK = 8192
+"""(source, target) pairs per head evaluation: ``PAIR_CHUNK × 2n`` float32 activations
+(13 MB at ``n = 200``), independent of the query size."""
+
+BN_EPS = 1e-5
+"""BatchNorm1d's default epsilon, the one every GeodesicNet layer is trained with."""
+
+_BN_BLOCKS = {"mlp_coord": 2, "mlp_pca": 3, "mlp_pcacoord": 2, "final_layers": 2}
+"""BN-block MLPs of the network (Linear without bias, BatchNorm1d, ReLU) and their depth."""
+
+
+Affine = tuple[NDArray, NDArray]
+"""``(W (out, in), b (out,))`` float64."""
+
+
+def _load_weights(path: Path) -> dict[str, NDArray]:
+    from safetensors import SafetensorError
+    from safetensors.numpy import load_file
+
+    try:
+        return {key: value.astype(np.float64) for key, value in load_file(str(path)).items()}
+    except (SafetensorError, OSError) as exc:
+        raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
+
+
+def _bn_blocks(weights: dict[str, NDArray], prefix: str, depth: int) -> list[Affine]:
+    """The ``depth`` BN-blocks of ``prefix`` folded into affine maps (eval semantics)."""
+    blocks = []
+    for layer in range(depth):
+        linear, bn = f"{prefix}.{3 * layer}", f"{prefix}.{3 * layer + 1}"
+        scale = weights[f"{bn}.weight"] / np.sqrt(weights[f"{bn}.running_var"] + BN_EPS)
+        shift = weights[f"{bn}.bias"] - weights[f"{bn}.running_mean"] * scale
+        blocks.append((weights[f"{linear}.weight"] * scale[:, None], shift))
+    return blocks
+
+
+@dataclass(frozen=True)
+class FoldedNumpyNet:
+    """A GeodesicNet's eval-mode affine maps, float32, for the numpy runtime.
+
+    Attributes (``n`` the width, ``k`` the descriptor size; ``*_wt`` transposed weights):
+        shape_layers: the shape MLP, ``[(k|n, n), (n,)]`` × 3.
+        shape_wt, shape_b: ``(n, n)``, ``(n,)``: shape embedding → per-shape bias.
+        c1_wt, c1_b, c2_wt, c2_b, p1_wt, p2_wt, p2_b: the point MLP.
+        pf_wt, pf_b: ``(n, 2n)``, ``(2n,)``: last hidden layer → head features.
+        h1_b, h2_wt, h2_b, f_w, f_b: the rest of the head.
+        output: ``"abs"`` or ``"softplus"``.
+    """
+
+    shape_layers: tuple[tuple[NDArray, NDArray], ...]
+    shape_wt: NDArray
+    shape_b: NDArray
+    c1_wt: NDArray
+    c1_b: NDArray
+    c2_wt: NDArray
+    c2_b: NDArray
+    p1_wt: NDArray
+    p2_wt: NDArray
+    p2_b: NDArray
+    pf_wt: NDArray
+    pf_b: NDArray
+    h1_b: NDArray
+    h2_wt: NDArray
+    h2_b: NDArray
+    f_w: NDArray
+    f_b: float
+    output: str
+
+    @classmethod
+    def fold(cls, weights: dict[str, NDArray], width: int, output: str) -> FoldedNumpyNet:
+        """Fold a GeodesicNet state dict (float64 arrays) as :class:`~litege_core.nets.
+        FoldedGeodesicNet` does."""
+        n = width
+        blocks = {name: _bn_blocks(weights, name, depth) for name, depth in _BN_BLOCKS.items()}
+        (w1, b1), (w2, b2) = blocks["mlp_coord"]
+        mean, std = weights["coord_mean"], weights["coord_std"]
+        down_w, down_b = (
+            weights["project_down_pcacoord.weight"],
+            weights["project_down_pcacoord.bias"],
+        )
+        (w3, b3), (w4, b4) = blocks["mlp_pcacoord"]
+        e_w, e_b = weights["project_embed.weight"], weights["project_embed.bias"]
+        (h1_w, h1_b), (h2_w, h2_b) = blocks["final_layers"]
+
+        def f32(array: NDArray) -> NDArray:
+            return np.ascontiguousarray(array, dtype=np.float32)
+
+        return cls(
+            shape_layers=tuple((f32(w.T), f32(b)) for w, b in blocks["mlp_pca"]),
+            shape_wt=f32((w3 @ down_w[:, :n]).T),
+            shape_b=f32(b3 + w3 @ down_b),
+            c1_wt=f32((w1 / std[None, :]).T),
+            c1_b=f32(b1 - w1 @ (mean / std)),
+            c2_wt=f32(w2.T),
+            c2_b=f32(b2),
+            p1_wt=f32((w3 @ down_w[:, n:]).T),
+            p2_wt=f32(w4.T),
+            p2_b=f32(b4),
+            pf_wt=f32((h1_w @ e_w).T),
+            pf_b=f32(h1_w @ e_b),
+            h1_b=f32(h1_b),
+            h2_wt=f32(h2_w.T),
+            h2_b=f32(h2_b),
+            f_w=f32(weights["final_linear.weight"][0]),
+            f_b=float(weights["final_linear.bias"][0]),
+            output=output,
+        )
+
+    def shape_bias(self, descriptor: NDArray) -> NDArray:
+        """``(k,)`` descriptor → ``(n,)`` per-shape bias of the point MLP."""
+        h = descriptor[None].astype(np.float32)
+        for weight_t, bias in self.shape_layers:
+            h = np.maximum(h @ weight_t + bias, 0.0)
+        return (h @ self.shape_wt + self.shape_b)[0]
+
+    def point_features(self, points: NDArray, shape_bias: NDArray) -> NDArray:
+        """``(R, 3)`` float32 canonical coordinates → ``(R, 2n)`` float32 head features."""
+        h = np.maximum(points @ self.c1_wt + self.c1_b, 0.0)
+        h = np.maximum(h @ self.c2_wt + self.c2_b, 0.0)
+        h = np.maximum(h @ self.p1_wt + shape_bias, 0.0)
+        h = np.maximum(h @ self.p2_wt + self.p2_b, 0.0)
+        return h @ self.pf_wt + self.pf_b
+
+    def head(self, diff: NDArray) -> NDArray:
+        """``(R, 2n)`` feature differences (overwritten) → ``(R,)`` outputs ≥ 0."""
+        diff += self.h1_b
+        np.maximum(diff, 0.0, out=diff)
+        h = diff @ self.h2_wt
+        h += self.h2_b
+        np.maximum(h, 0.0, out=h)
+        out = h @ self.f_w + np.float32(self.f_b)
+        if self.output == "abs":
+            return np.abs(out)
+        return np.logaddexp(np.float32(0.0), out)  # softplus
+
+
+@dataclass(frozen=True, eq=False)
+class NumpyShapeState:
+    """One registered shape of a :class:`NumpyPredictor`.
+
+    Attributes:
+        shape_id: the shape's content hash.
+        bundle_hash: content hash of the bundle it was registered with.
+        n_points: ``N``.
+        transform: user frame → canonical frame.
+        canonical: ``(N, 3)`` float32 canonical vertices.
+        residual: UDF-PCA reconstruction residual (canonical units).
+        ood_score: z-score of ``residual`` against the training shapes (raw residual where
+            the bundle has no statistics).
+        shape_bias: ``(n,)`` float32 per-shape bias of the point MLP (point features are
+            computed per query, for the points it names).
+    """
+
+    shape_id: str
+    bundle_hash: str
+    n_points: int
+    transform: Transform
+    canonical: NDArray
+    residual: float
+    ood_score: float
+    shape_bias: NDArray
+
+
+class NumpyPredictor:
+    """Learned geodesic distances without torch (see the module docstring).
+
+    Args:
+        path: a geodesic bundle directory (the shipped ones: :meth:`shipped`).
+
+    Raises:
+        ArtifactError: damaged or inconsistent bundle files, or a pipeline the predictors do
+            not implement.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        directory, manifest, basis = open_bundle(path, GEODESIC, "model bundle")
+        with consistent_manifest("bundle"):
+            self.name = str(manifest["name"])
+            self.pipeline = PipelineConfig(**manifest["pipeline"])
+            network = manifest["network"]
+            width, descriptor_dim = int(network["width"]), int(network["descriptor_dim"])
+            output = str(network.get("output", "abs"))
+            weights = _load_weights(directory / NETWORK_FILE)
+            self.net = FoldedNumpyNet.fold(weights, width, output)
+        check_pipeline(self.name, self.pipeline)
+        if descriptor_dim != basis.n_components:
+            raise ArtifactError(
+                f"network expects {descriptor_dim}-d descriptors, "
+                f"basis has {basis.n_components} components"
+            )
+        self.content_hash = str(manifest["content_hash"])
+        self.manifest = manifest
+        self.path = directory
+        self._ood = residual_statistics(self.name, manifest)
+        self._centers = np.asarray(basis.centers, dtype=np.float64)  # (M, 3)
+        self._mean = np.asarray(basis.mean, dtype=np.float32)  # (M,)
+        self._components = np.asarray(basis.components, dtype=np.float32)  # (k, M)
+
+    @classmethod
+    def shipped(cls, name: str) -> NumpyPredictor:
+        """The runtime of a shipped bundle (``quadrupeds``, ``humans``)."""
+        if name not in shipped_bundles():
+            raise InputError(f"unknown model {name!r}; shipped models: {shipped_bundles()}")
+        return cls(SHIPPED_DIR / name)
+
+    def __repr__(self) -> str:
+        return f"NumpyPredictor(bundle={self.name!r}, hash={self.content_hash[:12]})"
+
+    # ----------------------------------------------------------------- registration
+
+    def describe(self, canonical_samples: NDArray) -> tuple[NDArray, float]:
+        """``(P, 3)`` canonical samples → ``(k,)`` float32 descriptor and its residual
+        ``‖c − zP‖`` (the same quantities as :meth:`~litege_core.descriptor.engine.
+        DescriptorEngine.describe_with_residual` on the full lattice)."""
+        points = np.asarray(canonical_samples, dtype=np.float32).astype(np.float64)
+        if pykdtree_available():
+            udf = udf_pykdtree(points, self._centers)
+        else:
+            udf = udf_kdtree(points, self._centers, workers=-1)
+        centred = udf.astype(np.float32) - self._mean  # (M,)
+        codes = self._components @ centred  # (k,)
+        residual = float(np.linalg.norm(centred - codes @ self._components))
+        return codes, residual
+
+    def register(self, shape: Shape, *, seed: int = 0) -> NumpyShapeState:
+        """Canonicalize and describe ``shape`` once (its shape embedding).
+
+        Args:
+            shape: a validated mesh or point cloud in the user's frame.
+            seed: seed of the surface samples of a mesh's descriptor (as the torch predictor).
+        """
+        if not isinstance(shape, Shape):
+            raise InputError(f"expected a Shape, got {type(shape).__name__}")
+        samples = shape_samples(shape, int(self.pipeline.n_mesh_samples), seed)
+        transform = canonicalize_bbox(samples)
+        descriptor, residual = self.describe(transform.apply(samples))
+        canonical = transform.apply(shape.vertices).astype(np.float32)
+        return NumpyShapeState(
+            shape_id=shape.content_hash,
+            bundle_hash=self.content_hash,
+            n_points=shape.n_points,
+            transform=transform,
+            canonical=canonical,
+            residual=residual,
+            ood_score=residual if self._ood is None else (residual - self._ood[0]) / self._ood[1],
+            shape_bias=self.net.shape_bias(descriptor),
+        )
+
+    # ----------------------------------------------------------------- queries
+
+    def _indices(self, state: NumpyShapeState, query: ArrayLike | str | None, what: str) -> NDArray:
+        parsed = parse_query(query, what).check(state.n_points, what)
+        if parsed.points is not None:
+            raise InputError(
+                f"{what}: the numpy runtime takes point indices; xyz queries need the torch "
+                "Predictor"
+            )
+        return np.arange(state.n_points) if parsed.indices is None else parsed.indices
+
+    def distances(
+        self,
+        state: NumpyShapeState,
+        sources: ArrayLike,
+        targets: ArrayLike | str | None = None,
+    ) -> NDArray:
+        """Predicted geodesic distances ``(S, T)`` float32 in the user's units.
+
+        Args:
+            state: a shape registered by this predictor.
+            sources: ``(S,)`` point indices.
+            targets: ``(T,)`` point indices, or ``None`` / ``"all"`` (``T = N``).
+
+        Raises:
+            InputError: a state of another bundle, xyz queries.
+            IndexOutOfRangeError, ArrayShapeError: bad indices (as the torch predictor).
+        """
+        if not isinstance(state, NumpyShapeState) or state.bundle_hash != self.content_hash:
+            raise InputError("this shape state was not registered with this bundle")
+        src = self._indices(state, sources, "source")
+        dst = self._indices(state, targets, "target")
+        n_dst = dst.shape[0]
+        rows = max(1, PAIR_CHUNK // n_dst)
+        out = np.empty((src.shape[0], n_dst), dtype=np.float32)
+        x_src, x_dst = state.canonical[src], state.canonical[dst]
+        f_src = self.net.point_features(x_src, state.shape_bias)
+        f_dst = self.net.point_features(x_dst, state.shape_bias)
+        scale = np.float32(self.pipeline.target_scale)
+        for i0 in range(0, src.shape[0], rows):
+            f_s, x_s = f_src[i0 : i0 + rows], x_src[i0 : i0 + rows]
+            for j0 in range(0, n_dst, PAIR_CHUNK):
+                f_t, x_t = f_dst[j0 : j0 + PAIR_CHUNK], x_dst[j0 : j0 + PAIR_CHUNK]
+                diff = f_s[:, None, :] - f_t[None, :, :]  # (s, t, 2n)
+                head = self.net.head(diff.reshape(-1, diff.shape[-1])).reshape(diff.shape[:2])
+                euclidean = np.linalg.norm(x_s[:, None, :] - x_t[None, :, :], axis=-1)
+                block = head / scale
+                if self.pipeline.residual:
+                    block += euclidean
+                block[euclidean == 0] = 0.0
+                out[i0 : i0 + rows, j0 : j0 + PAIR_CHUNK] = block
+        return (out.astype(np.float64) / state.transform.scale).astype(np.float32)
+
+
+__all__ = [
+    "PAIR_CHUNK",
+    "FoldedNumpyNet",
+    "NumpyPredictor",
+    "NumpyShapeState",
+]

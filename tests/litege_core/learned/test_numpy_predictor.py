@@ -1,0 +1,148 @@
+"""NumpyPredictor: the torch-free runtime equals the torch Predictor (the reference), on toy
+bundles with non-trivial BatchNorm statistics and on the shipped models, and never imports
+torch."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from litege_core.descriptor import VoxelGrid, fit_basis
+from litege_core.errors import ArrayShapeError, ArtifactError, IndexOutOfRangeError, InputError
+from litege_core.learned import (
+    NumpyPredictor,
+    Predictor,
+    load_bundle,
+    load_shipped,
+    save_bundle,
+    shipped_bundles,
+)
+from litege_core.learned.manifest import MANIFEST, NETWORK_FILE
+from litege_core.nets import GeodesicNet
+from litege_core.shape import Shape
+
+K = 4
+
+
+def _blob(seed: int, subdivisions: int = 3) -> Shape:
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    vertices = np.asarray(sphere.vertices) * [1.6 + rng.uniform(-0.3, 0.3), 1.0, 0.6]
+    vertices[:, 1] += 0.3 * vertices[:, 0] ** 2 * rng.uniform(0.5, 1.5)
+    return Shape.from_arrays(vertices * 7.0 + [3.0, -2.0, 1.0], sphere.faces)
+
+
+@pytest.fixture(scope="module", params=["abs", "softplus"])
+def bundle_dir(request, tmp_path_factory):
+    shapes = [(_blob(seed).vertices / 7.0, _blob(seed).faces) for seed in range(5)]
+    basis = fit_basis(
+        shapes,
+        grid=VoxelGrid(resolution=21, pitch=0.12),
+        std_threshold=0.05,
+        n_components=K,
+        n_udf_samples=400,
+        seed=0,
+    )
+    torch.manual_seed(0)
+    net = GeodesicNet(width=24, descriptor_dim=K, output=request.param)
+    net.set_coord_normalization([0.1, -0.05, 0.02], [0.45, 0.25, 0.12])
+    with torch.no_grad():  # non-trivial BatchNorm statistics: folding them is exercised
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):
+                module.running_mean.normal_(0.0, 0.3)
+                module.running_var.uniform_(0.5, 2.0)
+                module.weight.normal_(1.0, 0.2)
+                module.bias.normal_(0.0, 0.2)
+    directory = tmp_path_factory.mktemp("numpy") / f"toy-{request.param}"
+    save_bundle(
+        directory,
+        name="toy",
+        category="toy",
+        basis=basis,
+        network=net.eval(),
+        training={"residual_mean": 0.5, "residual_std": 0.25},
+        weights_dtype=torch.float16,
+    )
+    return directory
+
+
+@pytest.mark.parametrize("kind", ["mesh", "cloud"])
+def test_equals_the_torch_predictor(bundle_dir, kind):
+    shape = _blob(3)
+    if kind == "cloud":
+        shape = Shape.from_arrays(shape.vertices)
+    reference = Predictor(load_bundle(bundle_dir))
+    runtime = NumpyPredictor(bundle_dir)
+    state, expected_state = runtime.register(shape, seed=2), reference.register(shape, seed=2)
+    assert state.residual == pytest.approx(expected_state.residual, rel=1e-5)
+    assert state.ood_score == pytest.approx(expected_state.ood_score, rel=1e-5, abs=1e-5)
+    for sources, targets in [([0, 5, 17], None), ([4], [4, 9, 100]), (np.arange(300), "all")]:
+        got = runtime.distances(state, sources, targets)
+        want = reference.distances(expected_state, sources, targets)
+        assert got.dtype == np.float32 and got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(np.abs(want).max()))
+    field = runtime.distances(state, [9])[0]
+    assert field[9] == 0.0 and (np.delete(field, 9) > 0).all()
+
+
+@pytest.mark.parametrize("name", shipped_bundles())
+def test_shipped_models_match(name):
+    shape = _blob(1, subdivisions=4)
+    reference = Predictor(load_shipped(name))
+    runtime = NumpyPredictor.shipped(name)
+    state, expected_state = runtime.register(shape), reference.register(shape)
+    assert state.ood_score == pytest.approx(expected_state.ood_score, rel=1e-4)
+    got = runtime.distances(state, [0, 100, 2000])
+    want = reference.distances(expected_state, [0, 100, 2000])
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
+
+
+def test_errors_at_the_boundary(bundle_dir, tmp_path):
+    runtime = NumpyPredictor(bundle_dir)
+    state = runtime.register(_blob(0, subdivisions=2))
+    with pytest.raises(IndexOutOfRangeError):
+        runtime.distances(state, [state.n_points])
+    with pytest.raises(ArrayShapeError):
+        runtime.distances(state, [])
+    with pytest.raises(InputError, match="xyz"):
+        runtime.distances(state, np.zeros((1, 3)))
+    with pytest.raises(InputError, match="expected a Shape"):
+        runtime.register(np.zeros((10, 3)))
+    with pytest.raises(InputError, match="unknown model"):
+        NumpyPredictor.shipped("dragons")
+
+    other = tmp_path / "other"
+    shutil.copytree(bundle_dir, other)
+    manifest = json.loads((other / MANIFEST).read_text())
+    manifest["content_hash"] = "0" * 64
+    (other / MANIFEST).write_text(json.dumps(manifest))
+    with pytest.raises(InputError, match="not registered with this bundle"):
+        NumpyPredictor(other).distances(state, [0])
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(bundle_dir, damaged)
+    (damaged / NETWORK_FILE).write_bytes(b"not safetensors")
+    with pytest.raises(ArtifactError, match="hash"):
+        NumpyPredictor(damaged)
+
+
+def test_never_imports_torch():
+    code = (
+        "import sys, numpy as np\n"
+        "from litege_core.learned.numpy_predictor import NumpyPredictor\n"
+        "from litege_core.shape import Shape\n"
+        "runtime = NumpyPredictor.shipped('quadrupeds')\n"
+        "points = np.random.default_rng(0).normal(size=(300, 3)) * [2.0, 0.6, 0.8]\n"
+        "state = runtime.register(Shape.from_arrays(points))\n"
+        "assert runtime.distances(state, [0, 1]).shape == (2, 300)\n"
+        "print(sorted(m for m in sys.modules if m == 'torch' or m.startswith('torch.')))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert result.stdout.strip() == "[]"
