@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from litege_core import __version__
+from litege_core.evaluation.speed import cpu_name
 from litege_core.io import save_shape
 from litege_core.shape import Shape
 from litege_core.synth import generate_shape
@@ -70,6 +71,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=7)
     args = parser.parse_args()
+    load = os.getloadavg()[0]
     cloud = cloud_300()
     times: dict[tuple[str, str], list[float]] = {}
     with tempfile.TemporaryDirectory() as folder:
@@ -87,9 +89,9 @@ def main() -> None:
                     )
     print("### `litege geodesic` start-up: a 300-point cloud, a fresh process (issue 17)\n")
     print(
-        f"- date {date.today()}; {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} logical CPUs shared with other jobs; python "
-        f"{platform.python_version()}, numpy {np.__version__}, litege {__version__}"
+        f"- date {date.today()}; {cpu_name()}, {os.cpu_count()} logical CPUs shared with other "
+        f"jobs (load average {load:.1f} at the start); python {platform.python_version()}, "
+        f"numpy {np.__version__}, litege {__version__}"
     )
     print(
         f"- median of {args.runs} interleaved rounds after a warm-up; wall seconds of "

@@ -54,14 +54,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import date
 from functools import partial
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from litege_core import __version__
 from litege_core.engines import ClassicalSolver
-from litege_core.evaluation.speed import peak_memory
+from litege_core.evaluation.speed import cpu_name, peak_memory
 from litege_core.learned import Predictor, load_shipped
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
@@ -321,16 +320,6 @@ def run_cases(cases: list[Case], runs: int) -> None:
         print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
 
 
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5)
@@ -375,7 +364,7 @@ def main() -> None:
 
     print("### Workloads side by side: LiteGE vs classical methods (issue 17)\n")
     print(
-        f"- date {date.today()}; {_cpu_name()}, {os.cpu_count()} logical CPUs shared with other "
+        f"- date {date.today()}; {cpu_name()}, {os.cpu_count()} logical CPUs shared with other "
         f"jobs; python {platform.python_version()}, torch {torch.__version__} (1 thread), "
         f"numpy {np.__version__}, litege {__version__}; OMP_NUM_THREADS=1; "
         f"`precision='auto'` resolves to `{auto}` here"
