@@ -10,7 +10,6 @@ import sys
 import numpy as np
 import pytest
 import torch
-import trimesh
 
 from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.errors import ArrayShapeError, ArtifactError, IndexOutOfRangeError, InputError
@@ -23,23 +22,27 @@ from litege_core.learned import (
     shipped_bundles,
 )
 from litege_core.learned.manifest import MANIFEST, NETWORK_FILE
-from litege_core.nets import GeodesicNet
+from litege_core.nets.testing import random_geodesic_net
 from litege_core.shape import Shape
 
 K = 4
 
 
-def _blob(seed: int, subdivisions: int = 3) -> Shape:
-    rng = np.random.default_rng(seed)
-    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
-    vertices = np.asarray(sphere.vertices) * [1.6 + rng.uniform(-0.3, 0.3), 1.0, 0.6]
-    vertices[:, 1] += 0.3 * vertices[:, 0] ** 2 * rng.uniform(0.5, 1.5)
-    return Shape.from_arrays(vertices * 7.0 + [3.0, -2.0, 1.0], sphere.faces)
+@pytest.fixture(scope="module")
+def scaled_blob(blob):
+    """``scaled_blob(seed, subdivisions=3)``: the shared bent ellipsoid, in other units and
+    away from the origin."""
+
+    def make(seed: int, subdivisions: int = 3) -> Shape:
+        shape = blob(seed, subdivisions)
+        return Shape.from_arrays(shape.vertices * 7.0 + [3.0, -2.0, 1.0], shape.faces)
+
+    return make
 
 
 @pytest.fixture(scope="module", params=["abs", "softplus"])
-def bundle_dir(request, tmp_path_factory):
-    shapes = [(_blob(seed).vertices / 7.0, _blob(seed).faces) for seed in range(5)]
+def bundle_dir(request, tmp_path_factory, blob):
+    shapes = [(blob(seed).vertices, blob(seed).faces) for seed in range(5)]
     basis = fit_basis(
         shapes,
         grid=VoxelGrid(resolution=21, pitch=0.12),
@@ -48,23 +51,14 @@ def bundle_dir(request, tmp_path_factory):
         n_udf_samples=400,
         seed=0,
     )
-    torch.manual_seed(0)
-    net = GeodesicNet(width=24, descriptor_dim=K, output=request.param)
-    net.set_coord_normalization([0.1, -0.05, 0.02], [0.45, 0.25, 0.12])
-    with torch.no_grad():  # non-trivial BatchNorm statistics: folding them is exercised
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm1d):
-                module.running_mean.normal_(0.0, 0.3)
-                module.running_var.uniform_(0.5, 2.0)
-                module.weight.normal_(1.0, 0.2)
-                module.bias.normal_(0.0, 0.2)
+    net = random_geodesic_net(24, K, output=request.param)
     directory = tmp_path_factory.mktemp("numpy") / f"toy-{request.param}"
     save_bundle(
         directory,
         name="toy",
         category="toy",
         basis=basis,
-        network=net.eval(),
+        network=net,
         training={"residual_mean": 0.5, "residual_std": 0.25},
         weights_dtype=torch.float16,
     )
@@ -72,8 +66,8 @@ def bundle_dir(request, tmp_path_factory):
 
 
 @pytest.mark.parametrize("kind", ["mesh", "cloud"])
-def test_equals_the_torch_predictor(bundle_dir, kind):
-    shape = _blob(3)
+def test_equals_the_torch_predictor(bundle_dir, scaled_blob, kind):
+    shape = scaled_blob(3)
     if kind == "cloud":
         shape = Shape.from_arrays(shape.vertices)
     reference = Predictor(load_bundle(bundle_dir))
@@ -91,8 +85,8 @@ def test_equals_the_torch_predictor(bundle_dir, kind):
 
 
 @pytest.mark.parametrize("name", shipped_bundles())
-def test_shipped_models_match(name):
-    shape = _blob(1, subdivisions=4)
+def test_shipped_models_match(scaled_blob, name):
+    shape = scaled_blob(1, subdivisions=4)
     reference = Predictor(load_shipped(name))
     runtime = NumpyPredictor.shipped(name)
     state, expected_state = runtime.register(shape), reference.register(shape)
@@ -102,9 +96,9 @@ def test_shipped_models_match(name):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
 
 
-def test_errors_at_the_boundary(bundle_dir, tmp_path):
+def test_errors_at_the_boundary(bundle_dir, scaled_blob, tmp_path):
     runtime = NumpyPredictor(bundle_dir)
-    state = runtime.register(_blob(0, subdivisions=2))
+    state = runtime.register(scaled_blob(0, subdivisions=2))
     with pytest.raises(IndexOutOfRangeError):
         runtime.distances(state, [state.n_points])
     with pytest.raises(ArrayShapeError):

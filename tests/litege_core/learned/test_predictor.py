@@ -25,7 +25,8 @@ from litege_core.learned import (
     save_bundle,
     shape_samples,
 )
-from litege_core.nets import TARGET_SCALE, GeodesicNet
+from litege_core.nets import TARGET_SCALE
+from litege_core.nets.testing import random_geodesic_net
 from litege_core.shape import Shape
 from litege_core.variants import random_rotation
 
@@ -39,21 +40,6 @@ def _blob(seed: int, subdivisions: int = 3) -> Shape:
     vertices = np.asarray(sphere.vertices) * [1.6 + rng.uniform(-0.3, 0.3), 1.0, 0.6]
     vertices[:, 1] += 0.3 * vertices[:, 0] ** 2 * rng.uniform(0.5, 1.5)
     return Shape.from_arrays(vertices, sphere.faces)
-
-
-def _random_net(seed: int = 0) -> GeodesicNet:
-    """A small net with non-trivial BatchNorm statistics (so folding them is exercised)."""
-    torch.manual_seed(seed)
-    net = GeodesicNet(width=32, descriptor_dim=K)
-    net.set_coord_normalization([0.1, -0.05, 0.02], [0.45, 0.25, 0.12])
-    with torch.no_grad():
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm1d):
-                module.running_mean.normal_(0.0, 0.3)
-                module.running_var.uniform_(0.5, 2.0)
-                module.weight.normal_(1.0, 0.2)
-                module.bias.normal_(0.0, 0.2)
-    return net.eval()
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +70,7 @@ def bundle(tmp_path_factory, basis):
         name="toy",
         category="toy",
         basis=basis,
-        network=_random_net(),
+        network=random_geodesic_net(32, K),
         pipeline=PipelineConfig(n_mesh_samples=800),
         training=TRAINING,
     )
@@ -297,7 +283,9 @@ def test_ood_score_is_a_z_score_against_training_residuals(predictor, basis, tmp
     box = trimesh.creation.box(extents=[1.0, 1.0, 1.0]).subdivide().subdivide()
     box_state = predictor.register(Shape.from_arrays(box.vertices, box.faces))
     assert box_state.ood_score > state.ood_score
-    save_bundle(tmp_path / "raw", name="r", category="r", basis=basis, network=_random_net())
+    save_bundle(
+        tmp_path / "raw", name="r", category="r", basis=basis, network=random_geodesic_net(32, K)
+    )
     raw = Predictor(load_bundle(tmp_path / "raw")).register(mesh)
     assert raw.ood_score == raw.residual and raw.is_out_of_distribution is None
 
@@ -308,7 +296,7 @@ def test_pipeline_config_is_honoured(basis, tmp_path, mesh):
         name="p",
         category="p",
         basis=basis,
-        network=_random_net(),
+        network=random_geodesic_net(32, K),
         pipeline=PipelineConfig(n_mesh_samples=300),
     )
     state = Predictor(load_bundle(tmp_path / "p")).register(mesh, seed=1)
@@ -319,7 +307,7 @@ def test_pipeline_config_is_honoured(basis, tmp_path, mesh):
         name="u",
         category="u",
         basis=basis,
-        network=_random_net(),
+        network=random_geodesic_net(32, K),
         pipeline=PipelineConfig(canonicalization="unit_area"),
     )
     with pytest.raises(ArtifactError, match="canonicalization"):
@@ -361,7 +349,13 @@ def test_bad_points_are_refused(predictor, mesh_state):
 
 
 def test_foreign_states_and_mismatched_batches(predictor, basis, tmp_path, mesh, mesh_state):
-    save_bundle(tmp_path / "o", name="o", category="o", basis=basis, network=_random_net(1))
+    save_bundle(
+        tmp_path / "o",
+        name="o",
+        category="o",
+        basis=basis,
+        network=random_geodesic_net(32, K, seed=1),
+    )
     other = Predictor(load_bundle(tmp_path / "o"))
     with pytest.raises(InputError, match="another model bundle"):
         other.distances(mesh_state, [0])
