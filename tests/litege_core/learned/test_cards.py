@@ -50,8 +50,17 @@ def test_a_card_names_every_dataset_its_solver_the_warm_start_and_the_credits() 
     from litege_core.learned.cards import model_card
 
     manifest = json.loads((SHIPPED_DIR / "quadrupeds" / "manifest.json").read_text())
+    # the first shipped bundles: one procedural dataset with exact ground truth, no warm start
+    manifest["training"]["dataset"] = {
+        "name": "quadruped-large",
+        "category": "quadruped",
+        "counts": {"train": 2200, "val": 100, "test": 100},
+        "manifest_sha256": "e" * 64,
+    }
+    manifest["training"].pop("init_bundle", None)
     single = model_card(manifest)
-    assert "- **Training data**: procedural `" in single and "Warm start" not in single
+    assert "- **Training data**: procedural `quadruped-large`" in single
+    assert "Warm start" not in single
     manifest["training"]["dataset"] = {
         "datasets": [
             {
