@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
-from litege_core.descriptor.udf import pykdtree_available, udf_kdtree, udf_pykdtree
+from litege_core.descriptor.udf import compute_udf
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.manifest import (
@@ -262,10 +262,7 @@ class NumpyPredictor:
         ``‖c − zP‖`` (the same quantities as :meth:`~litege_core.descriptor.engine.
         DescriptorEngine.describe_with_residual` on the full lattice)."""
         points = np.asarray(canonical_samples, dtype=np.float32).astype(np.float64)
-        if pykdtree_available():
-            udf = udf_pykdtree(points, self._centers)
-        else:
-            udf = udf_kdtree(points, self._centers, workers=-1)
+        udf = compute_udf(points, self._centers, backend="auto", workers=-1)  # a k-d tree on CPU
         centred = udf.astype(np.float32) - self._mean  # (M,)
         codes = self._components @ centred  # (k,)
         residual = float(np.linalg.norm(centred - codes @ self._components))
