@@ -70,11 +70,12 @@ def numpy_predictor(args: argparse.Namespace) -> NumpyPredictor:
     from litege_core.learned.manifest import DEFAULT_MODEL
     from litege_core.learned.numpy_predictor import NumpyPredictor
 
+    options = {"head": getattr(args, "head", "full"), "lattice": getattr(args, "lattice", "full")}
     if args.bundle is not None:
-        return NumpyPredictor(args.bundle)
+        return NumpyPredictor(args.bundle, **options)
     if args.model is not None and Path(args.model).is_dir():
-        return NumpyPredictor(args.model)
-    return NumpyPredictor.shipped(args.model or DEFAULT_MODEL)
+        return NumpyPredictor(args.model, **options)
+    return NumpyPredictor.shipped(args.model or DEFAULT_MODEL, **options)
 
 
 def save_npy(path: str, array: Any) -> None:

@@ -53,14 +53,12 @@ RUNTIMES = ("auto", "numpy", "torch")
 def _numpy_runtime(args: argparse.Namespace) -> bool:
     """Whether ``litege geodesic`` runs the torch-free :class:`~litege_core.learned.
     numpy_predictor.NumpyPredictor`: ``--runtime numpy``, or ``auto`` (default) with options
-    it implements (CPU, full head and lattice, no fusion). Raises :class:`InputError` for
+    it implements (CPU, no fusion; either head, any lattice). Raises :class:`InputError` for
     ``--runtime numpy`` with options it does not implement."""
     needs_torch = [
         f"--{flag} {value}"
         for flag, value, default in (
             ("device", args.device, "cpu"),
-            ("head", args.head, "full"),
-            ("lattice", args.lattice, "full"),
             ("fusion", args.fusion, "none"),
         )
         if value != default
@@ -85,7 +83,8 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
             engine="learned",
             runtime="numpy",
             model=runtime.name,
-            head="full",
+            head=runtime.head,
+            lattice=runtime.lattice,
             fusion="none",
             ood_score=registered.ood_score,
         )
@@ -181,7 +180,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         choices=RUNTIMES,
         default="auto",
         help="auto (default: numpy where the options allow, else torch), numpy (torch-free, "
-        "CPU, full head, no fusion: the fastest start) or torch",
+        "CPU, no fusion: the fastest start) or torch",
     )
     add_head_argument(geodesic)
     add_fusion_argument(geodesic)

@@ -6,9 +6,12 @@ the informative voxel indices and centres, the UDF mean, the components, the exp
 variance and provenance metadata. It is saved as one ``.safetensors`` file (tensors) whose
 header metadata carries a JSON document (grid, counts, content hash, user metadata); no pickle.
 
-Precision: centres and mean are float32; components are **stored float16 on disk and used as
-float32**. The constructor rounds the components through float16, so an in-memory basis and
-its saved copy are identical and share one :attr:`UdfPcaBasis.content_hash`.
+Precision: centres and mean are float32; components are used as float32 and **stored** either
+as float16 (the default, format version 1) or as int8 codes with one float32 scale per component
+(``component_storage="int8"``, format version 2: half the bytes; on the shipped bases the
+predicted distances move by 0.005 on a mean-100 scale, BENCHMARKS.md ``basis-int8``). The
+constructor rounds the components through their storage, so an in-memory basis and its saved
+copy are identical and share one :attr:`UdfPcaBasis.content_hash`.
 
 Precompute-then-query: :meth:`UdfPcaBasis.engine` moves centres, mean and components to a
 device once and returns a :class:`DescriptorEngine` (cached per device and UDF backend);
@@ -19,6 +22,7 @@ imported by the engine on first use, not by this module: the torch-free runtime
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -44,6 +48,10 @@ if TYPE_CHECKING:  # imported where an engine needs it: loading a basis takes nu
 
 FORMAT_NAME = "litege-udf-pca"
 FORMAT_VERSION = 1
+"""Format version of a float16 basis file (readable by every release)."""
+INT8_FORMAT_VERSION = 2
+"""Format version of an int8 basis file (``component_scales`` beside int8 ``components``)."""
+COMPONENT_STORAGES: tuple[str, ...] = ("float16", "int8")
 HASH_VERSION = b"litege-udf-pca-v1"
 _HEADER_KEY = "litege_udf_pca"
 
@@ -56,6 +64,19 @@ TENSOR_DTYPES: dict[str, np.dtype] = {
     "explained_variance": np.dtype(np.float64),
     "explained_variance_ratio": np.dtype(np.float64),
 }
+#: The same for an int8 basis file: int8 component codes and their per-component scales.
+INT8_TENSOR_DTYPES: dict[str, np.dtype] = {
+    **TENSOR_DTYPES,
+    "components": np.dtype(np.int8),
+    "component_scales": np.dtype(np.float32),
+}
+
+
+def int8_scales(components: NDArray) -> NDArray:
+    """``(k,)`` float32 per-component scales that map ``(k, M)`` components onto int8 codes
+    in [-127, 127] (``max |row| / 127``; 1 for an all-zero row)."""
+    peak = np.abs(np.asarray(components, dtype=np.float64)).max(axis=1) / 127.0
+    return np.where(peak > 0, peak, 1.0).astype(np.float32)
 
 
 VOXEL_LATTICES: tuple[str, ...] = ("full", "bcc", "stride2")
@@ -85,6 +106,37 @@ def lattice_voxels(grid: VoxelGrid, voxel_indices: ArrayLike, lattice: str) -> N
     if lattice == "bcc":
         keep |= odd.all(axis=1)
     return np.flatnonzero(keep)
+
+
+class LatticeProjection(NamedTuple):
+    """A basis's descriptor on one lattice, in numpy (the torch-free runtime's; the
+    :class:`DescriptorEngine` places the same arrays on a device).
+
+    Attributes:
+        kept: ``(|S|,)`` positions (into the informative voxels) of the evaluated voxels.
+        centers: ``(|S|, 3)`` float32 their centres.
+        mean: ``(|S|,)`` float32 mean UDF there.
+        projection: ``(|S|, k)`` float32 centred UDF → codes: ``Pᵀ`` on the full lattice,
+            the least-squares fit ``P_Sᵀ (P_S P_Sᵀ)⁻¹`` on a sparser one.
+        components: ``(k, |S|)`` float32 codes → the fitted centred UDF.
+        residual_scale: ``√(M / |S|)``, the residual's scale to an estimate of the full one.
+    """
+
+    kept: NDArray
+    centers: NDArray
+    mean: NDArray
+    projection: NDArray
+    components: NDArray
+    residual_scale: float
+
+    def describe(self, udf: NDArray) -> tuple[NDArray, NDArray]:
+        """``(..., |S|)`` UDF at :attr:`centers` → ``(..., k)`` float32 codes and ``(...)``
+        float32 reconstruction residuals (scaled to the full lattice)."""
+        centred = np.asarray(udf, dtype=np.float32) - self.mean
+        codes = centred @ self.projection
+        fitted = codes @ self.components
+        residual = np.linalg.norm(centred - fitted, axis=-1) * np.float32(self.residual_scale)
+        return codes, residual
 
 
 class DescriptorResult(NamedTuple):
@@ -122,27 +174,17 @@ class DescriptorEngine:
         self.device = device
         self.n_components = basis.n_components
         self.lattice = lattice
-        kept = lattice_voxels(basis.grid, basis.voxel_indices, lattice)
-        self.n_voxels = int(kept.shape[0])
+        pieces = basis.lattice_projection(lattice)
+        self.n_voxels = int(pieces.kept.shape[0])
         self._full = lattice == "full"
-        centers = basis.centers if self._full else basis.centers[kept]
-        self.udf = UdfEvaluator(centers, backend=udf_backend, device=device)
-        if self._full:
-            self.mean = torch.from_numpy(np.array(basis.mean)).to(device)  # (M,)
-            projection = np.ascontiguousarray(basis.components.T)  # (M, k)
-        else:
-            self.mean = torch.from_numpy(basis.mean[kept]).to(device)  # (|S|,)
-            subset = basis.components[:, kept].astype(np.float64)  # (k, |S|)
-            # least squares on the kept voxels: z = (P_S P_Sᵀ)⁻¹ P_S c_S
-            projection = np.linalg.solve(subset @ subset.T, subset).T.astype(np.float32)
-        self._components_t = torch.from_numpy(projection).to(device)  # (|S|, k)
-        self._kept = kept
+        self.udf = UdfEvaluator(pieces.centers, backend=udf_backend, device=device)
+        self.mean = torch.from_numpy(np.array(pieces.mean)).to(device)  # (|S|,)
+        self._components_t = torch.from_numpy(pieces.projection).to(device)  # (|S|, k)
+        self._kept = pieces.kept
         self._subset_components = (
-            None
-            if self._full
-            else torch.from_numpy(np.ascontiguousarray(basis.components[:, kept])).to(device)
+            None if self._full else torch.from_numpy(pieces.components).to(device)
         )
-        self._residual_scale = float(np.sqrt(basis.n_voxels / self.n_voxels))
+        self._residual_scale = pieces.residual_scale
 
     @property
     def components(self) -> torch.Tensor:
@@ -189,11 +231,14 @@ class UdfPcaBasis:
         voxel_indices: ``(M,)`` int64 sorted unique flat indices of the informative voxels.
         centers: ``(M, 3)`` float32 their centres, equal to ``grid.centers(voxel_indices)``.
         mean: ``(M,)`` float32 mean UDF of the fit shapes.
-        components: ``(k, M)`` float32 (float16-representable) principal axes.
+        components: ``(k, M)`` float32 principal axes, representable in their storage.
         explained_variance: ``(k,)`` float64 variance along each component.
         explained_variance_ratio: ``(k,)`` float64 fraction of the total UDF variance.
         n_fit_shapes: number of shapes the basis was fitted on.
         metadata: JSON-serialisable provenance (threshold, sample counts, seeds, ...).
+        component_scales: ``None`` (components stored float16) or ``(k,)`` positive float32
+            scales: components stored as int8 codes ``round(component / scale)`` in
+            [-127, 127] (see :func:`int8_scales` and :meth:`with_component_storage`).
 
     Direct construction validates and raises :class:`~litege_core.errors.InputError`
     subclasses; :meth:`load` reports the same problems as
@@ -209,6 +254,7 @@ class UdfPcaBasis:
     explained_variance_ratio: NDArray
     n_fit_shapes: int
     metadata: dict[str, Any] = field(default_factory=dict)
+    component_scales: NDArray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.grid, VoxelGrid):
@@ -234,10 +280,7 @@ class UdfPcaBasis:
                 f"components must have shape (k ≥ 1, {m}), got {components.shape}"
             )
         k = components.shape[0]
-        with np.errstate(over="ignore", invalid="ignore"):
-            half = components.astype(np.float16)
-        if not np.isfinite(half).all():
-            raise ArrayShapeError("components are not finite in float16 (|value| > 65504?)")
+        stored, scales = self._stored_components(components, k)
         variance = self._float_array("explained_variance", (k,), np.float64)
         ratio = self._float_array("explained_variance_ratio", (k,), np.float64)
         if (variance < 0).any() or (ratio < 0).any() or ratio.sum() > 1.0 + 1e-6:
@@ -255,14 +298,57 @@ class UdfPcaBasis:
             ("voxel_indices", indices),
             ("centers", expected),
             ("mean", mean),
-            ("components", half.astype(np.float32)),
+            ("components", self._component_values(stored, scales)),
             ("explained_variance", variance),
             ("explained_variance_ratio", ratio),
         ):
             object.__setattr__(self, name, frozen(value, value.dtype))
+        object.__setattr__(self, "component_scales", None if scales is None else frozen(scales))
+        object.__setattr__(self, "_stored_codes", stored)
         object.__setattr__(self, "n_fit_shapes", n_fit)
         object.__setattr__(self, "metadata", metadata)
         object.__setattr__(self, "_engines", {})
+
+    def _stored_components(self, components: NDArray, k: int) -> tuple[NDArray, NDArray | None]:
+        """The components as stored on disk (float16, or int8 codes) and the int8 scales."""
+        if self.component_scales is None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                half = components.astype(np.float16)
+            if not np.isfinite(half).all():
+                raise ArrayShapeError("components are not finite in float16 (|value| > 65504?)")
+            return half, None
+        scales = self._float_array("component_scales", (k,))
+        if (scales <= 0).any():
+            raise ArrayShapeError("component_scales must be positive")
+        with np.errstate(over="ignore", invalid="ignore"):
+            codes = np.rint(components.astype(np.float64) / scales[:, None])
+        if not np.isfinite(codes).all() or np.abs(codes).max() > 127:
+            raise ArrayShapeError("components do not fit int8 codes at their component_scales")
+        return codes.astype(np.int8), scales
+
+    @staticmethod
+    def _component_values(stored: NDArray, scales: NDArray | None) -> NDArray:
+        """``(k, M)`` float32 components from their stored form."""
+        if scales is None:
+            return stored.astype(np.float32)
+        return stored.astype(np.float32) * scales[:, None]
+
+    @property
+    def component_storage(self) -> str:
+        """``"float16"`` or ``"int8"``: how the components are stored on disk."""
+        return "float16" if self.component_scales is None else "int8"
+
+    def with_component_storage(self, storage: str) -> UdfPcaBasis:
+        """The same basis with its components stored as ``storage`` (:data:`COMPONENT_STORAGES`);
+        ``"int8"`` rounds them to per-component int8 codes (:func:`int8_scales`)."""
+        if storage not in COMPONENT_STORAGES:
+            raise InputError(
+                f"component storage must be one of {COMPONENT_STORAGES}, got {storage!r}"
+            )
+        if storage == self.component_storage:
+            return self
+        scales = int8_scales(self.components) if storage == "int8" else None
+        return dataclasses.replace(self, component_scales=scales)
 
     def _float_array(self, name: str, shape: tuple[int, ...], dtype: type = np.float32) -> NDArray:
         array = as_numeric(getattr(self, name), name)
@@ -313,6 +399,7 @@ class UdfPcaBasis:
             explained_variance_ratio=self.explained_variance_ratio[:k],
             n_fit_shapes=self.n_fit_shapes,
             metadata={**self.metadata, "truncated_from": self.n_components},
+            component_scales=(None if self.component_scales is None else self.component_scales[:k]),
         )
 
     # ----------------------------------------------------------------- properties
@@ -342,9 +429,11 @@ class UdfPcaBasis:
         )
 
     def _disk_tensors(self) -> dict[str, NDArray]:
+        dtypes = TENSOR_DTYPES if self.component_scales is None else INT8_TENSOR_DTYPES
+        stored = {"components": self._stored_codes}  # type: ignore[attr-defined]
         return {
-            name: np.ascontiguousarray(getattr(self, name), dtype=dtype)
-            for name, dtype in TENSOR_DTYPES.items()
+            name: np.ascontiguousarray(stored.get(name, getattr(self, name)), dtype=dtype)
+            for name, dtype in dtypes.items()
         }
 
     @cached_property
@@ -379,6 +468,28 @@ class UdfPcaBasis:
         )
 
     # ----------------------------------------------------------------- descriptors
+    def lattice_projection(self, lattice: str = "full") -> LatticeProjection:
+        """The numpy pieces of the descriptor on ``lattice`` (:data:`VOXEL_LATTICES`)."""
+        kept = lattice_voxels(self.grid, self.voxel_indices, lattice)
+        if lattice == "full":
+            components = np.array(self.components)  # (k, M)
+            projection = np.ascontiguousarray(components.T)
+            centers, mean = np.array(self.centers), np.array(self.mean)
+        else:
+            subset = self.components[:, kept].astype(np.float64)  # (k, |S|)
+            # least squares on the kept voxels: z = (P_S P_Sᵀ)⁻¹ P_S c_S
+            projection = np.linalg.solve(subset @ subset.T, subset).T.astype(np.float32)
+            components = np.ascontiguousarray(self.components[:, kept])
+            centers, mean = self.centers[kept], self.mean[kept]
+        return LatticeProjection(
+            kept=kept,
+            centers=centers,
+            mean=mean,
+            projection=projection,
+            components=components,
+            residual_scale=float(np.sqrt(self.n_voxels / kept.shape[0])),
+        )
+
     def engine(
         self,
         device: torch.device | str = "cpu",
@@ -420,7 +531,7 @@ class UdfPcaBasis:
         """The JSON document stored in the file's header metadata."""
         return {
             "format": FORMAT_NAME,
-            "format_version": FORMAT_VERSION,
+            "format_version": self._format_version,
             "grid": self.grid.to_dict(),
             "n_voxels": self.n_voxels,
             "n_components": self.n_components,
@@ -428,6 +539,10 @@ class UdfPcaBasis:
             "content_hash": self.content_hash,
             "metadata": self.metadata,
         }
+
+    @property
+    def _format_version(self) -> int:
+        return FORMAT_VERSION if self.component_scales is None else INT8_FORMAT_VERSION
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the basis to ``path`` (safetensors + JSON header metadata), atomically."""
@@ -470,20 +585,27 @@ class UdfPcaBasis:
             raise ArtifactError(f"{source}: header JSON is invalid: {exc}") from exc
         if not isinstance(header, dict):
             raise ArtifactError(f"{source}: header JSON is not an object")
-        if header.get("format_version") != FORMAT_VERSION:
+        dtypes = {FORMAT_VERSION: TENSOR_DTYPES, INT8_FORMAT_VERSION: INT8_TENSOR_DTYPES}.get(
+            header.get("format_version")  # type: ignore[arg-type]
+        )
+        if dtypes is None:
             raise ArtifactError(
                 f"{source}: unsupported format_version {header.get('format_version')!r}, "
-                f"this library reads {FORMAT_VERSION}"
+                f"this library reads {FORMAT_VERSION} and {INT8_FORMAT_VERSION}"
             )
-        missing = sorted(set(TENSOR_DTYPES) - set(tensors))
-        extra = sorted(set(tensors) - set(TENSOR_DTYPES))
+        missing = sorted(set(dtypes) - set(tensors))
+        extra = sorted(set(tensors) - set(dtypes))
         if missing or extra:
             raise ArtifactError(f"{source}: missing tensors {missing}, unexpected tensors {extra}")
-        for name, dtype in TENSOR_DTYPES.items():
+        for name, dtype in dtypes.items():
             if tensors[name].dtype != dtype:
                 raise ArtifactError(
                     f"{source}: tensor {name!r} has dtype {tensors[name].dtype}, expected {dtype}"
                 )
+        if "component_scales" in tensors:
+            tensors["components"] = cls._component_values(
+                tensors["components"], tensors["component_scales"]
+            )
         try:
             basis = cls(
                 grid=VoxelGrid.from_dict(header.get("grid")),  # type: ignore[arg-type]
@@ -510,12 +632,17 @@ class UdfPcaBasis:
 
 
 __all__ = [
+    "COMPONENT_STORAGES",
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "INT8_FORMAT_VERSION",
+    "INT8_TENSOR_DTYPES",
     "TENSOR_DTYPES",
     "VOXEL_LATTICES",
     "DescriptorEngine",
     "DescriptorResult",
+    "LatticeProjection",
     "UdfPcaBasis",
+    "int8_scales",
     "lattice_voxels",
 ]

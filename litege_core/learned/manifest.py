@@ -20,10 +20,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from litege_core.canonical import BBOX_SQRT_AREA
 from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.errors import ArtifactError, InputError
-from litege_core.files import file_sha256, write_json_atomic
+from litege_core.files import file_sha256, read_json_object, write_json_atomic
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -33,6 +35,12 @@ SHIPPED_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_MODEL = "quadrupeds"
 GEODESIC = "geodesic"
 """Kind of a bundle whose manifest has no ``kind`` key."""
+HEADS = ("full", "small")
+"""The distance heads a predictor runs: the trained head or the bundle's distilled one."""
+SMALL_HEAD_WEIGHTS = "head-small.safetensors"
+SMALL_HEAD_CONFIG = "head-small.json"
+SMALL_HEAD_KIND = "small_head"
+SMALL_HEAD_FORMAT = 1
 
 
 def _content_hash(file_hashes: dict[str, str], manifest_core: dict[str, Any]) -> str:
@@ -70,6 +78,41 @@ def write_manifest(
     }
     write_json_atomic(directory / MANIFEST, manifest)
     return manifest
+
+
+def manifest_core(manifest: dict[str, Any]) -> dict[str, Any]:
+    """The part of a manifest its content hash covers besides the file hashes."""
+    return {k: v for k, v in manifest.items() if k not in _NOT_CORE}
+
+
+_NOT_CORE = ("files", "training", "metrics", "created", "content_hash")
+
+
+def replace_basis(directory: Path, basis: UdfPcaBasis) -> dict[str, Any]:
+    """Write ``basis`` over a bundle's basis file and re-hash its manifest (the descriptor's
+    basis hash, the file hashes, the content hash); returns the new manifest.
+
+    For a basis with the same voxels and components up to storage rounding (e.g.
+    :meth:`~litege_core.descriptor.basis.UdfPcaBasis.with_component_storage`): the networks
+    are kept as they are. Sidecars that name the bundle's content hash must follow it.
+
+    Raises:
+        ArtifactError: a damaged bundle, or a basis of another shape than the bundle's.
+    """
+    manifest = read_verified_manifest(directory)
+    old = UdfPcaBasis.load(directory / BASIS_FILE)
+    if (old.grid, old.n_voxels, old.n_components) != (
+        basis.grid,
+        basis.n_voxels,
+        basis.n_components,
+    ) or not np.array_equal(old.voxel_indices, basis.voxel_indices):
+        raise ArtifactError(f"the new basis does not have the voxels and size of {directory}'s")
+    basis.save(directory / BASIS_FILE)
+    core = manifest_core(manifest)
+    core["descriptor"] = {**core["descriptor"], **descriptor_summary(basis)}
+    return write_manifest(
+        directory, core, list(manifest["files"]), manifest["training"], manifest["metrics"]
+    )
 
 
 def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[str, Any]:
@@ -115,6 +158,42 @@ def open_bundle(
     if basis.content_hash != manifest.get("descriptor", {}).get("basis_hash"):
         raise ArtifactError("bundle basis differs from the one it was trained with")
     return directory, manifest, basis
+
+
+def verified_small_head(
+    directory: Path, name: str, content_hash: str
+) -> tuple[dict[str, Any], Path]:
+    """The small-head sidecar of a bundle directory (:mod:`litege_core.learned.small_head`):
+    its config and its weights file, checked against the bundle's ``content_hash``.
+
+    Raises:
+        InputError: the bundle has no small head, or its head was distilled from another
+            bundle (teacher content hash ≠ the bundle's).
+        ArtifactError: a damaged sidecar (bad JSON, another format, a weights hash mismatch).
+    """
+    path = Path(directory) / SMALL_HEAD_CONFIG
+    if not path.is_file():
+        raise InputError(
+            f"model {name!r} has no small head ({SMALL_HEAD_CONFIG}); distil one with "
+            "scripts/distill_head.py or use head='full'"
+        )
+    config = read_json_object(path, f"{SMALL_HEAD_CONFIG} of {name}")
+    if (config.get("kind"), config.get("format_version")) != (SMALL_HEAD_KIND, SMALL_HEAD_FORMAT):
+        raise ArtifactError(
+            f"{SMALL_HEAD_CONFIG} of {name} is not a small head of format {SMALL_HEAD_FORMAT}"
+        )
+    teacher = str(config.get("teacher_content_hash", ""))
+    if teacher != content_hash:
+        raise InputError(
+            f"the small head of {name!r} was distilled from bundle {teacher[:12]}…, "
+            f"not from this bundle ({content_hash[:12]}…); distil it again"
+        )
+    weights = Path(directory) / SMALL_HEAD_WEIGHTS
+    if not weights.is_file():
+        raise ArtifactError(f"bundle {name} lacks {SMALL_HEAD_WEIGHTS}")
+    if file_sha256(weights) != config.get("weights_sha256"):
+        raise ArtifactError(f"{SMALL_HEAD_WEIGHTS} of {name} does not match its hash")
+    return config, weights
 
 
 @contextmanager
@@ -193,17 +272,25 @@ __all__ = [
     "DEFAULT_MODEL",
     "FORMAT_VERSION",
     "GEODESIC",
+    "HEADS",
     "MANIFEST",
     "NETWORK_FILE",
     "SHIPPED_DIR",
+    "SMALL_HEAD_CONFIG",
+    "SMALL_HEAD_FORMAT",
+    "SMALL_HEAD_KIND",
+    "SMALL_HEAD_WEIGHTS",
     "PipelineConfig",
     "check_pipeline",
     "consistent_manifest",
     "descriptor_summary",
+    "manifest_core",
     "open_bundle",
     "read_verified_manifest",
+    "replace_basis",
     "residual_statistics",
     "shipped_bundles",
     "shipped_directories",
+    "verified_small_head",
     "write_manifest",
 ]

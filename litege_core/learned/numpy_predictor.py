@@ -14,10 +14,12 @@ into the head's first layer), in float64, then evaluates in float32::
 
 and divides by the canonicalization scale. Pairs whose points coincide get an exact 0.
 
-Scope: the trained (full) head, float32, the full descriptor lattice, no graph fusion,
-integer-index queries. Everything else (small head, reduced precision, fusion, xyz queries,
-paths, GPUs) is the torch :class:`~litege_core.learned.Predictor`'s; the two agree to float32
-rounding (``tests/litege_core/learned/test_numpy_predictor.py``).
+Scope: the trained (full) head or the bundle's distilled small head (``head="small"``,
+:mod:`litege_core.nets.small_head`, folded the same way), float32, any descriptor lattice
+(:data:`~litege_core.descriptor.basis.VOXEL_LATTICES`), no graph fusion, integer-index queries.
+Everything else (reduced precision, fusion, xyz queries, paths, GPUs) is the torch
+:class:`~litege_core.learned.Predictor`'s; the two agree to float32 rounding
+(``tests/litege_core/learned/test_numpy_predictor.py``).
 """
 
 from __future__ import annotations
@@ -30,11 +32,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
+from litege_core.descriptor.basis import VOXEL_LATTICES
 from litege_core.descriptor.udf import compute_udf
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.manifest import (
     GEODESIC,
+    HEADS,
     NETWORK_FILE,
     SHIPPED_DIR,
     PipelineConfig,
@@ -43,6 +47,7 @@ from litege_core.learned.manifest import (
     open_bundle,
     residual_statistics,
     shipped_bundles,
+    verified_small_head,
 )
 from litege_core.query import parse_query
 from litege_core.shape import Shape
@@ -70,6 +75,17 @@ def _load_weights(path: Path) -> dict[str, NDArray]:
         return {key: value.astype(np.float64) for key, value in load_file(str(path)).items()}
     except (SafetensorError, OSError) as exc:
         raise ArtifactError(f"cannot read {path.name}: {exc}") from exc
+
+
+def _apply_output(out: NDArray, output: str) -> NDArray:
+    """The head's output convention: ``abs`` or ``softplus``."""
+    if output == "abs":
+        return np.abs(out)
+    return np.logaddexp(np.float32(0.0), out)
+
+
+def _f32(array: NDArray) -> NDArray:
+    return np.ascontiguousarray(array, dtype=np.float32)
 
 
 def _bn_blocks(weights: dict[str, NDArray], prefix: str, depth: int) -> list[Affine]:
@@ -130,10 +146,7 @@ class FoldedNumpyNet:
         (w3, b3), (w4, b4) = blocks["mlp_pcacoord"]
         e_w, e_b = weights["project_embed.weight"], weights["project_embed.bias"]
         (h1_w, h1_b), (h2_w, h2_b) = blocks["final_layers"]
-
-        def f32(array: NDArray) -> NDArray:
-            return np.ascontiguousarray(array, dtype=np.float32)
-
+        f32 = _f32
         return cls(
             shape_layers=tuple((f32(w.T), f32(b)) for w, b in blocks["mlp_pca"]),
             shape_wt=f32((w3 @ down_w[:, :n]).T),
@@ -162,13 +175,17 @@ class FoldedNumpyNet:
             h = np.maximum(h @ weight_t + bias, 0.0)
         return (h @ self.shape_wt + self.shape_b)[0]
 
-    def point_features(self, points: NDArray, shape_bias: NDArray) -> NDArray:
-        """``(R, 3)`` float32 canonical coordinates → ``(R, 2n)`` float32 head features."""
+    def hidden(self, points: NDArray, shape_bias: NDArray) -> NDArray:
+        """``(R, 3)`` float32 canonical coordinates → ``(R, n)`` last hidden layer of the
+        point MLP (before ``project_embed``)."""
         h = np.maximum(points @ self.c1_wt + self.c1_b, 0.0)
         h = np.maximum(h @ self.c2_wt + self.c2_b, 0.0)
         h = np.maximum(h @ self.p1_wt + shape_bias, 0.0)
-        h = np.maximum(h @ self.p2_wt + self.p2_b, 0.0)
-        return h @ self.pf_wt + self.pf_b
+        return np.maximum(h @ self.p2_wt + self.p2_b, 0.0)
+
+    def point_features(self, points: NDArray, shape_bias: NDArray) -> NDArray:
+        """``(R, 3)`` float32 canonical coordinates → ``(R, 2n)`` float32 head features."""
+        return self.hidden(points, shape_bias) @ self.pf_wt + self.pf_b
 
     def head(self, diff: NDArray) -> NDArray:
         """``(R, 2n)`` feature differences (overwritten) → ``(R,)`` outputs ≥ 0."""
@@ -177,10 +194,58 @@ class FoldedNumpyNet:
         h = diff @ self.h2_wt
         h += self.h2_b
         np.maximum(h, 0.0, out=h)
-        out = h @ self.f_w + np.float32(self.f_b)
-        if self.output == "abs":
-            return np.abs(out)
-        return np.logaddexp(np.float32(0.0), out)  # softplus
+        return _apply_output(h @ self.f_w + np.float32(self.f_b), self.output)
+
+
+@dataclass(frozen=True)
+class FoldedNumpySmallHead:
+    """A distilled :class:`~litege_core.nets.small_head.SmallHead` on a folded teacher, float32
+    (as :class:`~litege_core.nets.small_head.FoldedSmallHead`): ``g_p = (A W_e) h_p + A b_e``
+    per point, ``|w₃ · relu(W₂ relu(g_s − g_d + b₁) + b₂) + b₃|`` per pair.
+
+    Attributes (``m`` features, ``k`` hidden): ``g_wt (n, m)``, ``g_b (m,)``, ``b1 (m,)``,
+    ``h_wt (m, k)``, ``h_b (k,)``, ``f_w (k,)``, ``f_b``; ``teacher`` the folded network.
+    """
+
+    teacher: FoldedNumpyNet
+    g_wt: NDArray
+    g_b: NDArray
+    b1: NDArray
+    h_wt: NDArray
+    h_b: NDArray
+    f_w: NDArray
+    f_b: float
+
+    @classmethod
+    def fold(
+        cls, head: dict[str, NDArray], weights: dict[str, NDArray], teacher: FoldedNumpyNet
+    ) -> FoldedNumpySmallHead:
+        """Fold a SmallHead state dict (float64) onto the teacher's ``project_embed``."""
+        a = head["point.weight"]  # (m, n)
+        e_w, e_b = weights["project_embed.weight"], weights["project_embed.bias"]
+        return cls(
+            teacher=teacher,
+            g_wt=_f32((a @ e_w).T),
+            g_b=_f32(a @ e_b),
+            b1=_f32(head["bias"]),
+            h_wt=_f32(head["hidden.weight"].T),
+            h_b=_f32(head["hidden.bias"]),
+            f_w=_f32(head["final.weight"][0]),
+            f_b=float(head["final.bias"][0]),
+        )
+
+    def point_features(self, points: NDArray, shape_bias: NDArray) -> NDArray:
+        """``(R, 3)`` float32 canonical coordinates → ``(R, m)`` float32 student features."""
+        return self.teacher.hidden(points, shape_bias) @ self.g_wt + self.g_b
+
+    def head(self, diff: NDArray) -> NDArray:
+        """``(R, m)`` feature differences (overwritten) → ``(R,)`` outputs ≥ 0."""
+        diff += self.b1
+        np.maximum(diff, 0.0, out=diff)
+        h = diff @ self.h_wt
+        h += self.h_b
+        np.maximum(h, 0.0, out=h)
+        return _apply_output(h @ self.f_w + np.float32(self.f_b), self.teacher.output)
 
 
 @dataclass(frozen=True, eq=False)
@@ -215,13 +280,23 @@ class NumpyPredictor:
 
     Args:
         path: a geodesic bundle directory (the shipped ones: :meth:`shipped`).
+        head: ``"full"`` (the trained head) or ``"small"`` (the bundle's distilled head).
+        lattice: the informative voxels the UDF is evaluated at (``"full"``, ``"bcc"``,
+            ``"stride2"``), as the torch predictor's ``descriptor_lattice``.
 
     Raises:
-        ArtifactError: damaged or inconsistent bundle files, or a pipeline the predictors do
-            not implement.
+        InputError: an unknown head or lattice; ``head="small"`` on a bundle without one.
+        ArtifactError: damaged or inconsistent bundle files (sidecar included), or a pipeline
+            the predictors do not implement.
     """
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], *, head: str = "full", lattice: str = "full"
+    ) -> None:
+        if head not in HEADS:
+            raise InputError(f"head must be one of {HEADS}, got {head!r}")
+        if lattice not in VOXEL_LATTICES:
+            raise InputError(f"lattice must be one of {VOXEL_LATTICES}, got {lattice!r}")
         directory, manifest, basis = open_bundle(path, GEODESIC, "model bundle")
         with consistent_manifest("bundle"):
             self.name = str(manifest["name"])
@@ -240,33 +315,50 @@ class NumpyPredictor:
         self.content_hash = str(manifest["content_hash"])
         self.manifest = manifest
         self.path = directory
+        self.head, self.lattice = head, lattice
+        self._net: FoldedNumpyNet | FoldedNumpySmallHead = self.net
+        if head == "small":
+            self._net = self._small_head(directory, weights)
         self._ood = residual_statistics(self.name, manifest)
-        self._centers = np.asarray(basis.centers, dtype=np.float64)  # (M, 3)
-        self._mean = np.asarray(basis.mean, dtype=np.float32)  # (M,)
-        self._components = np.asarray(basis.components, dtype=np.float32)  # (k, M)
+        self._descriptor = basis.lattice_projection(lattice)
+        self._centers = self._descriptor.centers.astype(np.float64)  # (|S|, 3)
+
+    def _small_head(self, directory: Path, weights: dict[str, NDArray]) -> FoldedNumpySmallHead:
+        config, path = verified_small_head(directory, self.name, self.content_hash)
+        head = _load_weights(path)
+        with consistent_manifest("small head"):
+            width, output = int(config["head"]["width"]), str(config["head"]["output"])
+        if (width, output) != (self.net.c2_wt.shape[1], self.net.output):
+            raise ArtifactError(
+                f"small head of {self.name} (width {width}, output {output!r}) does not fit its "
+                f"network (width {self.net.c2_wt.shape[1]}, output {self.net.output!r})"
+            )
+        return FoldedNumpySmallHead.fold(head, weights, self.net)
 
     @classmethod
-    def shipped(cls, name: str) -> NumpyPredictor:
-        """The runtime of a shipped bundle (``quadrupeds``, ``humans``)."""
+    def shipped(cls, name: str, **options: str) -> NumpyPredictor:
+        """The runtime of a shipped bundle (``quadrupeds``, ``humans``); ``options``: ``head``
+        and ``lattice``."""
         if name not in shipped_bundles():
             raise InputError(f"unknown model {name!r}; shipped models: {shipped_bundles()}")
-        return cls(SHIPPED_DIR / name)
+        return cls(SHIPPED_DIR / name, **options)
 
     def __repr__(self) -> str:
-        return f"NumpyPredictor(bundle={self.name!r}, hash={self.content_hash[:12]})"
+        return (
+            f"NumpyPredictor(bundle={self.name!r}, hash={self.content_hash[:12]}, "
+            f"head={self.head!r}, lattice={self.lattice!r})"
+        )
 
     # ----------------------------------------------------------------- registration
 
     def describe(self, canonical_samples: NDArray) -> tuple[NDArray, float]:
         """``(P, 3)`` canonical samples → ``(k,)`` float32 descriptor and its residual
-        ``‖c − zP‖`` (the same quantities as :meth:`~litege_core.descriptor.engine.
-        DescriptorEngine.describe_with_residual` on the full lattice)."""
+        ``‖c − zP‖`` (the same quantities as :meth:`~litege_core.descriptor.basis.
+        DescriptorEngine.describe_with_residual` on the predictor's lattice)."""
         points = np.asarray(canonical_samples, dtype=np.float32).astype(np.float64)
         udf = compute_udf(points, self._centers, backend="auto", workers=-1)  # a k-d tree on CPU
-        centred = udf.astype(np.float32) - self._mean  # (M,)
-        codes = self._components @ centred  # (k,)
-        residual = float(np.linalg.norm(centred - codes @ self._components))
-        return codes, residual
+        codes, residual = self._descriptor.describe(udf)
+        return codes, float(residual)
 
     def register(self, shape: Shape, *, seed: int = 0) -> NumpyShapeState:
         """Canonicalize and describe ``shape`` once (its shape embedding).
@@ -328,15 +420,15 @@ class NumpyPredictor:
         rows = max(1, PAIR_CHUNK // n_dst)
         out = np.empty((src.shape[0], n_dst), dtype=np.float32)
         x_src, x_dst = state.canonical[src], state.canonical[dst]
-        f_src = self.net.point_features(x_src, state.shape_bias)
-        f_dst = self.net.point_features(x_dst, state.shape_bias)
+        f_src = self._net.point_features(x_src, state.shape_bias)
+        f_dst = self._net.point_features(x_dst, state.shape_bias)
         scale = np.float32(self.pipeline.target_scale)
         for i0 in range(0, src.shape[0], rows):
             f_s, x_s = f_src[i0 : i0 + rows], x_src[i0 : i0 + rows]
             for j0 in range(0, n_dst, PAIR_CHUNK):
                 f_t, x_t = f_dst[j0 : j0 + PAIR_CHUNK], x_dst[j0 : j0 + PAIR_CHUNK]
                 diff = f_s[:, None, :] - f_t[None, :, :]  # (s, t, 2n)
-                head = self.net.head(diff.reshape(-1, diff.shape[-1])).reshape(diff.shape[:2])
+                head = self._net.head(diff.reshape(-1, diff.shape[-1])).reshape(diff.shape[:2])
                 euclidean = np.linalg.norm(x_s[:, None, :] - x_t[None, :, :], axis=-1)
                 block = head / scale
                 if self.pipeline.residual:
@@ -349,6 +441,7 @@ class NumpyPredictor:
 __all__ = [
     "PAIR_CHUNK",
     "FoldedNumpyNet",
+    "FoldedNumpySmallHead",
     "NumpyPredictor",
     "NumpyShapeState",
 ]

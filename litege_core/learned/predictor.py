@@ -82,7 +82,7 @@ from litege_core.learned.fusion import (
     pruned_knn_graph,
     surface_roughness,
 )
-from litege_core.learned.manifest import check_pipeline, residual_statistics
+from litege_core.learned.manifest import HEADS, check_pipeline, residual_statistics
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
@@ -105,9 +105,6 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
-
-HEADS = ("full", "small")
-"""Values of :class:`Predictor`'s ``head``: the trained head or the bundle's distilled one."""
 
 TABLE_FRACTION = 0.25
 """A query of more than this fraction of a shape's points builds (and keeps) the shape's whole

@@ -28,13 +28,15 @@ import torch
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import file_sha256, read_json_object, write_json_atomic
 from litege_core.learned.bundle import ModelBundle, load_weights
+from litege_core.learned.manifest import (
+    SMALL_HEAD_CONFIG,
+    SMALL_HEAD_FORMAT,
+    SMALL_HEAD_KIND,
+    SMALL_HEAD_WEIGHTS,
+    verified_small_head,
+)
 from litege_core.nets import state_to_tensors
 from litege_core.nets.small_head import SmallHead
-
-SMALL_HEAD_WEIGHTS = "head-small.safetensors"
-SMALL_HEAD_CONFIG = "head-small.json"
-SMALL_HEAD_KIND = "small_head"
-SMALL_HEAD_FORMAT = 1
 
 
 def save_small_head(
@@ -99,29 +101,9 @@ def load_small_head(
             bundle (teacher content hash ≠ the bundle's).
         ArtifactError: a damaged sidecar (hash mismatch, bad JSON, weights that do not fit).
     """
-    config = small_head_config(bundle)
-    if config is None:
-        raise InputError(
-            f"model {bundle.name!r} has no small head ({SMALL_HEAD_CONFIG}); distil one with "
-            "scripts/distill_head.py or use head='full'"
-        )
-    if (config.get("kind"), config.get("format_version")) != (SMALL_HEAD_KIND, SMALL_HEAD_FORMAT):
-        raise ArtifactError(
-            f"{SMALL_HEAD_CONFIG} of {bundle.name} is not a small head of format "
-            f"{SMALL_HEAD_FORMAT}"
-        )
-    teacher = str(config.get("teacher_content_hash", ""))
-    if teacher != bundle.content_hash:
-        raise InputError(
-            f"the small head of {bundle.name!r} was distilled from bundle {teacher[:12]}…, "
-            f"not from this bundle ({bundle.content_hash[:12]}…); distil it again"
-        )
-    assert bundle.path is not None
-    weights = Path(bundle.path) / SMALL_HEAD_WEIGHTS
-    if not weights.is_file():
-        raise ArtifactError(f"bundle {bundle.name} lacks {SMALL_HEAD_WEIGHTS}")
-    if file_sha256(weights) != config.get("weights_sha256"):
-        raise ArtifactError(f"{SMALL_HEAD_WEIGHTS} of {bundle.name} does not match its hash")
+    if bundle.path is None:
+        raise InputError(f"model {bundle.name!r} was not loaded from a directory: no small head")
+    config, weights = verified_small_head(Path(bundle.path), bundle.name, bundle.content_hash)
     try:
         head = SmallHead.from_config(config["head"])
     except (KeyError, TypeError, ValueError) as exc:

@@ -609,19 +609,16 @@ def train_from_meshes(options: FolderTrainOptions) -> dict[str, Any]:
 def _write_out(bundle_dir: Path, out: Path, held_out: dict[str, Any]) -> dict[str, Any]:
     """Copy the exported bundle's files into ``out`` and rewrite its manifest with the
     held-out comparison under ``metrics.held_out`` (same files, same content hash)."""
-    from litege_core.learned.bundle import MANIFEST, write_manifest
+    from litege_core.learned.bundle import MANIFEST, manifest_core, write_manifest
 
     source = json.loads((bundle_dir / MANIFEST).read_text())
     out.mkdir(parents=True, exist_ok=True)
     for filename in source["files"]:
         shutil.copy2(bundle_dir / filename, out / filename)
-    core = {
-        k: v
-        for k, v in source.items()
-        if k not in ("files", "training", "metrics", "created", "content_hash")
-    }
     metrics = {**source["metrics"], "held_out": held_out}
-    manifest = write_manifest(out, core, list(source["files"]), source["training"], metrics)
+    manifest = write_manifest(
+        out, manifest_core(source), list(source["files"]), source["training"], metrics
+    )
     if manifest["content_hash"] != source["content_hash"]:  # pragma: no cover - same files
         raise RuntimeError("the copied bundle changed its content hash")
     return manifest

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -115,6 +116,57 @@ def test_save_load_round_trip(basis: UdfPcaBasis, tmp_path: Path) -> None:
     assert header["content_hash"] == basis.content_hash and header["grid"] == GRID.to_dict()
     assert path.stat().st_size < basis.nbytes_on_disk + 4096
     assert not list(tmp_path.glob("*.tmp-*"))
+
+
+# --------------------------------------------------------------------------- int8 storage
+def test_int8_storage_rounds_components_per_component(basis: UdfPcaBasis) -> None:
+    small = basis.with_component_storage("int8")
+    assert small.component_storage == "int8" and basis.component_storage == "float16"
+    assert small.with_component_storage("int8") is small
+    scales = small.component_scales
+    assert scales is not None and scales.dtype == np.float32 and scales.shape == (8,)
+    codes = small.components / scales[:, None]
+    np.testing.assert_allclose(codes, np.rint(codes), atol=1e-4)
+    assert np.abs(np.rint(codes)).max() == 127  # every component uses the full code range
+    # the rounding error of a component is at most half a step
+    assert (np.abs(small.components - basis.components).max(axis=1) <= scales / 2 + 1e-7).all()
+    assert small.content_hash != basis.content_hash
+    assert small.nbytes_on_disk < basis.nbytes_on_disk
+    back = small.with_component_storage("float16")
+    assert back.component_scales is None and back.component_storage == "float16"
+    with pytest.raises(InputError):
+        basis.with_component_storage("int4")
+
+
+def test_int8_descriptor_stays_close_to_float16(basis: UdfPcaBasis) -> None:
+    small = basis.with_component_storage("int8")
+    points = _cloud(np.random.default_rng(4), 600)
+    full, eight = basis.describe(points), small.describe(points)
+    assert np.abs(full - eight).max() <= 0.01 * np.abs(full).max()
+    assert not np.array_equal(full, eight)
+
+
+def test_int8_save_load_round_trip(basis: UdfPcaBasis, tmp_path: Path) -> None:
+    small = basis.with_component_storage("int8").truncate(5)
+    assert small.component_storage == "int8" and small.n_components == 5
+    path = tmp_path / "basis.safetensors"
+    small.save(path)
+    loaded = UdfPcaBasis.load(path)
+    assert loaded == small and loaded.component_storage == "int8"
+    np.testing.assert_array_equal(loaded.components, small.components)
+    np.testing.assert_array_equal(loaded.component_scales, small.component_scales)
+    with safe_open(str(path), framework="np") as handle:
+        assert handle.get_tensor("components").dtype == np.int8
+        header = json.loads(handle.metadata()["litege_udf_pca"])
+    assert header["format_version"] == 2 and header["content_hash"] == small.content_hash
+
+
+def test_int8_components_must_fit_their_scales(basis: UdfPcaBasis) -> None:
+    scales = np.full(basis.n_components, 1e-6, np.float32)  # codes far beyond ±127
+    with pytest.raises(ArrayShapeError):
+        dataclasses.replace(basis, component_scales=scales)
+    with pytest.raises(ArrayShapeError):
+        dataclasses.replace(basis, component_scales=-np.ones(basis.n_components, np.float32))
 
 
 # --------------------------------------------------------------------------- broken files
@@ -248,3 +300,21 @@ def test_constructor_rejects_bad_metadata_and_points(basis: UdfPcaBasis) -> None
         basis.describe(np.zeros((5, 2)))
     with pytest.raises(ArrayShapeError):
         basis.describe_batch(np.zeros((5, 3)))
+
+
+INT8_BROKEN = {
+    "int8 codes as float16": _set("components", lambda a: a.astype(np.float16)),
+    "scales missing": lambda t, h, m: t.pop("component_scales"),
+    "scales in a float16 file": lambda t, h, m: h.__setitem__("format_version", 1),
+    "scales changed (hash)": _set("component_scales", lambda a: a * np.float32(1.01)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INT8_BROKEN))
+def test_inconsistent_int8_files_raise_artifact_error(
+    basis: UdfPcaBasis, tmp_path: Path, case: str
+) -> None:
+    path = _tamper(basis.with_component_storage("int8"), tmp_path, INT8_BROKEN[case])
+    with pytest.raises(ArtifactError) as info:
+        UdfPcaBasis.load(path)
+    assert str(path) in str(info.value)

@@ -15,6 +15,8 @@ from litege_core.learned.manifest import (
     MANIFEST,
     NETWORK_FILE,
     _content_hash,
+    manifest_core,
+    replace_basis,
     shipped_directories,
 )
 from litege_core.matching.bundle import KIND, load_matching_bundle
@@ -161,6 +163,7 @@ def test_shipped_bundles_keep_their_content_hashes():
     for directory in directories:
         manifest = json.loads((directory / MANIFEST).read_text())
         core = {k: v for k, v in manifest.items() if k not in not_core}
+        assert core == manifest_core(manifest)
         assert _content_hash(manifest["files"], core) == manifest["content_hash"], directory
         load = load_matching_bundle if manifest.get("kind") == KIND else load_bundle
         bundle = load(directory)
@@ -203,3 +206,22 @@ def test_a_bundle_of_another_format_version_is_refused(tmp_path, basis, network)
     (tmp_path / "b" / MANIFEST).write_text(json.dumps(manifest))
     with pytest.raises(ArtifactError, match="format 1"):
         load_bundle(tmp_path / "b")
+
+
+def test_replace_basis_stores_int8_components_and_rehashes(tmp_path, basis, network):
+    before = save_bundle(
+        tmp_path / "b", name="t", category="t", basis=basis, network=network, metrics={"m": 1}
+    )
+    small = basis.with_component_storage("int8")
+    after = replace_basis(tmp_path / "b", small)
+    assert after["content_hash"] != before["content_hash"]
+    assert after["descriptor"]["basis_hash"] == small.content_hash
+    assert after["metrics"] == {"m": 1} and after["training"] == before["training"]
+    assert after["files"][NETWORK_FILE] == before["files"][NETWORK_FILE]
+    bundle = load_bundle(tmp_path / "b")
+    assert bundle.content_hash == after["content_hash"] and bundle.basis == small
+    assert bundle.basis.component_storage == "int8"
+    torch.testing.assert_close(_outputs(bundle.network), _outputs(network))
+    with pytest.raises(ArtifactError, match="voxels and size"):
+        replace_basis(tmp_path / "b", basis.truncate(2))
+    assert load_bundle(tmp_path / "b").content_hash == after["content_hash"]  # nothing written

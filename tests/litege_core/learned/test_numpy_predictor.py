@@ -21,7 +21,9 @@ from litege_core.learned import (
     save_bundle,
     shipped_bundles,
 )
-from litege_core.learned.manifest import MANIFEST, NETWORK_FILE
+from litege_core.learned.manifest import MANIFEST, NETWORK_FILE, SMALL_HEAD_CONFIG
+from litege_core.learned.small_head import save_small_head
+from litege_core.nets.small_head import SmallHead
 from litege_core.nets.testing import random_geodesic_net
 from litege_core.shape import Shape
 
@@ -84,6 +86,61 @@ def test_equals_the_torch_predictor(bundle_dir, scaled_blob, kind):
     assert field[9] == 0.0 and (np.delete(field, 9) > 0).all()
 
 
+@pytest.fixture(scope="module")
+def small_head_dir(bundle_dir, tmp_path_factory):
+    """The toy bundle with a random small head beside it (non-zero biases)."""
+    directory = tmp_path_factory.mktemp("numpy-small") / bundle_dir.name
+    shutil.copytree(bundle_dir, directory)
+    bundle = load_bundle(directory)
+    torch.manual_seed(3)
+    head = SmallHead(bundle.network.width, 12, 8, output=bundle.network.output)
+    with torch.no_grad():
+        head.bias.normal_(0.0, 0.3)
+        head.final.bias.fill_(0.05)
+    save_small_head(directory, head.eval(), bundle.content_hash)
+    return directory
+
+
+@pytest.mark.parametrize(
+    ("head", "lattice"), [("small", "full"), ("full", "stride2"), ("small", "bcc")]
+)
+def test_small_head_and_lattices_equal_the_torch_predictor(
+    small_head_dir, scaled_blob, head, lattice
+):
+    shape = scaled_blob(4)
+    reference = Predictor(load_bundle(small_head_dir), head=head, descriptor_lattice=lattice)
+    runtime = NumpyPredictor(small_head_dir, head=head, lattice=lattice)
+    assert (runtime.head, runtime.lattice) == (head, lattice)
+    state, expected_state = runtime.register(shape, seed=1), reference.register(shape, seed=1)
+    assert state.residual == pytest.approx(expected_state.residual, rel=1e-5)
+    got = runtime.distances(state, [0, 7, 40], "all")
+    want = reference.distances(expected_state, [0, 7, 40], "all")
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(np.abs(want).max()))
+    full = NumpyPredictor(small_head_dir).distances(
+        NumpyPredictor(small_head_dir).register(shape, seed=1), [0]
+    )
+    assert not np.allclose(got[0], full[0])  # the options change the answer
+
+
+def test_small_head_is_refused_without_a_sidecar_or_from_another_bundle(
+    bundle_dir, small_head_dir, tmp_path
+):
+    with pytest.raises(InputError, match="no small head"):
+        NumpyPredictor(bundle_dir, head="small")
+    with pytest.raises(InputError, match="head must be"):
+        NumpyPredictor(bundle_dir, head="tiny")
+    with pytest.raises(InputError, match="lattice must be"):
+        NumpyPredictor(bundle_dir, lattice="sparse")
+    other = tmp_path / "other"
+    shutil.copytree(small_head_dir, other)
+    config = json.loads((other / SMALL_HEAD_CONFIG).read_text())
+    config["teacher_content_hash"] = "f" * 64
+    (other / SMALL_HEAD_CONFIG).write_text(json.dumps(config))
+    with pytest.raises(InputError, match="distil it again"):
+        NumpyPredictor(other, head="small")
+    assert NumpyPredictor(other).head == "full"  # the full head does not read the sidecar
+
+
 @pytest.mark.parametrize("name", shipped_bundles())
 def test_shipped_models_match(scaled_blob, name):
     shape = scaled_blob(1, subdivisions=4)
@@ -93,6 +150,11 @@ def test_shipped_models_match(scaled_blob, name):
     assert state.ood_score == pytest.approx(expected_state.ood_score, rel=1e-4)
     got = runtime.distances(state, [0, 100, 2000])
     want = reference.distances(expected_state, [0, 100, 2000])
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
+    fast = NumpyPredictor.shipped(name, head="small", lattice="stride2")
+    reference = Predictor(load_shipped(name), head="small", descriptor_lattice="stride2")
+    got = fast.distances(fast.register(shape), [0, 100, 2000])
+    want = reference.distances(reference.register(shape), [0, 100, 2000])
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
 
 
@@ -130,7 +192,7 @@ def test_never_imports_torch():
         "import sys, numpy as np\n"
         "from litege_core.learned.numpy_predictor import NumpyPredictor\n"
         "from litege_core.shape import Shape\n"
-        "runtime = NumpyPredictor.shipped('quadrupeds')\n"
+        "runtime = NumpyPredictor.shipped('quadrupeds', head='small', lattice='stride2')\n"
         "points = np.random.default_rng(0).normal(size=(300, 3)) * [2.0, 0.6, 0.8]\n"
         "state = runtime.register(Shape.from_arrays(points))\n"
         "assert runtime.distances(state, [0, 1]).shape == (2, 300)\n"
