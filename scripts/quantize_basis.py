@@ -73,9 +73,21 @@ def quantize(directory: Path, measure: bool) -> dict[str, object]:
         report["fusion"] = "stale: run scripts/calibrate_fusion.py --write for this bundle"
     card = directory / CARD
     if card.is_file():
-        text = card.read_text().replace(f"`{old_hash[:16]}`", f"`{new_hash[:16]}`")
-        card.write_text(text)
+        card.write_text(card_note(card.read_text(), old_hash, new_hash))
     return report
+
+
+def card_note(text: str, old_hash: str, new_hash: str) -> str:
+    """The model card with the new content hash and a line on the basis storage."""
+    text = text.replace(f"`{old_hash[:16]}`", f"`{new_hash[:16]}`")
+    lines = text.splitlines(keepends=True)
+    at = next((i + 1 for i, line in enumerate(lines) if line.startswith("- **Category**")), 0)
+    note = (
+        f"- **Basis storage**: int8 components with per-component scales "
+        f"(`scripts/quantize_basis.py`; content hash before: `{old_hash[:16]}`; BENCHMARKS.md "
+        "`basis-int8`: no evaluated setting moved by more than 0.01).\n"
+    )
+    return "".join([*lines[:at], note, *lines[at:]])
 
 
 def main() -> None:
