@@ -4,7 +4,7 @@
 
 One procedural dog (seed 2,000,000, outside every training seed range), 300 surface points,
 saved as NPY, binary PLY and XYZ; each file × runtime (``numpy``: the torch-free default,
-``torch``) and the kNN-graph Dijkstra (``--method graph``) as the classical reference, run in
+also with the small head and the stride-2 lattice; ``torch``) and the kNN-graph Dijkstra (``--method graph``) as the classical reference, run in
 interleaved rounds, a fresh interpreter each time (imports, model loading and the query
 included). Prints a markdown section for BENCHMARKS.md.
 """
@@ -34,6 +34,14 @@ from litege_core.variants import point_cloud
 FORMATS = ("npy", "ply", "xyz")
 CONFIGURATIONS = {
     "LiteGE, numpy runtime (default)": ["--runtime", "numpy"],
+    "LiteGE, numpy runtime, small head + stride2": [
+        "--runtime",
+        "numpy",
+        "--head",
+        "small",
+        "--lattice",
+        "stride2",
+    ],
     "LiteGE, torch runtime": ["--runtime", "torch"],
     "kNN-graph Dijkstra": ["--method", "graph"],
 }

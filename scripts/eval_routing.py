@@ -1,13 +1,18 @@
-"""How the service's ``auto`` model choice routes the real dev shapes (issue 14).
+"""How the service's ``auto`` model choice routes the real dev shapes, and what a wrong choice
+costs (issue 14).
 
 Usage: python scripts/eval_routing.py [--quadrupeds NAME_OR_DIR] [--humans NAME_OR_DIR]
+    [--sets tosca,faust] [--settings mesh,cloud_2000,cloud_300] [--sources 12]
     [--eval-data ../shared/eval-data]
 
-``LITEGE_DEFAULT_MODEL=auto`` registers an upload under every loaded geodesic model and keeps
-the one with the lowest OOD z-score. This registers every TOSCA animal, the leopard and every
-FAUST human under a quadrupeds and a humans bundle (shipped by default; a candidate bundle
-directory before it ships) and counts the shapes routed to the other category's model, with
-the median z-score under the shape's own model. Prints a markdown section.
+``LITEGE_DEFAULT_MODEL=auto`` (the default) registers an upload under every loaded geodesic
+model and keeps the one with the lowest OOD z-score. This registers every TOSCA animal, the
+leopard and every FAUST human, as each input setting of ``litege eval geodesic`` (the mesh,
+sparse clouds, ...), under a quadrupeds and a humans bundle (shipped by default; a candidate
+bundle directory before it ships). Per set and setting: the shapes routed to the other
+category's model, the median z-score under each model and, against exact geodesics from
+``--sources`` farthest-point sources (GT mean 100), the mean error of the shape's own model,
+of the model ``auto`` picks and of the other one. Prints a markdown section.
 """
 
 from __future__ import annotations
@@ -18,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from litege_core.evaluation.geodesic import real_shape_paths
-from litege_core.io import load_shape
+from litege_core.evaluation.geodesic import make_input, real_eval_shapes, real_shape_paths
 from litege_core.learned import Predictor, load_bundle, load_shipped
 
 OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
@@ -31,33 +35,65 @@ def predictor(name_or_dir: str) -> Predictor:
     return Predictor(bundle)
 
 
+def relative_error(predicted: np.ndarray, truth: np.ndarray) -> float:
+    """Mean absolute error with the true distances rescaled to mean 100."""
+    return float(np.abs(predicted - truth).mean() / truth.mean() * 100)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quadrupeds", default="quadrupeds")
     parser.add_argument("--humans", default="humans")
+    parser.add_argument("--sets", default="tosca,faust", help="of tosca, leopard, faust")
+    parser.add_argument("--settings", default="mesh,cloud_2000,cloud_300")
+    parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--eval-data", default="../shared/eval-data")
+    parser.add_argument("--cache", default="out/exact-cache", help="exact-row cache")
     args = parser.parse_args()
     models = {"quadrupeds": predictor(args.quadrupeds), "humans": predictor(args.humans)}
+    settings = [s.strip() for s in args.settings.split(",") if s.strip()]
     print("### `auto` model routing of the real dev shapes\n")
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; quadrupeds = `{args.quadrupeds}` "
         f"({models['quadrupeds'].bundle.content_hash[:12]}), humans = `{args.humans}` "
-        f"({models['humans'].bundle.content_hash[:12]}); each mesh registered under both, "
-        "routed to the lower OOD z-score; command `python scripts/eval_routing.py "
-        f"--quadrupeds {args.quadrupeds} --humans {args.humans}`\n"
+        f"({models['humans'].bundle.content_hash[:12]}); each input registered under both, "
+        f"routed to the lower OOD z-score; errors against exact rows from {args.sources} "
+        "sources, GT mean 100; command `python scripts/eval_routing.py "
+        f"--quadrupeds {args.quadrupeds} --humans {args.humans} --sets {args.sets} "
+        f"--settings {args.settings} "
+        f"--sources {args.sources}`\n"
     )
-    print("| set | shapes | routed to the other model | median z, own model | median z, other |")
-    print("|---|---:|---:|---:|---:|")
-    for set_name, own in OWN_MODEL.items():
+    print(
+        "| set | setting | shapes | routed to the other model | median z, own model | "
+        "median z, other | error, own model | error, `auto` | error, other model |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for set_name in [s.strip() for s in args.sets.split(",") if s.strip()]:
+        own = OWN_MODEL[set_name]
         other = "humans" if own == "quadrupeds" else "quadrupeds"
-        scores = []
-        for path in real_shape_paths(args.eval_data, set_name):
-            shape = load_shape(path)
-            scores.append({n: m.register(shape).ood_score for n, m in models.items()})
-        wrong = sum(min(z, key=z.__getitem__) != own for z in scores)
-        own_z = np.median([z[own] for z in scores])
-        other_z = np.median([z[other] for z in scores])
-        print(f"| {set_name} | {len(scores)} | {wrong} | {own_z:.2f} | {other_z:.2f} |")
+        paths = real_shape_paths(args.eval_data, set_name)
+        shapes = real_eval_shapes(paths, set_name, args.sources, args.cache)
+        for setting in settings:
+            z: dict[str, list[float]] = {own: [], other: []}
+            errors: dict[str, list[float]] = {own: [], other: [], "auto": []}
+            for k, shape in enumerate(shapes):
+                item = make_input(shape, setting, k)
+                scored = {}
+                for name in (own, other):
+                    state = models[name].register(item.shape)
+                    predicted = models[name].distances(state, item.source_index)
+                    scored[name] = (state.ood_score, relative_error(predicted, item.gt))
+                    z[name].append(state.ood_score)
+                    errors[name].append(scored[name][1])
+                chosen = own if scored[own][0] <= scored[other][0] else other
+                errors["auto"].append(scored[chosen][1])
+            wrong = sum(zo > zt for zo, zt in zip(z[own], z[other], strict=True))
+            print(
+                f"| {set_name} | {setting} | {len(shapes)} | {wrong} | "
+                f"{np.median(z[own]):.2f} | {np.median(z[other]):.2f} | "
+                f"{np.mean(errors[own]):.2f} | {np.mean(errors['auto']):.2f} | "
+                f"{np.mean(errors[other]):.2f} |"
+            )
 
 
 if __name__ == "__main__":
