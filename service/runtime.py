@@ -456,10 +456,10 @@ class Runtime:
     ) -> Runtime:
         """Load the models (in a worker thread), connect the store, start the batcher.
 
-        ``matching_model`` replaces the one ``settings.matching_model`` names (tests inject
-        :meth:`MatchingModel.tiny_random`). A matching model named explicitly
-        (``LITEGE_MATCHING_MODEL``) must load; the default one is skipped with a warning when
-        it is not shipped, and correspondence requests then answer unknown-model.
+        ``matching_model`` replaces the ones ``settings.matching_model`` names (tests inject
+        :meth:`MatchingModel.tiny_random`). Matching models named explicitly
+        (``LITEGE_MATCHING_MODEL``) must load; a default one that is not shipped is skipped
+        with a warning (requests for it then answer unknown-model).
         """
         available = shipped_bundles()
         unknown = [m for m in settings.models if m not in available]
@@ -482,21 +482,21 @@ class Runtime:
         def load_matching() -> dict[str, MatchingModel]:
             if matching_model is not None:
                 return {matching_model.name: matching_model}
-            name = settings.matching_model
-            if name is None:
-                return {}
-            started = time.perf_counter()
-            try:
-                model = MatchingModel.load(name, device)
-            except LiteGEError as exc:
-                if "matching_model" in settings.model_fields_set:
-                    raise UnknownModelError(f"matching model {name!r}: {exc}") from exc
-                log.warning("correspondence is off: default matching model unavailable: %s", exc)
-                return {}
-            metrics.model_load_seconds.labels(f"{model.name}-matching").set(
-                time.perf_counter() - started
-            )
-            return {model.name: model}
+            loaded: dict[str, MatchingModel] = {}
+            for name in settings.matching_model:
+                started = time.perf_counter()
+                try:
+                    model = MatchingModel.load(name, device)
+                except LiteGEError as exc:
+                    if "matching_model" in settings.model_fields_set:
+                        raise UnknownModelError(f"matching model {name!r}: {exc}") from exc
+                    log.warning("matching model %s is unavailable and skipped: %s", name, exc)
+                    continue
+                metrics.model_load_seconds.labels(f"{model.name}-matching").set(
+                    time.perf_counter() - started
+                )
+                loaded[model.name] = model
+            return loaded
 
         predictors = await asyncio.to_thread(load)
         matching = await asyncio.to_thread(load_matching)

@@ -37,9 +37,10 @@ class Settings(BaseSettings):
     shapes far from the training families, slower on large shapes); every loaded model must
     ship its calibration. ``none``: the network alone. Paths follow the network either way."""
     device: str = "auto"
-    matching_model: str | None = "quadrupeds"
-    """Matching bundle of ``POST /correspondences`` and the ``Correspond`` RPC (a shipped name
-    or a bundle directory); empty: correspondence is switched off (unknown-model answers)."""
+    matching_model: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
+    """Matching bundles of ``POST /correspondences`` and the ``Correspond`` RPC, comma-separated
+    (shipped names or bundle directories); the first is the default of a request that names
+    none. Empty: correspondence is switched off (unknown-model answers)."""
 
     redis_url: str | None = None
     cache_ttl_s: float = Field(7 * 24 * 3600.0, gt=0)
@@ -91,14 +92,14 @@ class Settings(BaseSettings):
     log_format: Literal["json", "text"] = "json"
     log_level: str = "INFO"
 
-    @field_validator("models", mode="before")
+    @field_validator("models", "matching_model", mode="before")
     @classmethod
     def _split_models(cls, value: object) -> object:
         if isinstance(value, str):
             return tuple(part.strip() for part in value.split(",") if part.strip())
         return value
 
-    @field_validator("redis_url", "api_key", "matching_model", mode="before")
+    @field_validator("redis_url", "api_key", mode="before")
     @classmethod
     def _empty_is_none(cls, value: object) -> object:
         return None if isinstance(value, str) and not value.strip() else value

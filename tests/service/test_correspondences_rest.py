@@ -420,14 +420,18 @@ def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, t
     from litege_core.matching.testing import save_tiny_matching_bundle
 
     manifest = save_tiny_matching_bundle(tmp_path / "bundle", SEED, name="dir-model")
-    service = live_service_factory(matching_model=str(tmp_path / "bundle"))
+    second = save_tiny_matching_bundle(tmp_path / "second", SEED + 1, name="dir-two")
+    # a comma-separated list loads every bundle; the first is the default
+    service = live_service_factory(matching_model=f"{tmp_path / 'bundle'}, {tmp_path / 'second'}")
     with LiteGEClient(service.base_url) as client:
         ready = client.ready()
         assert ready["matching_models"] == {
-            "dir-model": {"bundle_hash": manifest["content_hash"], "category": "test"}
+            "dir-model": {"bundle_hash": manifest["content_hash"], "category": "test"},
+            "dir-two": {"bundle_hash": second["content_hash"], "category": "test"},
         }
         sid = client.register_arrays(tiny_shape_vertices())["shape_id"]  # a point cloud
-        assert client.correspondences(sid, sid, [0, 1], model="dir-model")["model"] == "dir-model"
+        assert client.correspondences(sid, sid, [0, 1])["model"] == "dir-model"
+        assert client.correspondences(sid, sid, [0, 1], model="dir-two")["model"] == "dir-two"
     settings = Settings(
         models=("quadrupeds",), device="cpu", matching_model="no-such-matching-model"
     )
