@@ -140,7 +140,12 @@ class ShapeRepository:
         return [self.default_model, *(m for m in self.predictors if m != self.default_model)]
 
     def _record(self, model: str) -> Artifact:
-        return Artifact(self.predictors[model].bundle.content_hash, RECORD)
+        """The stored record of ``model``; records of a sparser descriptor lattice (an
+        approximation of the full one) under their own name, never mixed with full ones."""
+        predictor = self.predictors[model]
+        lattice = predictor.descriptor_lattice
+        name = RECORD if lattice == "full" else f"{RECORD}.{lattice}"
+        return Artifact(predictor.bundle.content_hash, name)
 
     # ------------------------------------------------------------------ registration
 

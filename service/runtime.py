@@ -475,7 +475,13 @@ class Runtime:
             for name in settings.models:
                 started = time.perf_counter()
                 bundle = load_shipped(name)
-                predictors[name] = Predictor(bundle, device, fusion=settings.geodesic_fusion)
+                predictors[name] = Predictor(
+                    bundle,
+                    device,
+                    head=settings.geodesic_head,
+                    descriptor_lattice=settings.descriptor_lattice,
+                    fusion=settings.geodesic_fusion,
+                )
                 metrics.model_load_seconds.labels(name).set(time.perf_counter() - started)
             return predictors
 
@@ -548,6 +554,8 @@ class Runtime:
                         "version": p.bundle.manifest.get("version"),
                         "category": p.bundle.category,
                         "fusion": "none" if p.fusion is None else "graph",
+                        "head": p.head,
+                        "lattice": p.descriptor_lattice,
                     }
                     for name, p in self.repository.predictors.items()
                 },

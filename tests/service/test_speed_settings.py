@@ -1,0 +1,69 @@
+"""``LITEGE_GEODESIC_HEAD=small`` and ``LITEGE_DESCRIPTOR_LATTICE=stride2`` (issue 17) over real
+HTTP: the service answers as the library's speed configuration does, says so on ``/readyz``,
+and stores the sparser lattice's records under their own key, so a service on the full lattice
+never restores one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from litege_core.learned import Predictor, load_shipped
+from litege_core.shape import Shape
+from litege_core.synth import generate_shape
+from service.client import LiteGEClient
+from service.settings import Settings
+from service.store import artifact_key
+
+from .conftest import TEST_MODEL
+
+
+@pytest.fixture(scope="module")
+def dog() -> Shape:
+    generated = generate_shape("quadruped", "dog", seed=6, reject=False)
+    return Shape.from_arrays(generated.vertices, generated.faces)
+
+
+def test_the_settings_default_to_the_trained_network() -> None:
+    settings = Settings()
+    assert (settings.geodesic_head, settings.descriptor_lattice) == ("full", "full")
+    with pytest.raises(ValueError):
+        Settings(geodesic_head="tiny")
+    with pytest.raises(ValueError):
+        Settings(descriptor_lattice="sparse")
+
+
+def test_fast_answers_are_the_library_answers_and_records_stay_apart(
+    live_service_factory, private_redis, dog
+) -> None:
+    fast = live_service_factory(
+        geodesic_head="small", descriptor_lattice="stride2", redis_url=private_redis.url
+    )
+    library = Predictor(
+        load_shipped(TEST_MODEL), torch.device("cpu"), head="small", descriptor_lattice="stride2"
+    )
+    full = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"))
+    sources = [0, 300, 1200]
+    with LiteGEClient(fast.base_url) as client:
+        ready = client.ready()["models"][TEST_MODEL]
+        assert (ready["head"], ready["lattice"]) == ("small", "stride2")
+        shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
+        answer = client.geodesic(shape_id, sources)
+    fast.stop()  # flushes the write-behind queue
+    expected = library.distances(library.register(dog), sources)
+    np.testing.assert_allclose(answer, expected, rtol=1e-5, atol=1e-6)
+    full_answer = full.distances(full.register(dog), sources)
+    assert not np.allclose(answer, full_answer, rtol=1e-3)
+    bundle_hash = full.bundle.content_hash
+    keys = private_redis.client()
+    assert keys.exists(artifact_key(shape_id, bundle_hash, "record.stride2"))
+    assert not keys.exists(artifact_key(shape_id, bundle_hash, "record"))
+    # a full-lattice service on the same Redis computes its own record from the geometry
+    plain = live_service_factory(redis_url=private_redis.url)
+    with LiteGEClient(plain.base_url) as client:
+        np.testing.assert_allclose(
+            client.geodesic(shape_id, sources), full_answer, rtol=1e-5, atol=1e-6
+        )
+    plain.stop()
+    assert keys.exists(artifact_key(shape_id, bundle_hash, "record"))
