@@ -5,7 +5,7 @@
 * :meth:`MatchingModel.prepare` puts a shape into the aligned unit-area frame (spec §1.3–1.6),
   computes its UDF-PCA descriptor and the multi-tier NN cache of its points (spec §5.2) →
   :class:`MatchingShape` (small, pickle-free ``to_arrays`` for a cache). With
-  ``frames="judged"`` (the default for the procedural categories) the T-Net's frame competes
+  ``frames="judged"`` (the default for quadrupeds, opt-in for bipeds) the T-Net's frame competes
   with its half turns about the canonical axes and the matching network picks the one most
   like canonical reference animals (:mod:`litege_core.matching.judge`, issue 15 step 1);
 * :meth:`MatchingModel.match` finds, for query points of X, the point of Y minimizing the
@@ -55,7 +55,7 @@ from litege_core.matching.frame import (
     candidate_turns,
     turned,
 )
-from litege_core.matching.judge import DEFAULT_MARGIN, FrameJudge, choose
+from litege_core.matching.judge import DEFAULT_MARGIN, JUDGED_BY_DEFAULT, FrameJudge, choose
 from litege_core.matching.refine import (
     REFINE_METHODS,
     RefinedMap,
@@ -349,7 +349,9 @@ class MatchingModel:
         self._judge = judge
 
     def resolve_frames(self, frames: str) -> str:
-        """``auto`` → ``judged`` when the model has a frame judge, else ``tnet``.
+        """``auto`` → ``judged`` when the model has a frame judge and its category is one the
+        judge is validated on (:data:`~litege_core.matching.judge.JUDGED_BY_DEFAULT`), else
+        ``tnet``.
 
         Raises:
             InputError: an unknown mode, or ``judged`` without a judge.
@@ -358,7 +360,7 @@ class MatchingModel:
             raise InputError(f"frames must be one of {list(FRAME_MODES)}, got {frames!r}")
         has_judge = self.frame_judge is not None
         if frames == "auto":
-            return "judged" if has_judge else "tnet"
+            return "judged" if has_judge and self.category in JUDGED_BY_DEFAULT else "tnet"
         if frames == "judged" and not has_judge:
             raise InputError(
                 f"frames='judged' needs reference animals; none for category {self.category!r}"
