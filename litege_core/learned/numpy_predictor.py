@@ -84,6 +84,25 @@ def _apply_output(out: NDArray, output: str) -> NDArray:
     return np.logaddexp(np.float32(0.0), out)
 
 
+def _pair_head(
+    diff: NDArray,
+    first_bias: NDArray,
+    hidden_wt: NDArray,
+    hidden_b: NDArray,
+    final_w: NDArray,
+    final_b: float,
+    output: str,
+) -> NDArray:
+    """``|w · relu(W relu(diff + b₁) + b) + b_f|`` (or softplus) per row of ``(R, d)`` feature
+    differences, overwritten as scratch: the trained and the small head alike."""
+    diff += first_bias
+    np.maximum(diff, 0.0, out=diff)
+    h = diff @ hidden_wt
+    h += hidden_b
+    np.maximum(h, 0.0, out=h)
+    return _apply_output(h @ final_w + np.float32(final_b), output)
+
+
 def _f32(array: NDArray) -> NDArray:
     return np.ascontiguousarray(array, dtype=np.float32)
 
@@ -189,12 +208,7 @@ class FoldedNumpyNet:
 
     def head(self, diff: NDArray) -> NDArray:
         """``(R, 2n)`` feature differences (overwritten) → ``(R,)`` outputs ≥ 0."""
-        diff += self.h1_b
-        np.maximum(diff, 0.0, out=diff)
-        h = diff @ self.h2_wt
-        h += self.h2_b
-        np.maximum(h, 0.0, out=h)
-        return _apply_output(h @ self.f_w + np.float32(self.f_b), self.output)
+        return _pair_head(diff, self.h1_b, self.h2_wt, self.h2_b, self.f_w, self.f_b, self.output)
 
 
 @dataclass(frozen=True)
@@ -240,12 +254,9 @@ class FoldedNumpySmallHead:
 
     def head(self, diff: NDArray) -> NDArray:
         """``(R, m)`` feature differences (overwritten) → ``(R,)`` outputs ≥ 0."""
-        diff += self.b1
-        np.maximum(diff, 0.0, out=diff)
-        h = diff @ self.h_wt
-        h += self.h_b
-        np.maximum(h, 0.0, out=h)
-        return _apply_output(h @ self.f_w + np.float32(self.f_b), self.teacher.output)
+        return _pair_head(
+            diff, self.b1, self.h_wt, self.h_b, self.f_w, self.f_b, self.teacher.output
+        )
 
 
 @dataclass(frozen=True, eq=False)

@@ -86,6 +86,16 @@ def test_equals_the_torch_predictor(bundle_dir, scaled_blob, kind):
     assert field[9] == 0.0 and (np.delete(field, 9) > 0).all()
 
 
+def _edited_copy(source, target, filename, key):
+    """A copy of the bundle directory ``source`` whose JSON ``filename`` names another hash
+    under ``key``."""
+    shutil.copytree(source, target)
+    document = json.loads((target / filename).read_text())
+    document[key] = "f" * 64
+    (target / filename).write_text(json.dumps(document))
+    return target
+
+
 @pytest.fixture(scope="module")
 def small_head_dir(bundle_dir, tmp_path_factory):
     """The toy bundle with a random small head beside it (non-zero biases)."""
@@ -131,11 +141,9 @@ def test_small_head_is_refused_without_a_sidecar_or_from_another_bundle(
         NumpyPredictor(bundle_dir, head="tiny")
     with pytest.raises(InputError, match="lattice must be"):
         NumpyPredictor(bundle_dir, lattice="sparse")
-    other = tmp_path / "other"
-    shutil.copytree(small_head_dir, other)
-    config = json.loads((other / SMALL_HEAD_CONFIG).read_text())
-    config["teacher_content_hash"] = "f" * 64
-    (other / SMALL_HEAD_CONFIG).write_text(json.dumps(config))
+    other = _edited_copy(
+        small_head_dir, tmp_path / "other", SMALL_HEAD_CONFIG, "teacher_content_hash"
+    )
     with pytest.raises(InputError, match="distil it again"):
         NumpyPredictor(other, head="small")
     assert NumpyPredictor(other).head == "full"  # the full head does not read the sidecar
@@ -172,11 +180,7 @@ def test_errors_at_the_boundary(bundle_dir, scaled_blob, tmp_path):
     with pytest.raises(InputError, match="unknown model"):
         NumpyPredictor.shipped("dragons")
 
-    other = tmp_path / "other"
-    shutil.copytree(bundle_dir, other)
-    manifest = json.loads((other / MANIFEST).read_text())
-    manifest["content_hash"] = "0" * 64
-    (other / MANIFEST).write_text(json.dumps(manifest))
+    other = _edited_copy(bundle_dir, tmp_path / "other", MANIFEST, "content_hash")
     with pytest.raises(InputError, match="not registered with this bundle"):
         NumpyPredictor(other).distances(state, [0])
 
