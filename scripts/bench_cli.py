@@ -4,9 +4,10 @@
 
 One procedural dog (seed 2,000,000, outside every training seed range), 300 surface points,
 saved as NPY, binary PLY and XYZ; each file × runtime (``numpy``: the torch-free default,
-also with the small head and the stride-2 lattice; ``torch``) and the kNN-graph Dijkstra (``--method graph``) as the classical reference, run in
-interleaved rounds, a fresh interpreter each time (imports, model loading and the query
-included). Prints a markdown section for BENCHMARKS.md.
+also with the small head and the stride-2 lattice; ``torch``) and the kNN-graph Dijkstra
+(``--method graph``) as the classical reference, run in interleaved rounds, a fresh interpreter
+each time (imports, model loading and the query included). Prints a markdown section for
+BENCHMARKS.md.
 """
 
 from __future__ import annotations

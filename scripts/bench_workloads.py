@@ -54,6 +54,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import date
 from functools import partial
+from typing import Any
 
 import numpy as np
 import torch
@@ -62,6 +63,7 @@ from litege_core import __version__
 from litege_core.engines import ClassicalSolver
 from litege_core.evaluation.speed import cpu_name, peak_memory
 from litege_core.learned import Predictor, load_shipped
+from litege_core.learned.numpy_predictor import NumpyPredictor
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh, point_cloud
@@ -127,7 +129,8 @@ def _classical_batch(shapes: list[Shape], method: str) -> list:
     return [_classical(s, method, [0], [1]) for s in shapes]
 
 
-def _litege(predictor: Predictor, shape: Shape, sources, targets=None):
+def _litege(predictor: Any, shape: Shape, sources, targets=None):
+    """A :class:`Predictor` or :class:`NumpyPredictor` (same register / distances calls)."""
     return predictor.distances(predictor.register(shape), sources, targets)
 
 
@@ -155,9 +158,25 @@ def litege_predictors(bundle) -> dict[str, Predictor]:
     }
 
 
+NUMPY_RUNTIMES = {
+    "LiteGE numpy": ("full", "full"),
+    "LiteGE numpy small head + stride2": ("small", "stride2"),
+}
+"""The torch-free runtime (:class:`~litege_core.learned.numpy_predictor.NumpyPredictor`, what
+``litege geodesic`` runs on a CPU): one shape at a time, so no ``64 shapes`` rows."""
+
+
+def numpy_runtimes() -> dict[str, NumpyPredictor]:
+    return {
+        name: NumpyPredictor.shipped("quadrupeds", head=head, lattice=lattice)
+        for name, (head, lattice) in NUMPY_RUNTIMES.items()
+    }
+
+
 def build_cases(args, data) -> list[Case]:
     bundle = load_shipped("quadrupeds")
     predictors = litege_predictors(bundle)
+    single: dict[str, Predictor | NumpyPredictor] = {**predictors, **numpy_runtimes()}
     cloud, mesh = data["cloud"], data["mesh"]
     rng = np.random.default_rng(0)
     src = rng.choice(mesh.n_points, 1000, replace=False)
@@ -170,7 +189,7 @@ def build_cases(args, data) -> list[Case]:
         ("2K cloud", cloud, far_c, {REFERENCE: "graph", "point-cloud heat": "heat"}),
         ("5K mesh", mesh, far_m, {REFERENCE: "graph", "mesh heat": "heat", "exact": "exact"}),
     ):
-        for name, predictor in predictors.items():
+        for name, predictor in single.items():
             cases.append(
                 Case(
                     "one pair",
@@ -233,7 +252,7 @@ def build_cases(args, data) -> list[Case]:
                 )
             )
 
-    for name, predictor in predictors.items():
+    for name, predictor in single.items():
         cases.append(
             Case(
                 "1K × 1K",
@@ -398,7 +417,7 @@ def main() -> None:
     print("|---|---|---:|---:|---|")
     ref_field = ("distance field", "2K cloud", REFERENCE)
     knn_field = cpu(*ref_field) if ref_field in med else float("nan")
-    for name in configurations:
+    for name in [*configurations, *(n for n in NUMPY_RUNTIMES if n in ran)]:
         if all(key in med for key in (("one pair", "2K cloud", name), ref_field)):
             pair = cpu("one pair", "2K cloud", name) / knn_field
             print(
@@ -411,12 +430,13 @@ def main() -> None:
                 f"| 2K cloud, field ÷ kNN Dijkstra field | {name} | {field_ratio:.2f}× | "
                 f"≤ 2.0× | {_ok(field_ratio <= 2.0)} |"
             )
-        mem = memory[name].cpu_mb
-        print(
-            f"| 64 clouds × 1 query, peak memory growth (numpy {memory[name].numpy_mb:.1f} + "
-            f"torch {memory[name].torch_mb:.1f} MB) | {name} | {mem:.1f} MB | ≤ 60 MB | "
-            f"{_ok(mem <= 60)} |"
-        )
+        if name in memory:
+            mem = memory[name].cpu_mb
+            print(
+                f"| 64 clouds × 1 query, peak memory growth (numpy {memory[name].numpy_mb:.1f} "
+                f"+ torch {memory[name].torch_mb:.1f} MB) | {name} | {mem:.1f} MB | ≤ 60 MB | "
+                f"{_ok(mem <= 60)} |"
+            )
         if ("1K × 1K", "5K mesh", name) in med:
             matrix = cpu("1K × 1K", "5K mesh", name) / 1000.0
             print(

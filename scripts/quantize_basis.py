@@ -1,11 +1,12 @@
 """Store a bundle's basis components as int8 (half the basis bytes), in place.
 
 The networks are kept; the descriptor moves by the int8 rounding (BENCHMARKS.md ``basis-int8``
-measures it with ``--measure``). The manifest is re-hashed, so the bundle's content hash
-changes: the small head's sidecar is re-linked to the new hash (its weights do not depend on
-the basis storage; the old hash is kept as ``teacher_requantized_from``) and the model card's
-hash is updated. A graph-fusion calibration names the bundle it was fitted on and must be
-fitted again (``scripts/calibrate_fusion.py --write``); this script says so and leaves it.
+measures it; ``--measure`` prints the change on random blobs). The manifest is re-hashed, so
+the bundle's content hash changes: the small head's sidecar is re-linked to the new hash (its
+weights do not depend on the basis storage; the old hash is kept as
+``teacher_requantized_from``) and the model card is written again
+(``ship_model.rendered_card``). A graph-fusion calibration names the bundle it was fitted on and
+must be fitted again (``scripts/calibrate_fusion.py --write``); this script says so.
 
 Usage:
     python scripts/quantize_basis.py litege_core/models/quadrupeds [more bundles] [--measure]
@@ -18,6 +19,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from ship_model import rendered_card  # scripts/ is sys.path[0]
 
 from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.files import write_json_atomic
@@ -71,23 +73,9 @@ def quantize(directory: Path, measure: bool) -> dict[str, object]:
     fusion = directory / FUSION_FILE
     if fusion.is_file() and json.loads(fusion.read_text()).get("bundle_hash") != new_hash:
         report["fusion"] = "stale: run scripts/calibrate_fusion.py --write for this bundle"
-    card = directory / CARD
-    if card.is_file():
-        card.write_text(card_note(card.read_text(), old_hash, new_hash))
+    if (directory / CARD).is_file():
+        (directory / CARD).write_text(rendered_card(directory))
     return report
-
-
-def card_note(text: str, old_hash: str, new_hash: str) -> str:
-    """The model card with the new content hash and a line on the basis storage."""
-    text = text.replace(f"`{old_hash[:16]}`", f"`{new_hash[:16]}`")
-    lines = text.splitlines(keepends=True)
-    at = next((i + 1 for i, line in enumerate(lines) if line.startswith("- **Category**")), 0)
-    note = (
-        f"- **Basis storage**: int8 components with per-component scales "
-        f"(`scripts/quantize_basis.py`; content hash before: `{old_hash[:16]}`; BENCHMARKS.md "
-        "`basis-int8`: no evaluated setting moved by more than 0.01).\n"
-    )
-    return "".join([*lines[:at], note, *lines[at:]])
 
 
 def main() -> None:

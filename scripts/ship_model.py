@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import subprocess
 from pathlib import Path
 
+from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.learned import load_bundle
-from litege_core.learned.bundle import MANIFEST, SHIPPED_DIR
+from litege_core.learned.bundle import BASIS_FILE, MANIFEST, SHIPPED_DIR
 from litege_core.learned.cards import model_card, sidecar_section
 from litege_core.matching.bundle import SUFFIX, load_matching_bundle
 
@@ -57,10 +59,37 @@ def ship(args: argparse.Namespace) -> Path:
     manifest["training"].setdefault("commit", git_commit())
     evaluation = Path(args.eval).read_text() if args.eval else None
     report = json.loads(Path(args.tnet_report).read_text()) if args.tnet_report else None
-    card = model_card(manifest, evaluation, report, sidecar_section(target))
+    storage = bundle.basis.component_storage
+    card = model_card(manifest, evaluation, report, sidecar_section(target), storage)
     (target / "MODEL_CARD.md").write_text(card)
     load(target)
     return target
+
+
+def _card_section(card: str, title_start: str) -> str | None:
+    match = re.search(rf"\n## {re.escape(title_start)}[^\n]*\n\n(.*?)\n\n## ", card, re.S)
+    return match.group(1) if match else None
+
+
+def rendered_card(directory: Path) -> str:
+    """The card of a shipped bundle written again from its manifest and basis, with the parts
+    only the card holds (shipping commit, evaluation table, T-Net report) read from its
+    current ``MODEL_CARD.md``: equal to that file unless the bundle changed."""
+    card = (directory / "MODEL_CARD.md").read_text()
+    manifest = json.loads((directory / MANIFEST).read_text())
+    commit = re.search(r"shipped at commit `([^`]*)`", card)
+    if commit:
+        manifest["training"].setdefault("commit", commit.group(1))
+    tnet = _card_section(card, "T-Net alignment")
+    report = json.loads(tnet.removeprefix("```json\n").removesuffix("\n```")) if tnet else None
+    storage = UdfPcaBasis.load(directory / BASIS_FILE).component_storage
+    return model_card(
+        manifest,
+        _card_section(card, "Evaluation"),
+        report,
+        sidecar_section(directory),
+        storage,
+    )
 
 
 def main() -> None:

@@ -242,15 +242,26 @@ def write_sidecar_section(directory: str | os.PathLike) -> None:
     path.write_text(card)
 
 
+def _storage_line(basis_storage: str) -> list[str]:
+    if basis_storage == "float16":
+        return []
+    return [
+        f"- **Basis storage**: {basis_storage} components with per-component scales (half the "
+        "bytes of float16; `scripts/quantize_basis.py`, BENCHMARKS.md `basis-int8`)."
+    ]
+
+
 def model_card(
     manifest: dict,
     evaluation: str | None = None,
     tnet_report: dict | None = None,
     sidecars: str | None = None,
+    basis_storage: str = "float16",
 ) -> str:
     """The ``MODEL_CARD.md`` of a geodesic or matching bundle, from its manifest, an optional
     evaluation table (``litege eval geodesic|matching``), for matching bundles an optional
-    T-Net alignment report, and the section on its sidecars (:func:`sidecar_section`)."""
+    T-Net alignment report, the section on its sidecars (:func:`sidecar_section`) and how its
+    basis stores the components (``UdfPcaBasis.component_storage``)."""
     kind = manifest.get("kind", "geodesic")
     facts = CARD_FACTS[kind](manifest)
     training = manifest["training"]
@@ -260,6 +271,7 @@ def model_card(
         "",
         f"- **Category**: {manifest['category']}; content hash `{manifest['content_hash'][:16]}`;"
         f" created {manifest['created']}, shipped at commit `{training.get('commit', 'unknown')}`.",
+        *_storage_line(basis_storage),
         f"- **Intended use**: {facts.intended_use}",
         *_training_data(dataset, facts.targets, training.get("init_bundle")),
         *facts.model,

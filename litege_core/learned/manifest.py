@@ -64,16 +64,18 @@ def write_manifest(
     filenames: list[str],
     training: dict[str, Any] | None,
     metrics: dict[str, Any] | None,
+    created: str | None = None,
 ) -> dict[str, Any]:
     """Hash ``filenames`` of ``directory`` and write ``manifest.json`` (``core`` + file hashes,
-    training summary, metrics, creation time, content hash); returns the manifest."""
+    training summary, metrics, creation time (now unless ``created``), content hash); returns
+    the manifest."""
     files = {f: file_sha256(directory / f) for f in filenames}
     manifest = {
         **core,
         "files": files,
         "training": training or {},
         "metrics": metrics or {},
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "created": created or datetime.now(UTC).isoformat(timespec="seconds"),
         "content_hash": _content_hash(files, core),
     }
     write_json_atomic(directory / MANIFEST, manifest)
@@ -90,7 +92,8 @@ _NOT_CORE = ("files", "training", "metrics", "created", "content_hash")
 
 def replace_basis(directory: Path, basis: UdfPcaBasis) -> dict[str, Any]:
     """Write ``basis`` over a bundle's basis file and re-hash its manifest (the descriptor's
-    basis hash, the file hashes, the content hash); returns the new manifest.
+    basis hash, the file hashes, the content hash; the creation time is kept); returns the new
+    manifest.
 
     For a basis with the same voxels and components up to storage rounding (e.g.
     :meth:`~litege_core.descriptor.basis.UdfPcaBasis.with_component_storage`): the networks
@@ -110,9 +113,8 @@ def replace_basis(directory: Path, basis: UdfPcaBasis) -> dict[str, Any]:
     basis.save(directory / BASIS_FILE)
     core = manifest_core(manifest)
     core["descriptor"] = {**core["descriptor"], **descriptor_summary(basis)}
-    return write_manifest(
-        directory, core, list(manifest["files"]), manifest["training"], manifest["metrics"]
-    )
+    files, training, metrics = list(manifest["files"]), manifest["training"], manifest["metrics"]
+    return write_manifest(directory, core, files, training, metrics, manifest.get("created"))
 
 
 def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[str, Any]:

@@ -34,15 +34,25 @@ def mesh_file(tmp_path_factory, blob):
     return path
 
 
+def _assert_same_answers(got: np.ndarray, want: np.ndarray) -> None:
+    """The CLI's answer equals the predictor's to float32 rounding (the numpy runtime, or torch
+    on another thread count)."""
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(np.abs(want).max()))
+
+
 def test_geodesic_and_path_with_the_small_head(tmp_path, bundle_dir, mesh_file, capsys) -> None:
     out = tmp_path / "d.npy"
     args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(bundle_dir)]
     assert main([*args, "--head", "small", "-o", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["head"] == "small" and report["shape"][0] == 2
+    assert report["runtime"] == "numpy"  # the torch-free runtime runs the small head too
     small = Predictor(load_bundle(bundle_dir), head="small")
     state = small.register(load_shape(mesh_file))
-    np.testing.assert_array_equal(np.load(out), small.distances(state, [0, 7]))
+    _assert_same_answers(np.load(out), small.distances(state, [0, 7]))
+    assert main([*args, "--head", "small", "--runtime", "torch", "-o", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["runtime"] == "torch"
+    _assert_same_answers(np.load(out), small.distances(state, [0, 7]))
     full_out = tmp_path / "full.npy"
     assert main([*args, "-o", str(full_out)]) == 0
     assert json.loads(capsys.readouterr().out)["head"] == "full"
@@ -71,9 +81,9 @@ def test_the_lattice_option_is_the_predictor_option(tmp_path, bundle_dir, mesh_f
     out = tmp_path / "d.npy"
     args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(bundle_dir)]
     assert main([*args, "--head", "small", "--lattice", "stride2", "-o", str(out)]) == 0
-    capsys.readouterr()
+    assert json.loads(capsys.readouterr().out)["lattice"] == "stride2"
     fast = Predictor(load_bundle(bundle_dir), head="small", descriptor_lattice="stride2")
     state = fast.register(load_shape(mesh_file))
-    np.testing.assert_array_equal(np.load(out), fast.distances(state, [0, 7]))
+    _assert_same_answers(np.load(out), fast.distances(state, [0, 7]))
     with pytest.raises(SystemExit):
         main([*args, "--lattice", "sparse", "-o", str(out)])
