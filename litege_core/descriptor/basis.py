@@ -180,7 +180,6 @@ class DescriptorEngine:
         self.udf = UdfEvaluator(pieces.centers, backend=udf_backend, device=device)
         self.mean = torch.from_numpy(np.array(pieces.mean)).to(device)  # (|S|,)
         self._components_t = torch.from_numpy(pieces.projection).to(device)  # (|S|, k)
-        self._kept = pieces.kept
         self._subset_components = (
             None if self._full else torch.from_numpy(pieces.components).to(device)
         )
