@@ -3,7 +3,8 @@
 Usage:
     python scripts/bench_matching.py [MODEL_NAME_OR_BUNDLE_DIR] [--runs 5] [--threads 1]
 
-X is a procedural dog and Y a procedural cat (test seeds), both isotropically remeshed to about
+X and Y are the first two procedural families of the model's category (a dog and a cat for
+quadrupeds, an average and a slim human for bipeds; test seeds), isotropically remeshed to about
 5K vertices; 1000 query vertices of X (fixed random draw) are matched on Y.
 
 * ``prepare``: :meth:`MatchingModel.prepare` of one 5K mesh (unit-area frame, T-Net, UDF
@@ -36,7 +37,7 @@ from litege_core import __version__
 from litege_core.matching import MatchingModel
 from litege_core.matching.cache import NNCache
 from litege_core.shape import Shape
-from litege_core.synth import generate_shape
+from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh
 
 SEARCH_VARIANTS = (
@@ -57,8 +58,8 @@ def _median_seconds(fn: Callable[[], object], runs: int) -> float:
     return statistics.median(times)
 
 
-def _remeshed(family: str, seed: int) -> Shape:
-    generated = generate_shape("quadruped", family, seed)
+def _remeshed(category: str, family: str, seed: int) -> Shape:
+    generated = generate_shape(category, family, seed)
     vertices, faces = isotropic_remesh(generated.vertices, generated.faces, 5000)[:2]
     return Shape.from_arrays(vertices, faces)
 
@@ -74,7 +75,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     model = MatchingModel.load(args.model, args.device)
-    x_shape, y_shape = _remeshed("dog", 2_000_000), _remeshed("cat", 2_000_001)
+    names = {"quadruped": ("dog", "cat")}.get(model.category, families(model.category)[:2])
+    x_shape = _remeshed(model.category, names[0], 2_000_000)
+    y_shape = _remeshed(model.category, names[1], 2_000_001)
     queries = np.sort(
         np.random.default_rng(0).choice(x_shape.n_points, args.queries, replace=False)
     )
@@ -129,7 +132,7 @@ def main() -> None:
     print(
         f"- model: {len(widths)} network(s) of width {widths}, "
         f"{model.bundle.basis.n_components} components, {model.bundle.basis.n_voxels} voxels; "
-        f"X = procedural dog, Y = procedural cat (test seeds), isotropic remesh to "
+        f"X = procedural {names[0]}, Y = procedural {names[1]} (test seeds), isotropic remesh to "
         f"{x_shape.n_points} / {y_shape.n_points} vertices; median of {args.runs} runs"
     )
     print(
