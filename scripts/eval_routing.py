@@ -76,6 +76,7 @@ def main() -> None:
         for setting in settings:
             z: dict[str, list[float]] = {own: [], other: []}
             errors: dict[str, list[float]] = {own: [], other: [], "auto": []}
+            wrong = 0
             for k, shape in enumerate(shapes):
                 item = make_input(shape, setting, k)
                 scored = {}
@@ -87,7 +88,7 @@ def main() -> None:
                     errors[name].append(scored[name][1])
                 chosen = own if scored[own][0] <= scored[other][0] else other
                 errors["auto"].append(scored[chosen][1])
-            wrong = sum(zo > zt for zo, zt in zip(z[own], z[other], strict=True))
+                wrong += chosen != own
             print(
                 f"| {set_name} | {setting} | {len(shapes)} | {wrong} | "
                 f"{np.median(z[own]):.2f} | {np.median(z[other]):.2f} | "

@@ -23,10 +23,14 @@ from ship_model import rendered_card  # scripts/ is sys.path[0]
 
 from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.files import write_json_atomic
-from litege_core.learned.manifest import BASIS_FILE, read_verified_manifest, replace_basis
+from litege_core.learned.fusion import FUSION_CONFIG
+from litege_core.learned.manifest import (
+    BASIS_FILE,
+    SMALL_HEAD_CONFIG,
+    read_verified_manifest,
+    replace_basis,
+)
 
-SMALL_HEAD_CONFIG = "head-small.json"
-FUSION_FILE = "fusion.json"
 CARD = "MODEL_CARD.md"
 
 
@@ -70,7 +74,7 @@ def quantize(directory: Path, measure: bool) -> dict[str, object]:
             config["teacher_requantized_from"] = old_hash
             write_json_atomic(head, config)
             report["small_head"] = "re-linked"
-    fusion = directory / FUSION_FILE
+    fusion = directory / FUSION_CONFIG
     if fusion.is_file() and json.loads(fusion.read_text()).get("bundle_hash") != new_hash:
         report["fusion"] = "stale: run scripts/calibrate_fusion.py --write for this bundle"
     if (directory / CARD).is_file():

@@ -82,12 +82,13 @@ def write_manifest(
     return manifest
 
 
+_NOT_CORE = ("files", "training", "metrics", "created", "content_hash")
+"""Manifest keys outside a bundle's content hash (or the file hashes it covers)."""
+
+
 def manifest_core(manifest: dict[str, Any]) -> dict[str, Any]:
     """The part of a manifest its content hash covers besides the file hashes."""
     return {k: v for k, v in manifest.items() if k not in _NOT_CORE}
-
-
-_NOT_CORE = ("files", "training", "metrics", "created", "content_hash")
 
 
 def replace_basis(directory: Path, basis: UdfPcaBasis) -> dict[str, Any]:
