@@ -8,6 +8,9 @@
    val 1,000,000…), generated once and kept in memory. Each is brought into the canonical frame:
    the template orientation, centred on the mean of 8000 area-weighted samples and scaled to unit
    area (:func:`~litege_core.canonical.canonicalize_unit_area` with the identity rotation).
+   With ``data.extra_category`` the posed meshes of a collection source (MakeHuman bodies,
+   rigged animals: the shapes of ``litege data build --category SOURCE``, same seeds) follow
+   in both splits, canonical in the same way (:func:`training_shape_sets`).
 2. **Batches.** Every step draws ``batch_size`` shapes, one point count ``n`` per batch
    (log-uniform in ``[min_points, max_points]``: 500-point clouds up to the 2000 points
    :func:`predict_rotation` feeds) and, per item, ``n`` fresh area-weighted samples. Items are
@@ -66,7 +69,7 @@ from litege_core.canonical import (
     canonicalize_poisson,
     canonicalize_unit_area,
 )
-from litege_core.datasets.spec import SPLIT_SEED_OFFSETS
+from litege_core.datasets.spec import COLLECTION_SOURCES, SPLIT_SEED_OFFSETS
 from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
 from litege_core.nets.tnet import CUBE_ROTATIONS, POINT_LOSS_WEIGHT, PREALIGN_MODES, pca_frames
@@ -106,11 +109,32 @@ class TNetDataConfig:
     split, count and generator version) and reused by later runs (generation ≈ 0.5 s/shape)."""
     workers: int = 1
     """Processes generating the shapes (the same shapes for any count)."""
+    extra_category: str = ""
+    """A collection source of ``litege data`` (``"makehuman"``, ``"rigged"``) whose posed meshes
+    are mixed into both splits: ``n_extra_train`` / ``n_extra_val`` of them. Its meshes must
+    share the template orientation (MakeHuman bodies and procedural bipeds: +y up, facing +z)."""
+    n_extra_train: int = 0
+    n_extra_val: int = 0
+    train_data: str = ""
+    """Root of the collection assets (``""``: ``$LITEGE_TRAIN_DATA``, else
+    ``../shared/train-data``)."""
 
     def __post_init__(self) -> None:
         _check(bool(self.category), "data.category is required")
         _check(self.n_train >= 1 and self.n_val >= 1, "data.n_train and data.n_val must be ≥ 1")
         _check(self.workers >= 1, "data.workers must be ≥ 1")
+        _check(
+            self.n_extra_train >= 0 and self.n_extra_val >= 0,
+            "data.n_extra_train and data.n_extra_val must be ≥ 0",
+        )
+        _check(
+            bool(self.extra_category) or self.n_extra_train + self.n_extra_val == 0,
+            "data.n_extra_train / n_extra_val need data.extra_category",
+        )
+        _check(
+            self.extra_category in ("", *COLLECTION_SOURCES),
+            f"data.extra_category must be one of {COLLECTION_SOURCES}",
+        )
 
 
 @dataclass(frozen=True)
@@ -330,16 +354,11 @@ def generate_shape_set(
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     cached: list[NDArray] = []
     faces: NDArray | None = None
-    if cache_dir:
-        prefix, suffix = f"tnet-shapes-{category}-{split}-", f"-{GENERATOR_VERSION}.npz"
-        sizes = [
-            int(path.name[len(prefix) : -len(suffix)])
-            for path in Path(cache_dir).glob(f"{prefix}*{suffix}")
-            if path.name[len(prefix) : -len(suffix)].isdigit()
-        ]
-        if sizes:
-            with np.load(Path(cache_dir) / f"{prefix}{max(sizes)}{suffix}") as data:
-                cached, faces = list(data["vertices"][:n_shapes]), data["faces"]
+    prefix, suffix = f"tnet-shapes-{category}-{split}-", f"-{GENERATOR_VERSION}.npz"
+    largest = _largest_cache(cache_dir, prefix, suffix)
+    if largest is not None:
+        with np.load(largest) as data:
+            cached, faces = list(data["vertices"][:n_shapes]), data["faces"]
     fresh = _generate_canonical(category, keys[len(cached) :], workers)
     if faces is None:
         faces = fresh.faces[0] if fresh.faces else np.zeros((0, 3), dtype=np.int64)
@@ -348,12 +367,133 @@ def generate_shape_set(
         return ShapeSet(cached + fresh.vertices, [faces] * len(cached) + fresh.faces, keys)
     shapes = ShapeSet(cached + fresh.vertices, [faces] * n_shapes, keys)
     if cache_dir and fresh.vertices:
-        cache = Path(cache_dir) / f"{prefix}{n_shapes}{suffix}"
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        temporary = cache.with_name(f"{cache.stem}.tmp-{os.getpid()}.npz")
-        np.savez(temporary, vertices=np.stack(shapes.vertices), faces=faces)
-        os.replace(temporary, cache)
+        _write_cache(
+            Path(cache_dir) / f"{prefix}{n_shapes}{suffix}",
+            vertices=np.stack(shapes.vertices),
+            faces=faces,
+        )
     return shapes
+
+
+def _largest_cache(cache_dir: str | Path | None, prefix: str, suffix: str) -> Path | None:
+    """The cached set ``<prefix><n><suffix>`` of largest ``n`` in ``cache_dir`` (or ``None``)."""
+    if not cache_dir:
+        return None
+    sizes = [
+        int(path.name[len(prefix) : -len(suffix)])
+        for path in Path(cache_dir).glob(f"{prefix}*{suffix}")
+        if path.name[len(prefix) : -len(suffix)].isdigit()
+    ]
+    return Path(cache_dir) / f"{prefix}{max(sizes)}{suffix}" if sizes else None
+
+
+def _write_cache(path: Path, **arrays: NDArray) -> None:
+    """Write an ``.npz`` atomically (a concurrent run never reads half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f"{path.stem}.tmp-{os.getpid()}.npz")
+    np.savez(temporary, **arrays)
+    os.replace(temporary, path)
+
+
+def _collection_canonical(job: tuple[str, str, str, int, int]) -> tuple[NDArray, NDArray]:
+    """``(source, root, family, seed, index)`` → the canonical mesh of that collection shape."""
+    from litege_core.datasets.factories import factory_for
+
+    source, root, family, seed, index = job
+    vertices, faces = factory_for(source, root).generate_mesh(family, seed)
+    return _canonical_mesh(vertices, faces, index)
+
+
+def collection_shape_set(
+    source: str,
+    split: str,
+    n_shapes: int,
+    root: str | Path | None = None,
+    cache_dir: str | Path | None = None,
+    workers: int = 1,
+) -> ShapeSet:
+    """Posed meshes ``0..n_shapes−1`` of a collection source (``"makehuman"``, ``"rigged"``) in
+    ``split``, canonical: the shapes ``litege data build --category SOURCE`` starts from (same
+    families and seeds), without remeshing for ground truth beyond what the source does.
+
+    With ``cache_dir`` the set is kept in ``tnet-shapes-<source>-<split>-<n>-<version>.npz``
+    (ragged: concatenated vertices and faces with per-shape counts) and the largest cached set
+    of the split is reused and extended.
+    """
+    from litege_core.datasets.factories import factory_for, train_data_root
+    from litege_core.datasets.spec import preset
+
+    root = str(train_data_root(root))
+    factory = factory_for(source, root)
+    names = preset("small", source).families_of(split)
+    keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
+    prefix, suffix = f"tnet-shapes-{source}-{split}-", f"-{factory.version}.npz"
+    meshes: list[tuple[NDArray, NDArray]] = []
+    largest = _largest_cache(cache_dir, prefix, suffix)
+    if largest is not None:
+        with np.load(largest) as data:
+            v_split = np.cumsum(data["vertex_counts"])[:-1]
+            f_split = np.cumsum(data["face_counts"])[:-1]
+            vertices = np.split(data["vertices"], v_split)
+            faces = np.split(data["faces"], f_split)
+            meshes = list(zip(vertices, faces, strict=True))[:n_shapes]
+    jobs = [
+        (source, root, family, seed, index)
+        for index, (family, seed) in enumerate(keys)
+        if index >= len(meshes)
+    ]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+            meshes += pool.map(_collection_canonical, jobs, chunksize=2)
+    else:
+        meshes += [_collection_canonical(job) for job in jobs]
+    if cache_dir and jobs:
+        _write_cache(
+            Path(cache_dir) / f"{prefix}{n_shapes}{suffix}",
+            vertices=np.concatenate([v for v, _ in meshes]),
+            faces=np.concatenate([f for _, f in meshes]),
+            vertex_counts=np.array([len(v) for v, _ in meshes]),
+            face_counts=np.array([len(f) for _, f in meshes]),
+        )
+    return ShapeSet([v for v, _ in meshes], [f for _, f in meshes], keys)
+
+
+def concatenate_shape_sets(*sets: ShapeSet) -> ShapeSet:
+    """One :class:`ShapeSet` holding the shapes of ``sets`` in order."""
+    return ShapeSet(
+        [v for s in sets for v in s.vertices],
+        [f for s in sets for f in s.faces],
+        [k for s in sets for k in s.keys],
+    )
+
+
+def training_shape_sets(data: TNetDataConfig) -> tuple[ShapeSet, ShapeSet]:
+    """The train and val :class:`ShapeSet` of a data config: the procedural shapes of
+    ``data.category``, then the ``data.extra_category`` collection shapes."""
+    sets = []
+    for split, n_procedural, n_extra in (
+        ("train", data.n_train, data.n_extra_train),
+        ("val", data.n_val, data.n_extra_val),
+    ):
+        mark = time.perf_counter()
+        shapes = generate_shape_set(
+            data.category, split, n_procedural, data.cache_dir, data.workers
+        )
+        if n_extra:
+            extra = collection_shape_set(
+                data.extra_category,
+                split,
+                n_extra,
+                data.train_data or None,
+                data.cache_dir,
+                data.workers,
+            )
+            shapes = concatenate_shape_sets(shapes, extra)
+        LOG.info("%d %s shapes in %.1f s", len(shapes), split, time.perf_counter() - mark)
+        sets.append(shapes)
+    return sets[0], sets[1]
 
 
 # --------------------------------------------------------------------------- batches
@@ -810,24 +950,10 @@ def train_tnet(
         torch.set_num_threads(opt.threads)
     device = _resolve_device(opt.device)
     started = time.perf_counter()
-    if train_shapes is None:
-        train_shapes = generate_shape_set(
-            config.data.category,
-            "train",
-            config.data.n_train,
-            config.data.cache_dir,
-            config.data.workers,
-        )
-        LOG.info(
-            "generated %d train shapes in %.1f s", len(train_shapes), time.perf_counter() - started
-        )
-    if val_shapes is None:
-        mark = time.perf_counter()
-        data = config.data
-        val_shapes = generate_shape_set(
-            data.category, "val", data.n_val, data.cache_dir, data.workers
-        )
-        LOG.info("generated %d val shapes in %.1f s", len(val_shapes), time.perf_counter() - mark)
+    if train_shapes is None or val_shapes is None:
+        generated_train, generated_val = training_shape_sets(config.data)
+        train_shapes = generated_train if train_shapes is None else train_shapes
+        val_shapes = generated_val if val_shapes is None else val_shapes
     val = validation_set(val_shapes, config)
     with BatchLoader(train_shapes, config, opt.loader_workers) as loader:
         result = _optimize(config, loader, val, device, weights_path)

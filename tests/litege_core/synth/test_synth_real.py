@@ -129,3 +129,29 @@ def test_posed_humans_are_seeded_clean_manifolds(human):
     assert report.ok and report.euler == 2
     extent = np.ptp(vertices, axis=0)
     assert extent.max() > 1.5 * extent.min()  # a body, not a blob
+
+
+def _toes_forward(vertices: np.ndarray) -> float:
+    """Median z of the lowest 3 % of the height (toes) minus that of the band above (ankles)."""
+    y = vertices[:, 1]
+    height = y.max() - y.min()
+    toes = vertices[y < y.min() + 0.03 * height, 2]
+    ankles = vertices[(y > y.min() + 0.06 * height) & (y < y.min() + 0.09 * height), 2]
+    return float(np.median(toes) - np.median(ankles))
+
+
+def test_humans_stand_like_the_biped_template(human):
+    """The T-Net of configs/tnet-humans-mh.toml trains on both as one canonical frame: +y up,
+    facing (toes toward) +z. Posing turns no root bone, so posed bodies keep the rest frame."""
+    from litege_core import synth
+
+    template = np.asarray(synth.template("biped").vertices)
+    assert _toes_forward(template) > 0.0
+    assert np.array_equal(makehuman.FORWARD, [0.0, 0.0, 1.0])
+    for gender in (0.0, 1.0):
+        rest = makehuman.body_shape(human, gender, 0.5, 0.5)[human.body]
+        assert (rest.max(axis=0) - rest.min(axis=0)).argmax() == 1
+        assert _toes_forward(rest) > 0.0
+    for seed in range(4):
+        vertices, _, _ = makehuman.posed_human(human, seed, FAST_HUMAN)
+        assert (vertices.max(axis=0) - vertices.min(axis=0)).argmax() == 1  # standing

@@ -24,6 +24,7 @@ from litege_core.train.tnet import (
     alignment_report,
     angle_statistics,
     canonical_shape_set,
+    collection_shape_set,
     cosine_lr,
     generate_shape_set,
     load_tnet,
@@ -35,6 +36,7 @@ from litege_core.train.tnet import (
     save_tnet,
     train_step,
     train_tnet,
+    training_shape_sets,
     validation_set,
 )
 from litege_core.validate import triangle_areas
@@ -106,6 +108,9 @@ def test_shipped_config_loads_and_round_trips() -> None:
         {"network": {"conv_widths": 64}},
         {"network": {"prealign": "svd"}},
         {"data": {"n_train": 0}},
+        {"data": {"n_extra_train": 4}},
+        {"data": {"extra_category": "folder", "n_extra_train": 4}},
+        {"data": {"extra_category": "makehuman", "n_extra_val": -1}},
         {"report": {"broken_fraction": 1.0}},
         {"output": {"dir": ""}},
         {"data": []},
@@ -160,6 +165,72 @@ def test_generated_shapes_follow_the_dataset_convention_and_cache(tmp_path) -> N
         for a, b in zip(cached.vertices, shapes.vertices, strict=False):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(cached.faces[0], shapes.faces[0])
+
+
+class _ToyCollection:
+    """A stand-in collection factory: toy meshes of a size that depends on the seed."""
+
+    category = "makehuman"
+    version = "toy-1"
+
+    def __init__(self, root: str) -> None:
+        self.root = root
+
+    def generate_mesh(self, family: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        assert family == "makehuman"
+        sphere = trimesh.creation.icosphere(subdivisions=1 + seed % 2)
+        return np.asarray(sphere.vertices) * [2.0, 1.0, 0.5] + seed, np.asarray(sphere.faces)
+
+
+@pytest.fixture
+def toy_collection(monkeypatch):
+    import litege_core.datasets.factories as factories
+
+    monkeypatch.setattr(factories, "factory_for", lambda source, root=None: _ToyCollection(root))
+
+
+def test_collection_shapes_are_canonical_and_cached_ragged(toy_collection, tmp_path) -> None:
+    first = collection_shape_set("makehuman", "train", 1, "assets", tmp_path)
+    shapes = collection_shape_set("makehuman", "train", 3, "assets", tmp_path)  # extends the cache
+    assert shapes.keys == [("makehuman", 0), ("makehuman", 1), ("makehuman", 2)]
+    assert [len(v) for v in shapes.vertices] == [42, 162, 42]  # ragged: sizes differ per shape
+    for v, f in zip(shapes.vertices, shapes.faces, strict=True):
+        assert triangle_areas(v, f).sum() == pytest.approx(1.0)
+        assert np.abs(v.mean(axis=0)).max() < 0.2  # the seed's offset is gone
+    np.testing.assert_array_equal(first.vertices[0], shapes.vertices[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"tnet-shapes-makehuman-train-{n}-toy-1.npz" for n in (1, 3)
+    ]
+    again = collection_shape_set("makehuman", "train", 2, "assets", tmp_path)  # sliced from 3
+    assert again.keys == shapes.keys[:2]
+    for a, b, fa, fb in zip(
+        again.vertices, shapes.vertices, again.faces, shapes.faces, strict=False
+    ):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(fa, fb)
+    assert len(list(tmp_path.iterdir())) == 2  # nothing generated, nothing written
+
+
+def test_training_sets_append_the_extra_collection(toy_collection, tmp_path) -> None:
+    config = TNetTrainConfig.from_dict(
+        {
+            "data": {
+                "category": "quadruped",
+                "n_train": 2,
+                "n_val": 1,
+                "extra_category": "makehuman",
+                "n_extra_train": 2,
+                "n_extra_val": 1,
+                "cache_dir": str(tmp_path),
+            }
+        }
+    )
+    train, val = training_shape_sets(config.data)
+    assert train.keys == [("cat", 0), ("dog", 1), ("makehuman", 0), ("makehuman", 1)]
+    assert val.keys == [("cat", 1_000_000), ("makehuman", 1_000_000)]
+    assert len(train.faces[0]) != len(train.faces[2])  # procedural and collection meshes mixed
+    batch = sample_batch(train, config, step=0, batch_size=8)  # ragged sets sample as before
+    assert batch.canonical.shape[0] == 8
 
 
 def test_batches_are_rotated_canonical_clouds_and_seeded(toy_shapes, tmp_path) -> None:
