@@ -155,3 +155,25 @@ def test_humans_stand_like_the_biped_template(human):
     for seed in range(4):
         vertices, _, _ = makehuman.posed_human(human, seed, FAST_HUMAN)
         assert (vertices.max(axis=0) - vertices.min(axis=0)).argmax() == 1  # standing
+
+
+def _head_forward(vertices: np.ndarray) -> float:
+    """Mean z of the top 15 % of the height (head and neck) minus the body's mean z."""
+    y = vertices[:, 1]
+    top = vertices[y > y.max() - 0.15 * (y.max() - y.min())]
+    return float(top[:, 2].mean() - vertices[:, 2].mean())
+
+
+def test_rigged_animals_stand_like_the_quadruped_template():
+    """configs/tnet-quadrupeds-rigged.toml trains the T-Net on both as one canonical frame:
+    +y up, +z toward the head, x across the body."""
+    from litege_core import synth
+
+    template = np.asarray(synth.template("quadruped").vertices)
+    assert _head_forward(template) > 0.0
+    for name in (rigged.KHRONOS_FOX, "Horse", "Wolf"):
+        model = rigged.cached_model(str(rigged.animal_path(TRAIN_DATA, name)), name)
+        vertices, _, _ = rigged.posed_animal(model, 0)
+        extent = vertices.max(axis=0) - vertices.min(axis=0)
+        assert extent.argmin() == 0  # narrowest across the body
+        assert _head_forward(vertices) > 0.0
