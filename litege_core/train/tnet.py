@@ -391,7 +391,7 @@ def _write_cache(path: Path, **arrays: NDArray) -> None:
     """Write an ``.npz`` atomically (a concurrent run never reads half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f"{path.stem}.tmp-{os.getpid()}.npz")
-    np.savez(temporary, **arrays)
+    np.savez(temporary, **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
     os.replace(temporary, path)
 
 
