@@ -3,7 +3,7 @@ preprocessing included (canonicalization, UDF-PCA, embeddings), for B = 1, 4, 8,
 time and allocator-exact peak memory, on the CPU always and on CUDA whenever it is available.
 
 Usage: python scripts/bench_batch_table.py [--model quadrupeds] [--runs 5] [--threads 1]
-           [--precision float32] [--lattice full] [--no-cuda]
+           [--precision float32] [--lattice auto] [--no-cuda]
 Clouds: area-weighted samples of 8 distinct procedural quadrupeds (test seeds), reused
 cyclically; nothing is cached between runs. Memory: numpy peak by tracemalloc + torch
 CPU-allocator peak by torch.profiler memory events (+ CUDA allocator peak on a GPU), above what
@@ -57,7 +57,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--precision", default="float32", help="Predictor precision")
-    parser.add_argument("--lattice", default="full", help="Predictor descriptor_lattice")
+    parser.add_argument("--lattice", default="auto", help="Predictor descriptor_lattice")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA rows")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -70,14 +70,15 @@ def main() -> None:
     command = (
         f"python scripts/bench_batch_table.py --runs {args.runs} --threads {args.threads}"
         + (f" --precision {args.precision}" if args.precision != "float32" else "")
-        + (f" --lattice {args.lattice}" if args.lattice != "full" else "")
+        + (f" --lattice {args.lattice}" if args.lattice != "auto" else "")
     )
     print(f"### B shapes × 1 query, preprocessing included (paper Table 1 setting), {devices}\n")
     gpu = f", GPU {torch.cuda.get_device_name(0)}" if "cuda" in devices else ", no GPU"
     print(
         f"- date {date.today()}; {os.cpu_count()} logical CPUs {platform.machine()}{gpu}; "
         f"torch {torch.__version__}, {args.threads} thread(s); model `{args.model}`, "
-        f"precision `{args.precision}`, descriptor lattice `{args.lattice}`; 2000-point "
+        f"precision `{args.precision}`, descriptor lattice `{args.lattice}` (`auto`: "
+        f"`{load_shipped(args.model).basis.resolve_lattice(args.lattice)}`); 2000-point "
         f"clouds; median of {args.runs} runs after 1 warm-up; command `{command}`"
     )
     print(

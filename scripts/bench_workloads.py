@@ -4,7 +4,7 @@ ratios (issue 17), with the speed targets checked at the end. Prints markdown.
 Usage::
 
     python scripts/bench_workloads.py [--runs 5] [--exact-sources 20] [--no-cli]
-        [--only-methods "LiteGE,LiteGE small head"] [--only-workloads "1K × 1K,distance field"]
+        [--only-methods "LiteGE,LiteGE full head"] [--only-workloads "1K × 1K,distance field"]
 
 ``--only-methods`` / ``--only-workloads`` run a subset of the cases (comma-separated names;
 a quick look at a few rows: the targets table and the memory check then cover what ran).
@@ -21,11 +21,13 @@ Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes �
 (one pair each); a **1K × 1K** matrix (1000 × 1000 distinct vertices of the 5K mesh);
 **1K correspondences** (5K dog → 5K cat, 1000 query vertices).
 
-Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in seven configurations: the
-defaults (float32, full descriptor), ``precision="auto"`` (bfloat16 head product where the CPU
-has AMX / AVX512-BF16), ``auto`` + ``descriptor_lattice="stride2"`` (UDF at 1/8 of the
-voxels), ``head="small"`` (the distilled small head, where the model ships one) and
-``fusion="graph"`` (the calibrated graph fusion, with the full or the fast configuration);
+Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in six configurations: the
+defaults (float32, ``head="auto"`` and ``descriptor_lattice="auto"``: for the shipped model the
+distilled small head and the UDF at the 1/8 of the voxels of the ``stride2`` lattice), the
+trained head on that lattice (``head="full"``), the trained network as trained (``head="full"``,
+``descriptor_lattice="full"``), the trained head with ``precision="auto"`` (bfloat16 head
+product where the CPU has AMX / AVX512-BF16), and ``fusion="graph"`` (the calibrated graph
+fusion) with the defaults or the trained network;
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -69,13 +71,12 @@ from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh, point_cloud
 
 LITEGE = {
-    "LiteGE": ("float32", "full", "full", "none"),
-    "LiteGE auto": ("auto", "full", "full", "none"),
-    "LiteGE auto + stride2": ("auto", "stride2", "full", "none"),
-    "LiteGE small head": ("float32", "full", "small", "none"),
-    "LiteGE small head + stride2": ("float32", "stride2", "small", "none"),
-    "LiteGE graph fusion": ("float32", "full", "full", "graph"),
-    "LiteGE small head + stride2 + graph fusion": ("float32", "stride2", "small", "graph"),
+    "LiteGE": ("float32", "auto", "auto", "none"),
+    "LiteGE full head": ("float32", "auto", "full", "none"),
+    "LiteGE full head + full lattice": ("float32", "full", "full", "none"),
+    "LiteGE full head + auto precision": ("auto", "auto", "full", "none"),
+    "LiteGE graph fusion": ("float32", "auto", "auto", "graph"),
+    "LiteGE graph fusion + full head + full lattice": ("float32", "full", "full", "graph"),
 }
 """Name → (precision, descriptor lattice, head, fusion) of each LiteGE configuration."""
 REFERENCE = "kNN Dijkstra"
@@ -159,8 +160,8 @@ def litege_predictors(bundle) -> dict[str, Predictor]:
 
 
 NUMPY_RUNTIMES = {
-    "LiteGE numpy": ("full", "full"),
-    "LiteGE numpy small head + stride2": ("small", "stride2"),
+    "LiteGE numpy": ("auto", "auto"),
+    "LiteGE numpy full head + full lattice": ("full", "full"),
 }
 """The torch-free runtime (:class:`~litege_core.learned.numpy_predictor.NumpyPredictor`, what
 ``litege geodesic`` runs on a CPU): one shape at a time, so no ``64 shapes`` rows."""
@@ -282,6 +283,11 @@ def build_cases(args, data) -> list[Case]:
         cases.extend(_matching_cases(data))
     methods = [m.strip() for m in (args.only_methods or "").split(",") if m.strip()]
     workloads = [w.strip() for w in (args.only_workloads or "").split(",") if w.strip()]
+    unknown = set(methods) - {c.method for c in cases} | set(workloads) - {
+        c.workload for c in cases
+    }
+    if unknown:
+        raise SystemExit(f"unknown methods or workloads: {sorted(unknown)}")
     return [
         case
         for case in cases

@@ -69,7 +69,7 @@ def main() -> None:
     start = time.perf_counter()
     path = Path(args.model)
     bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
-    predictor = Predictor(bundle)
+    predictor = Predictor(bundle, head="full", descriptor_lattice="full")  # shipped recipe
     veto_head = args.veto_head
     if veto_head == "auto":
         veto_head = "full" if small_head_config(bundle) is None else "small"

@@ -68,7 +68,7 @@ def main() -> None:
 
     path = Path(args.model)
     bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
-    teacher = Predictor(bundle)
+    teacher = Predictor(bundle, head="full", descriptor_lattice="full")  # the trained network
     config = DistillConfig(
         features=args.features,
         hidden=args.hidden,
@@ -78,7 +78,7 @@ def main() -> None:
     )
     log(f"distilling {bundle.name} ({bundle.content_hash[:12]}…): {config.to_dict()}")
     result = distill_small_head(teacher, config, category=args.category, log=log)
-    student = Predictor(bundle, head=result.head)
+    student = Predictor(bundle, head=result.head, descriptor_lattice="full")
     category = result.settings["category"]
     start = time.monotonic()
     agreement = measure_agreement(

@@ -4,9 +4,11 @@ Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL
     [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
     [--knn K ...]
 
-``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` (the distilled small head,
-``Predictor(bundle, head="small")``) and ``stride2`` / ``bcc`` (descriptor lattice), e.g.
-``quadrupeds@small+stride2``, and ``fusion`` (the calibrated graph fusion,
+``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` / ``fullhead`` (the distilled
+small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / ``bcc`` /
+``stride2`` (descriptor lattice); without them, the predictor's defaults (``auto``: the small
+head and the stride2 lattice for the shipped models), e.g. ``quadrupeds@fullhead+full`` (the
+trained network as trained), and ``fusion`` (the calibrated graph fusion,
 ``Predictor(bundle, fusion="graph")``); ``--no-baselines`` leaves out heat and kNN;
 ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
@@ -44,20 +46,23 @@ from litege_core.learned import Predictor, load_bundle, load_shipped
 
 def load_predictor(name: str) -> Predictor:
     """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
-    ``small`` (the bundle's small head), ``stride2`` / ``bcc`` (descriptor lattice),
-    ``fusion`` (the bundle's calibrated graph fusion)."""
+    ``small`` / ``fullhead`` (head; default ``auto``), ``full`` / ``bcc`` / ``stride2``
+    (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion)."""
     name, _, text = name.partition("@")
     options = set(filter(None, text.split("+")))
-    unknown = options - {"small", "full", "stride2", "bcc", "fusion"}
+    unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
-    lattices = options & {"stride2", "bcc"}
+    lattices = options & {"full", "stride2", "bcc"}
+    heads = options & {"small", "fullhead"}
+    if len(lattices) > 1 or len(heads) > 1:
+        raise SystemExit(f"more than one lattice or head in {name}@{text}")
     path = Path(name)
     bundle = load_bundle(path) if path.is_dir() else load_shipped(name)
     return Predictor(
         bundle,
-        head="small" if "small" in options else "full",
-        descriptor_lattice=lattices.pop() if lattices else "full",
+        head={"small": "small", "fullhead": "full"}[heads.pop()] if heads else "auto",
+        descriptor_lattice=lattices.pop() if lattices else "auto",
         fusion="graph" if "fusion" in options else "none",
     )
 

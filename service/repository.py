@@ -47,6 +47,14 @@ log = logging.getLogger("litege.repository")
 RECORD = "record"
 
 
+def record_artifact(predictor: Predictor) -> Artifact:
+    """Where a predictor's shape records are stored: ``record`` for the full descriptor lattice,
+    ``record.<lattice>`` for a sparser one (an approximation: never mixed with full ones)."""
+    lattice = predictor.descriptor_lattice
+    name = RECORD if lattice == "full" else f"{RECORD}.{lattice}"
+    return Artifact(predictor.bundle.content_hash, name)
+
+
 @dataclass(frozen=True)
 class Registered:
     """A shape's live state, the model it is registered with, and whether it was computed now.
@@ -140,12 +148,8 @@ class ShapeRepository:
         return [self.default_model, *(m for m in self.predictors if m != self.default_model)]
 
     def _record(self, model: str) -> Artifact:
-        """The stored record of ``model``; records of a sparser descriptor lattice (an
-        approximation of the full one) under their own name, never mixed with full ones."""
-        predictor = self.predictors[model]
-        lattice = predictor.descriptor_lattice
-        name = RECORD if lattice == "full" else f"{RECORD}.{lattice}"
-        return Artifact(predictor.bundle.content_hash, name)
+        """The stored record of ``model`` (:func:`record_artifact`)."""
+        return record_artifact(self.predictors[model])
 
     # ------------------------------------------------------------------ registration
 

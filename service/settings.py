@@ -36,14 +36,15 @@ class Settings(BaseSettings):
     network-pruned kNN-graph Dijkstra (``litege_core.learned.fusion``; more accurate on real
     shapes far from the training families, slower on large shapes); every loaded model must
     ship its calibration. ``none``: the network alone. Paths follow the network either way."""
-    geodesic_head: Literal["full", "small"] = "full"
-    """Distance head of every learned answer: ``full`` (the trained head) or ``small`` (each
-    model's distilled head: ~18× fewer operations per pair, at most +0.2 mean error on the
-    real dev shapes; every model must ship one)."""
-    descriptor_lattice: Literal["full", "bcc", "stride2"] = "full"
-    """Voxels whose UDF a registration samples: ``full`` (the trained descriptor), ``bcc`` (1/4)
-    or ``stride2`` (1/8: with the small head, the CPU speed configuration of BENCHMARKS.md).
-    Records of each lattice are cached under their own key."""
+    geodesic_head: Literal["auto", "full", "small"] = "auto"
+    """Distance head of every learned answer: ``auto`` (per model: its distilled small head when
+    it ships one, as the shipped ones do, else the trained head), ``full`` (the trained head:
+    ~18× more operations per pair) or ``small`` (every model must ship one)."""
+    descriptor_lattice: Literal["auto", "full", "bcc", "stride2"] = "auto"
+    """Voxels whose UDF a registration samples: ``auto`` (per model: ``stride2`` where its
+    basis allows it, as the shipped ones do, else ``full``), ``full`` (the trained descriptor),
+    ``bcc`` (1/4) or ``stride2`` (1/8). Records of each lattice are cached under their own
+    key."""
     device: str = "auto"
     matching_model: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
     """Matching bundles of ``POST /correspondences`` and the ``Correspond`` RPC, comma-separated

@@ -57,8 +57,8 @@ def predictor(args: argparse.Namespace) -> Predictor:
     return Predictor(
         bundle,
         device,
-        head=getattr(args, "head", "full"),
-        descriptor_lattice=getattr(args, "lattice", "full"),
+        head=getattr(args, "head", "auto"),
+        descriptor_lattice=getattr(args, "lattice", "auto"),
         fusion=getattr(args, "fusion", "none"),
     )
 
@@ -70,7 +70,7 @@ def numpy_predictor(args: argparse.Namespace) -> NumpyPredictor:
     from litege_core.learned.manifest import DEFAULT_MODEL
     from litege_core.learned.numpy_predictor import NumpyPredictor
 
-    options = {"head": getattr(args, "head", "full"), "lattice": getattr(args, "lattice", "full")}
+    options = {"head": getattr(args, "head", "auto"), "lattice": getattr(args, "lattice", "auto")}
     if args.bundle is not None:
         return NumpyPredictor(args.bundle, **options)
     if args.model is not None and Path(args.model).is_dir():
@@ -121,34 +121,40 @@ def add_bundle_arguments(parser: argparse.ArgumentParser) -> None:
     add_device_argument(parser)
 
 
-VOXEL_LATTICES = ("full", "bcc", "stride2")
-"""The descriptor lattices (:data:`litege_core.descriptor.basis.VOXEL_LATTICES`, listed here so
+LATTICE_CHOICES = ("auto", "full", "bcc", "stride2")
+"""The descriptor lattices (:data:`litege_core.descriptor.basis.LATTICE_CHOICES`, listed here so
 that building the parser imports no descriptor code; a test keeps the two equal)."""
 
 
+HEAD_CHOICES = ("auto", "full", "small")
+"""The distance heads (:data:`litege_core.learned.manifest.HEAD_CHOICES`, listed here for the
+same reason as :data:`LATTICE_CHOICES`; a test keeps the two equal)."""
+
+
 def add_head_argument(parser: argparse.ArgumentParser) -> None:
-    """``--head full|small`` (the trained distance head or the bundle's distilled one) and
-    ``--lattice full|bcc|stride2`` (the voxels whose UDF the descriptor samples): the speed
-    options of the learned engine."""
+    """``--head auto|full|small`` (the trained distance head or the bundle's distilled one)
+    and ``--lattice auto|full|bcc|stride2`` (the voxels whose UDF the descriptor samples): the
+    speed options of the learned engine."""
     parser.add_argument(
         "--head",
-        choices=("full", "small"),
-        default="full",
-        help="distance head: full (default, the trained head) or small (the model's "
-        "distilled head: ~18x fewer operations per pair, slightly less accurate)",
+        choices=HEAD_CHOICES,
+        default="auto",
+        help="distance head: auto (default: the model's distilled small head when it ships "
+        "one, as the shipped ones do, else full), full (the trained head: ~18x more "
+        "operations per pair, slightly more accurate) or small",
     )
     parser.add_argument(
         "--lattice",
-        choices=VOXEL_LATTICES,
-        default="full",
-        help="descriptor voxels: full (default), bcc (1/4) or stride2 (1/8: the fastest "
-        "registration; with --head small every CPU speed target of BENCHMARKS.md is met)",
+        choices=LATTICE_CHOICES,
+        default="auto",
+        help="descriptor voxels: auto (default: stride2 where the model's basis allows it, "
+        "as the shipped ones do, else full), full (every voxel), bcc (1/4) or stride2 (1/8)",
     )
 
 
 FUSIONS = ("none", "graph")
 """The learned engine's fusions (:data:`litege_core.learned.fusion.FUSIONS`, listed here for the
-same reason as :data:`VOXEL_LATTICES`; a test keeps the two equal)."""
+same reason as :data:`LATTICE_CHOICES`; a test keeps the two equal)."""
 
 
 def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
@@ -176,9 +182,10 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = [
     "FUSIONS",
+    "HEAD_CHOICES",
+    "LATTICE_CHOICES",
     "SHAPE_FILE_HELP",
     "SHAPE_KINDS",
-    "VOXEL_LATTICES",
     "add_bundle_arguments",
     "add_device_argument",
     "add_fusion_argument",

@@ -91,7 +91,21 @@ On a lattice, the codes are the least-squares fit of the components to the UDF a
 voxels, ``z = (P_S P_Sᵀ)⁻¹ P_S (u_S − μ_S)``, and the residual is that fit's residual scaled by
 ``√(M / |S|)`` (an estimate of the full one). The UDF is smooth at the voxel scale, so the codes
 stay close to the full ones (issue 17, measured by ``scripts/bench_predictor.py
---accuracy``, BENCHMARKS.md ``predictor-accuracy``); they are an approximation, opt-in."""
+--accuracy``, BENCHMARKS.md ``predictor-accuracy``); they are an approximation. The predictors'
+default is :data:`AUTO_LATTICE` (see :meth:`UdfPcaBasis.resolve_lattice`)."""
+
+AUTO_LATTICE = "auto"
+"""The default lattice of the predictors: ``"stride2"`` where it keeps at least
+:data:`AUTO_STRIDE2_VOXELS_PER_COMPONENT` voxels per component, else ``"full"``."""
+
+LATTICE_CHOICES: tuple[str, ...] = (AUTO_LATTICE, *VOXEL_LATTICES)
+"""What a predictor's lattice argument accepts."""
+
+AUTO_STRIDE2_VOXELS_PER_COMPONENT = 8
+"""``"auto"`` takes ``"stride2"`` when its least-squares fit is this over-determined. The shipped
+bases keep 11.5–12.6 voxels per component there (2,765–3,020 for 240 components), and their
+real-shape error moves by at most ±0.03 against the full lattice (BENCHMARKS
+``default-lattice``); a small basis fitted by a user falls back to the full lattice."""
 
 
 def lattice_voxels(grid: VoxelGrid, voxel_indices: ArrayLike, lattice: str) -> NDArray:
@@ -489,6 +503,22 @@ class UdfPcaBasis:
             residual_scale=float(np.sqrt(self.n_voxels / kept.shape[0])),
         )
 
+    def resolve_lattice(self, lattice: str = AUTO_LATTICE) -> str:
+        """``lattice`` itself, or for :data:`AUTO_LATTICE` the one the predictors use:
+        ``"stride2"`` when it keeps at least :data:`AUTO_STRIDE2_VOXELS_PER_COMPONENT` voxels
+        per component, else ``"full"``.
+
+        Raises:
+            InputError: not one of :data:`LATTICE_CHOICES`.
+        """
+        if lattice not in LATTICE_CHOICES:
+            raise InputError(f"lattice must be one of {LATTICE_CHOICES}, got {lattice!r}")
+        if lattice != AUTO_LATTICE:
+            return lattice
+        kept = lattice_voxels(self.grid, self.voxel_indices, "stride2").shape[0]
+        enough = kept >= AUTO_STRIDE2_VOXELS_PER_COMPONENT * self.n_components
+        return "stride2" if enough else "full"
+
     def engine(
         self,
         device: torch.device | str = "cpu",
@@ -631,11 +661,14 @@ class UdfPcaBasis:
 
 
 __all__ = [
+    "AUTO_LATTICE",
+    "AUTO_STRIDE2_VOXELS_PER_COMPONENT",
     "COMPONENT_STORAGES",
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "INT8_FORMAT_VERSION",
     "INT8_TENSOR_DTYPES",
+    "LATTICE_CHOICES",
     "TENSOR_DTYPES",
     "VOXEL_LATTICES",
     "DescriptorEngine",

@@ -191,7 +191,8 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
     if (directory / SMALL_HEAD_CONFIG).is_file():
         items.append(
             f"- `head-small.safetensors` + `{SMALL_HEAD_CONFIG}`: the distilled small head "
-            '(issue 17), `Predictor(bundle, head="small")`, `litege geodesic --head small`.'
+            "(issue 17): the default head of `Predictor(bundle)`, `litege geodesic` and the "
+            'service (`head="auto"`); `head="full"` / `--head full` runs the trained head.'
         )
     if (directory / FUSION_CONFIG).is_file():
         data = json.loads((directory / FUSION_CONFIG).read_text())

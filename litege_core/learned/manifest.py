@@ -37,6 +37,10 @@ GEODESIC = "geodesic"
 """Kind of a bundle whose manifest has no ``kind`` key."""
 HEADS = ("full", "small")
 """The distance heads a predictor runs: the trained head or the bundle's distilled one."""
+AUTO_HEAD = "auto"
+"""The predictors' default head: ``"small"`` for a bundle that ships one, else ``"full"``."""
+HEAD_CHOICES = (AUTO_HEAD, *HEADS)
+"""What a predictor's head argument accepts."""
 SMALL_HEAD_WEIGHTS = "head-small.safetensors"
 SMALL_HEAD_CONFIG = "head-small.json"
 SMALL_HEAD_KIND = "small_head"
@@ -163,6 +167,21 @@ def open_bundle(
     return directory, manifest, basis
 
 
+def resolve_head(directory: Path | None, head: str) -> str:
+    """``head`` itself, or for :data:`AUTO_HEAD` ``"small"`` when the bundle directory holds a
+    small-head sidecar (checked when it is loaded) and ``"full"`` otherwise.
+
+    Raises:
+        InputError: not one of :data:`HEAD_CHOICES`.
+    """
+    if head not in HEAD_CHOICES:
+        raise InputError(f"head must be one of {HEAD_CHOICES}, got {head!r}")
+    if head != AUTO_HEAD:
+        return head
+    sidecar = directory is not None and (Path(directory) / SMALL_HEAD_CONFIG).is_file()
+    return "small" if sidecar else "full"
+
+
 def verified_small_head(
     directory: Path, name: str, content_hash: str
 ) -> tuple[dict[str, Any], Path]:
@@ -271,11 +290,13 @@ def residual_statistics(name: str, manifest: dict[str, Any]) -> tuple[float, flo
 
 
 __all__ = [
+    "AUTO_HEAD",
     "BASIS_FILE",
     "DEFAULT_MODEL",
     "FORMAT_VERSION",
     "GEODESIC",
     "HEADS",
+    "HEAD_CHOICES",
     "MANIFEST",
     "NETWORK_FILE",
     "SHIPPED_DIR",
@@ -292,6 +313,7 @@ __all__ = [
     "read_verified_manifest",
     "replace_basis",
     "residual_statistics",
+    "resolve_head",
     "shipped_bundles",
     "shipped_directories",
     "verified_small_head",

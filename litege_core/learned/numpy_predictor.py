@@ -32,13 +32,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
-from litege_core.descriptor.basis import VOXEL_LATTICES
+from litege_core.descriptor.basis import AUTO_LATTICE, LATTICE_CHOICES
 from litege_core.descriptor.udf import compute_udf
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.manifest import (
+    AUTO_HEAD,
     GEODESIC,
-    HEADS,
+    HEAD_CHOICES,
     NETWORK_FILE,
     SHIPPED_DIR,
     PipelineConfig,
@@ -46,6 +47,7 @@ from litege_core.learned.manifest import (
     consistent_manifest,
     open_bundle,
     residual_statistics,
+    resolve_head,
     shipped_bundles,
     verified_small_head,
 )
@@ -291,9 +293,12 @@ class NumpyPredictor:
 
     Args:
         path: a geodesic bundle directory (the shipped ones: :meth:`shipped`).
-        head: ``"full"`` (the trained head) or ``"small"`` (the bundle's distilled head).
-        lattice: the informative voxels the UDF is evaluated at (``"full"``, ``"bcc"``,
-            ``"stride2"``), as the torch predictor's ``descriptor_lattice``.
+        head: ``"auto"`` (default: the small head when the bundle ships one), ``"full"``
+            (the trained head) or ``"small"`` (the bundle's distilled head); ``head`` holds
+            the resolved name.
+        lattice: the informative voxels the UDF is evaluated at (``"auto"``, ``"full"``,
+            ``"bcc"``, ``"stride2"``), as the torch predictor's ``descriptor_lattice``;
+            ``lattice`` holds the resolved name.
 
     Raises:
         InputError: an unknown head or lattice; ``head="small"`` on a bundle without one.
@@ -302,12 +307,16 @@ class NumpyPredictor:
     """
 
     def __init__(
-        self, path: str | os.PathLike[str], *, head: str = "full", lattice: str = "full"
+        self,
+        path: str | os.PathLike[str],
+        *,
+        head: str = AUTO_HEAD,
+        lattice: str = AUTO_LATTICE,
     ) -> None:
-        if head not in HEADS:
-            raise InputError(f"head must be one of {HEADS}, got {head!r}")
-        if lattice not in VOXEL_LATTICES:
-            raise InputError(f"lattice must be one of {VOXEL_LATTICES}, got {lattice!r}")
+        if head not in HEAD_CHOICES:
+            raise InputError(f"head must be one of {HEAD_CHOICES}, got {head!r}")
+        if lattice not in LATTICE_CHOICES:
+            raise InputError(f"lattice must be one of {LATTICE_CHOICES}, got {lattice!r}")
         directory, manifest, basis = open_bundle(path, GEODESIC, "model bundle")
         with consistent_manifest("bundle"):
             self.name = str(manifest["name"])
@@ -326,12 +335,12 @@ class NumpyPredictor:
         self.content_hash = str(manifest["content_hash"])
         self.manifest = manifest
         self.path = directory
-        self.head, self.lattice = head, lattice
+        self.head, self.lattice = resolve_head(directory, head), basis.resolve_lattice(lattice)
         self._net: FoldedNumpyNet | FoldedNumpySmallHead = self.net
-        if head == "small":
+        if self.head == "small":
             self._net = self._small_head(directory, weights)
         self._ood = residual_statistics(self.name, manifest)
-        self._descriptor = basis.lattice_projection(lattice)
+        self._descriptor = basis.lattice_projection(self.lattice)
         self._centers = self._descriptor.centers.astype(np.float64)  # (|S|, 3)
 
     def _small_head(self, directory: Path, weights: dict[str, NDArray]) -> FoldedNumpySmallHead:

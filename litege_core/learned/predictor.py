@@ -30,10 +30,11 @@ few points embeds just those; one that needs most of the shape (a distance field
 builds the ``(N, 2n)`` table once and keeps it with the state (:meth:`Predictor.point_table`).
 A query then runs only the rest of the head.
 
-**Small head (opt-in).** ``Predictor(bundle, head="small")`` runs the bundle's distilled head
-(:mod:`litege_core.nets.small_head`, ``head-small.*`` beside the bundle files): ``(N, m)``
-point features and ``m·k`` multiply-adds per pair instead of ``(2n)²``, with the same
-target scale, residual and zero-diagonal rule; the default stays the trained head.
+**Small head (the default where a bundle ships one).** ``head="small"`` (and ``"auto"``, the
+default, for a bundle with ``head-small.*`` beside its files) runs the bundle's distilled head
+(:mod:`litege_core.nets.small_head`): ``(N, m)`` point features and ``m·k`` multiply-adds per
+pair instead of ``(2n)²``, with the same target scale, residual and zero-diagonal rule;
+``head="full"`` runs the trained head.
 
 **Inference-time folding.** The predictor folds the network, in eval mode and in float64, into
 plain affine maps (:class:`~litege_core.nets.FoldedGeodesicNet`). A pair then costs one
@@ -68,7 +69,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from litege_core.arrays import frozen
 from litege_core.canonical import canonicalize_bbox
-from litege_core.descriptor.basis import VOXEL_LATTICES
+from litege_core.descriptor.basis import AUTO_LATTICE
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
@@ -82,7 +83,13 @@ from litege_core.learned.fusion import (
     pruned_knn_graph,
     surface_roughness,
 )
-from litege_core.learned.manifest import HEADS, check_pipeline, residual_statistics
+from litege_core.learned.manifest import (
+    AUTO_HEAD,
+    HEADS,
+    check_pipeline,
+    residual_statistics,
+    resolve_head,
+)
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
@@ -127,14 +134,18 @@ class Predictor:
             in int8) or ``"auto"`` (bfloat16 where the device multiplies it natively, else
             float32); see :mod:`litege_core.nets.folded` and BENCHMARKS.md
             ``predictor-accuracy``.
-        descriptor_lattice: the informative voxels the UDF is evaluated at: ``"full"``
-            (default, the trained descriptor) or an opt-in sparser lattice (``"bcc"`` 1/4,
-            ``"stride2"`` 1/8, least-squares codes; :data:`litege_core.descriptor.basis.
-            VOXEL_LATTICES`). Records it computes are approximations of the full ones: do
-            not mix lattices in one record cache.
-        head: the distance head every query runs: ``"full"`` (default, the trained head) or
-            ``"small"`` (opt-in: the bundle's distilled head, ``head-small.*`` beside the
-            bundle files, :mod:`litege_core.learned.small_head`; ``m·k + k`` instead of
+        descriptor_lattice: the informative voxels the UDF is evaluated at: ``"auto"``
+            (default: ``"stride2"`` where the basis keeps enough voxels there, as the shipped
+            ones do, else ``"full"``; :meth:`~litege_core.descriptor.basis.UdfPcaBasis.
+            resolve_lattice`), ``"full"`` (every voxel: the trained descriptor) or a sparser
+            lattice (``"bcc"`` 1/4, ``"stride2"`` 1/8, least-squares codes;
+            :data:`litege_core.descriptor.basis.VOXEL_LATTICES`). ``descriptor_lattice``
+            holds the resolved name. Records of a sparser lattice are approximations of the
+            full ones: do not mix lattices in one record cache.
+        head: the distance head every query runs: ``"auto"`` (default: ``"small"`` when the
+            bundle ships one, as the shipped models do, else ``"full"``), ``"full"`` (the
+            trained head) or ``"small"`` (the bundle's distilled head, ``head-small.*`` beside
+            the bundle files, :mod:`litege_core.learned.small_head`; ``m·k + k`` instead of
             ``4n² + 2n`` multiply-adds per pair, its accuracy and speed recorded in its
             ``head-small.json``). A :class:`~litege_core.nets.small_head.SmallHead` module is
             taken as the small head as it is (a fresh distillation; no teacher check). With
@@ -165,8 +176,8 @@ class Predictor:
         *,
         chunk_pairs: int = DEFAULT_CHUNK_PAIRS,
         precision: str = DEFAULT_PRECISION,
-        descriptor_lattice: str = "full",
-        head: str | SmallHead = "full",
+        descriptor_lattice: str = AUTO_LATTICE,
+        head: str | SmallHead = AUTO_HEAD,
         fusion: str | FusionCalibration = "none",
     ) -> None:
         pipeline = bundle.pipeline
@@ -178,25 +189,19 @@ class Predictor:
         self.chunk_pairs = int(chunk_pairs)
         self.network = bundle.network.eval()
         self.precision = resolve_precision(precision, self.device)
-        if descriptor_lattice not in VOXEL_LATTICES:
-            raise InputError(
-                f"descriptor_lattice must be one of {VOXEL_LATTICES}, got {descriptor_lattice!r}"
-            )
-        self.descriptor_lattice = descriptor_lattice
+        self.descriptor_lattice = bundle.basis.resolve_lattice(descriptor_lattice)
         self.folded = FoldedGeodesicNet(self.network, self.device, precision=self.precision)
         self.small_head_config: dict[str, Any] | None = None
         self._net: FoldedGeodesicNet | FoldedSmallHead = self.folded
         self._table_key = "features"
         if isinstance(head, SmallHead):
             student = head
-        elif head == "small":
+        elif resolve_head(bundle.path, head) == "small":
             from litege_core.learned.small_head import load_small_head
 
             student, self.small_head_config = load_small_head(bundle, self.device)
-        elif head == "full":
-            student = None
         else:
-            raise InputError(f"head must be one of {HEADS} or a SmallHead, got {head!r}")
+            student = None
         self.head = "full" if student is None else "small"
         if student is not None:
             self._net = FoldedSmallHead(student.eval(), self.folded)

@@ -53,8 +53,12 @@ def test_geodesic_and_path_with_the_small_head(tmp_path, bundle_dir, mesh_file, 
     assert main([*args, "--head", "small", "--runtime", "torch", "-o", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["runtime"] == "torch"
     _assert_same_answers(np.load(out), small.distances(state, [0, 7]))
+    default_out = tmp_path / "default.npy"
+    assert main([*args, "-o", str(default_out)]) == 0  # the default: the small head it ships
+    assert json.loads(capsys.readouterr().out)["head"] == "small"
+    _assert_same_answers(np.load(default_out), np.load(out))
     full_out = tmp_path / "full.npy"
-    assert main([*args, "-o", str(full_out)]) == 0
+    assert main([*args, "--head", "full", "-o", str(full_out)]) == 0
     assert json.loads(capsys.readouterr().out)["head"] == "full"
     assert not np.allclose(np.load(full_out), np.load(out))
     polyline = tmp_path / "p.npy"
@@ -74,10 +78,10 @@ def test_a_bundle_without_a_small_head_is_a_clear_error(
 
 
 def test_the_lattice_option_is_the_predictor_option(tmp_path, bundle_dir, mesh_file, capsys):
-    from litege_core.cli.common import VOXEL_LATTICES
-    from litege_core.descriptor.basis import VOXEL_LATTICES as LIBRARY_LATTICES
+    from litege_core.cli.common import LATTICE_CHOICES
+    from litege_core.descriptor.basis import LATTICE_CHOICES as LIBRARY_LATTICES
 
-    assert VOXEL_LATTICES == LIBRARY_LATTICES
+    assert LATTICE_CHOICES == LIBRARY_LATTICES
     out = tmp_path / "d.npy"
     args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(bundle_dir)]
     assert main([*args, "--head", "small", "--lattice", "stride2", "-o", str(out)]) == 0

@@ -6,6 +6,7 @@ entries deleted, and every live cache within its own budget."""
 from __future__ import annotations
 
 import threading
+from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
 from service.matching import MatchingRepository
 from service.metrics import ServiceMetrics
-from service.repository import ShapeRepository
+from service.repository import ShapeRepository, record_artifact
 from service.store import InMemoryStore, artifact_key, deep_nbytes, encode_arrays, geometry_key
 
 MiB = 1024 * 1024
@@ -58,7 +59,7 @@ def repository(predictors, store) -> ShapeRepository:
 
 
 def record_key(predictors, model: str, shape_id: str) -> str:
-    return artifact_key(shape_id, predictors[model].bundle.content_hash, "record")
+    return artifact_key(shape_id, *astuple(record_artifact(predictors[model])))
 
 
 def sample(metrics: ServiceMetrics, name: str, **labels: str) -> float:

@@ -5,12 +5,14 @@ what it held before is refilled from the API's hot tier, and a restarted API fin
 from __future__ import annotations
 
 import time
+from dataclasses import astuple
 
 import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from service.client import LiteGEClient, ProblemError
+from service.repository import record_artifact
 from service.store import artifact_key, geometry_key
 
 
@@ -34,7 +36,7 @@ def test_registrations_during_an_outage_survive_it_and_an_api_restart(
     live_service_factory, private_redis, mesh_bytes
 ):
     service = live_service_factory(redis_url=private_redis.url)
-    bundle = service.runtime.repository.predictors["quadrupeds"].bundle.content_hash
+    record = record_artifact(service.runtime.repository.predictors["quadrupeds"])
     with LiteGEClient(service.base_url) as client:
         before = client.register_file(mesh_bytes(1, "obj"), file_format="obj")["shape_id"]
         doomed = client.register_file(mesh_bytes(2, "obj"), file_format="obj")["shape_id"]
@@ -58,9 +60,9 @@ def test_registrations_during_an_outage_survive_it_and_an_api_restart(
         redis_client = private_redis.client()
         wanted = [
             geometry_key(shape_id),
-            artifact_key(shape_id, bundle, "record"),
+            artifact_key(shape_id, *astuple(record)),
             geometry_key(before),  # not written during the outage: refilled
-            artifact_key(before, bundle, "record"),
+            artifact_key(before, *astuple(record)),
         ]
         # no traffic needed: the write-behind flusher reconnects and replays by itself
         wait_for(lambda: redis_client.exists(*wanted) == len(wanted))

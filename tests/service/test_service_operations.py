@@ -8,12 +8,14 @@ import asyncio
 import re
 import threading
 import time
+from dataclasses import astuple
 
 import httpx
 import numpy as np
 import pytest
 
 from service.client import LiteGEClient, ProblemError
+from service.repository import record_artifact
 from service.store import artifact_key, geometry_key
 
 
@@ -27,8 +29,10 @@ def metric(text: str, name: str, **labels: str) -> float:
     return 0.0
 
 
-def bundle_hash(service) -> str:
-    return service.runtime.repository.predictors["quadrupeds"].bundle.content_hash
+def record_key(service, shape_id: str) -> str:
+    """Where the service keeps the shape's record (its lattice names it)."""
+    predictor = service.runtime.repository.predictors["quadrupeds"]
+    return artifact_key(shape_id, *astuple(record_artifact(predictor)))
 
 
 def test_state_survives_an_api_restart(live_service_factory, private_redis, mesh_bytes):
@@ -40,7 +44,7 @@ def test_state_survives_an_api_restart(live_service_factory, private_redis, mesh
     keys = {k.decode() for k in private_redis.client().keys("litege:*")}
     assert keys == {
         geometry_key(shape_id),
-        artifact_key(shape_id, bundle_hash(first), "record"),
+        record_key(first, shape_id),
     }
     second = live_service_factory(redis_url=private_redis.url)
     with LiteGEClient(second.base_url) as client:
@@ -60,15 +64,15 @@ def test_evicted_record_is_recomputed_and_lost_arrays_say_upload_again(
     with LiteGEClient(service.base_url) as client:
         shape_id = client.register_file(mesh_bytes(2, "ply"), file_format="ply")["shape_id"]
         before = client.geodesic(shape_id, [1], [2, 3, 4])
-        record_key = artifact_key(shape_id, bundle_hash(service), "record")
+        record = record_key(service, shape_id)
         arrays_key = geometry_key(shape_id)
 
         # Redis evicts the record; the process forgets its live state (restart, LRU).
-        redis_client.delete(record_key)
+        redis_client.delete(record)
         service.runtime.repository.forget_live()
         service.runtime.store.local.clear()
         np.testing.assert_allclose(client.geodesic(shape_id, [1], [2, 3, 4]), before, rtol=1e-6)
-        assert redis_client.exists(record_key), "the recomputed record is written back"
+        assert redis_client.exists(record), "the recomputed record is written back"
         assert (
             metric(
                 client.metrics(), "litege_cache_requests_total", tier="store", result="recompute"

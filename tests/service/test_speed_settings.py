@@ -1,7 +1,8 @@
-"""``LITEGE_GEODESIC_HEAD=small`` and ``LITEGE_DESCRIPTOR_LATTICE=stride2`` (issue 17) over real
-HTTP: the service answers as the library's speed configuration does, says so on ``/readyz``,
-and stores the sparser lattice's records under their own key, so a service on the full lattice
-never restores one."""
+"""``LITEGE_GEODESIC_HEAD`` and ``LITEGE_DESCRIPTOR_LATTICE`` (issue 17) over real HTTP: by
+default each model runs its own speed configuration (the shipped ones: small head, stride2
+lattice); the service answers as the library does, says so on ``/readyz``, and stores the
+sparser lattice's records under their own key, so a service on the full lattice never restores
+one."""
 
 from __future__ import annotations
 
@@ -25,9 +26,9 @@ def dog() -> Shape:
     return Shape.from_arrays(generated.vertices, generated.faces)
 
 
-def test_the_settings_default_to_the_trained_network() -> None:
+def test_the_settings_default_to_each_models_own_speed_configuration() -> None:
     settings = Settings()
-    assert (settings.geodesic_head, settings.descriptor_lattice) == ("full", "full")
+    assert (settings.geodesic_head, settings.descriptor_lattice) == ("auto", "auto")
     with pytest.raises(ValueError):
         Settings(geodesic_head="tiny")
     with pytest.raises(ValueError):
@@ -43,7 +44,9 @@ def test_fast_answers_are_the_library_answers_and_records_stay_apart(
     library = Predictor(
         load_shipped(TEST_MODEL), torch.device("cpu"), head="small", descriptor_lattice="stride2"
     )
-    full = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"))
+    full = Predictor(
+        load_shipped(TEST_MODEL), torch.device("cpu"), head="full", descriptor_lattice="full"
+    )
     sources = [0, 300, 1200]
     with LiteGEClient(fast.base_url) as client:
         ready = client.ready()["models"][TEST_MODEL]
@@ -60,10 +63,22 @@ def test_fast_answers_are_the_library_answers_and_records_stay_apart(
     assert keys.exists(artifact_key(shape_id, bundle_hash, "record.stride2"))
     assert not keys.exists(artifact_key(shape_id, bundle_hash, "record"))
     # a full-lattice service on the same Redis computes its own record from the geometry
-    plain = live_service_factory(redis_url=private_redis.url)
+    plain = live_service_factory(
+        geodesic_head="full", descriptor_lattice="full", redis_url=private_redis.url
+    )
     with LiteGEClient(plain.base_url) as client:
         np.testing.assert_allclose(
             client.geodesic(shape_id, sources), full_answer, rtol=1e-5, atol=1e-6
         )
     plain.stop()
     assert keys.exists(artifact_key(shape_id, bundle_hash, "record"))
+
+
+def test_a_default_service_runs_each_shipped_models_speed_configuration(
+    live_service_factory,
+) -> None:
+    service = live_service_factory()
+    with LiteGEClient(service.base_url) as client:
+        ready = client.ready()["models"][TEST_MODEL]
+    service.stop()
+    assert (ready["head"], ready["lattice"]) == ("small", "stride2")

@@ -94,3 +94,30 @@ def test_engine_rejects_unknown_lattices(basis) -> None:
     assert VOXEL_LATTICES[0] == "full"
     with pytest.raises(InputError):
         basis.engine("cpu", lattice="sparse")
+
+
+def test_auto_lattice_is_stride2_only_where_its_fit_is_well_determined(basis) -> None:
+    from litege_core.descriptor.basis import AUTO_STRIDE2_VOXELS_PER_COMPONENT, LATTICE_CHOICES
+
+    kept = lattice_voxels(GRID, basis.voxel_indices, "stride2").shape[0]
+    assert kept >= AUTO_STRIDE2_VOXELS_PER_COMPONENT * basis.n_components  # 10 components
+    assert basis.resolve_lattice() == basis.resolve_lattice("auto") == "stride2"
+    for lattice in VOXEL_LATTICES:
+        assert basis.resolve_lattice(lattice) == lattice  # named lattices are kept as named
+    # too few stride2 voxels per component: the full lattice
+    rng = np.random.default_rng(1)
+    few = np.flatnonzero(np.linalg.norm(GRID.centers(), axis=1) < 0.4)
+    rows = np.stack([udf_reference(_cloud(rng), GRID.centers(few)) for _ in range(40)])
+    small = UdfPcaBasis.from_pca(GRID, few, fit_pca_exact(rows, 30))
+    assert lattice_voxels(GRID, few, "stride2").shape[0] < 8 * 30
+    assert small.resolve_lattice("auto") == "full"
+    assert LATTICE_CHOICES[0] == "auto" and LATTICE_CHOICES[1:] == VOXEL_LATTICES
+    with pytest.raises(InputError, match="lattice must be one of"):
+        basis.resolve_lattice("sparse")
+
+
+def test_shipped_bases_resolve_auto_to_stride2() -> None:
+    from litege_core.learned import load_shipped
+
+    for name in ("quadrupeds", "humans"):
+        assert load_shipped(name).basis.resolve_lattice("auto") == "stride2"

@@ -126,9 +126,8 @@ def test_small_head_and_lattices_equal_the_torch_predictor(
     got = runtime.distances(state, [0, 7, 40], "all")
     want = reference.distances(expected_state, [0, 7, 40], "all")
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(np.abs(want).max()))
-    full = NumpyPredictor(small_head_dir).distances(
-        NumpyPredictor(small_head_dir).register(shape, seed=1), [0]
-    )
+    plain = NumpyPredictor(small_head_dir, head="full", lattice="full")  # as trained
+    full = plain.distances(plain.register(shape, seed=1), [0])
     assert not np.allclose(got[0], full[0])  # the options change the answer
 
 
@@ -146,7 +145,11 @@ def test_small_head_is_refused_without_a_sidecar_or_from_another_bundle(
     )
     with pytest.raises(InputError, match="distil it again"):
         NumpyPredictor(other, head="small")
-    assert NumpyPredictor(other).head == "full"  # the full head does not read the sidecar
+    with pytest.raises(InputError, match="distil it again"):
+        NumpyPredictor(other)  # the default takes the sidecar it finds
+    assert NumpyPredictor(other, head="full").head == "full"  # which the full head never reads
+    assert NumpyPredictor(small_head_dir).head == "small"
+    assert NumpyPredictor(bundle_dir).head == "full"  # no sidecar: the trained head
 
 
 @pytest.mark.parametrize("name", shipped_bundles())
@@ -159,8 +162,9 @@ def test_shipped_models_match(scaled_blob, name):
     got = runtime.distances(state, [0, 100, 2000])
     want = reference.distances(expected_state, [0, 100, 2000])
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
-    fast = NumpyPredictor.shipped(name, head="small", lattice="stride2")
-    reference = Predictor(load_shipped(name), head="small", descriptor_lattice="stride2")
+    assert (runtime.head, runtime.lattice) == ("small", "stride2")  # the shipped defaults
+    fast = NumpyPredictor.shipped(name, head="full", lattice="full")
+    reference = Predictor(load_shipped(name), head="full", descriptor_lattice="full")
     got = fast.distances(fast.register(shape), [0, 100, 2000])
     want = reference.distances(reference.register(shape), [0, 100, 2000])
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))

@@ -113,7 +113,7 @@ def _fit_sphere_net(basis) -> GeodesicNet:
 def sphere_predictor(tmp_path_factory, basis):
     directory = tmp_path_factory.mktemp("sphere") / "bundle"
     save_bundle(directory, name="s", category="s", basis=basis, network=_fit_sphere_net(basis))
-    return Predictor(load_bundle(directory))
+    return Predictor(load_bundle(directory), descriptor_lattice="full")  # as it was fitted
 
 
 @pytest.fixture(scope="module")

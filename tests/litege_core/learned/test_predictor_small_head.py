@@ -54,7 +54,7 @@ def bundle_dir(tmp_path_factory, toy_predictor):
 @pytest.fixture(scope="module")
 def predictors(bundle_dir):
     bundle = load_bundle(bundle_dir)
-    return Predictor(bundle), Predictor(bundle, head="small")
+    return Predictor(bundle, head="full"), Predictor(bundle, head="small")
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +136,23 @@ def test_a_head_of_another_bundle_is_refused(tmp_path, bundle_dir) -> None:
     save_small_head(directory, _student(32), "f" * 64)
     with pytest.raises(InputError, match="distilled from bundle ffffffffffff"):
         Predictor(bundle, head="small")
-    Predictor(bundle)  # the full head is unaffected
+    with pytest.raises(InputError, match="distilled from bundle ffffffffffff"):
+        Predictor(bundle)  # the default takes the sidecar it finds, so it is refused too
+    Predictor(bundle, head="full")  # the full head is unaffected
+
+
+def test_the_default_head_is_the_small_one_where_the_bundle_ships_it(
+    bundle_dir, toy_predictor
+) -> None:
+    from litege_core.cli.common import HEAD_CHOICES
+    from litege_core.learned.manifest import HEAD_CHOICES as LIBRARY_HEADS
+
+    assert HEAD_CHOICES == LIBRARY_HEADS
+    assert Predictor(load_bundle(bundle_dir)).head == "small"
+    assert Predictor(load_bundle(bundle_dir), head="auto").head == "small"
+    assert Predictor(toy_predictor.bundle).head == "full"  # no sidecar: the trained head
+    for name in shipped_bundles():
+        assert Predictor(load_shipped(name)).head == "small"
 
 
 def test_missing_or_damaged_sidecars(tmp_path, bundle_dir, toy_predictor) -> None:
