@@ -77,8 +77,7 @@ def main() -> None:
     print(
         f"- date {date.today()}; {os.cpu_count()} logical CPUs {platform.machine()}{gpu}; "
         f"torch {torch.__version__}, {args.threads} thread(s); model `{args.model}`, "
-        f"precision `{args.precision}`, descriptor lattice `{args.lattice}` (`auto`: "
-        f"`{load_shipped(args.model).basis.resolve_lattice(args.lattice)}`); 2000-point "
+        f"precision `{args.precision}`, descriptor lattice `{args.lattice}`; 2000-point "
         f"clouds; median of {args.runs} runs after 1 warm-up; command `{command}`"
     )
     print(
@@ -99,7 +98,7 @@ def main() -> None:
             precision=args.precision,
             descriptor_lattice=args.lattice,
         )
-        print(f"\n**{device}** ({predictor.precision})\n")
+        print(f"\n**{device}** ({predictor.precision}, lattice {predictor.descriptor_lattice})\n")
         print("\n".join(_table(predictor, clouds, args.runs)))
 
 

@@ -105,7 +105,7 @@ AUTO_STRIDE2_VOXELS_PER_COMPONENT = 8
 """``"auto"`` takes ``"stride2"`` when its least-squares fit is this over-determined. The shipped
 bases keep 11.5–12.6 voxels per component there (2,765–3,020 for 240 components), and their
 real-shape error moves by at most ±0.03 against the full lattice (BENCHMARKS
-``default-lattice``); a small basis fitted by a user falls back to the full lattice."""
+``default-speed-configuration``); a small basis fitted by a user falls back to the full lattice."""
 
 
 def lattice_voxels(grid: VoxelGrid, voxel_indices: ArrayLike, lattice: str) -> NDArray:

@@ -50,7 +50,7 @@ import math
 import os
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, NamedTuple
@@ -323,15 +323,24 @@ def _generate_canonical(category: str, keys: Sequence[tuple[str, int]], workers:
     """The procedural shapes ``keys`` in the canonical frame, on ``workers`` processes (each
     shape is a pure function of its key and position, so the count does not change them)."""
     jobs = [(category, family, seed, index) for index, (family, seed) in enumerate(keys)]
+    meshes = _map_jobs(_generated_canonical, jobs, workers, chunksize=4)
+    return ShapeSet([v for v, _ in meshes], [f for _, f in meshes], list(keys))
+
+
+def _map_jobs(
+    function: Callable[[Any], tuple[NDArray, NDArray]],
+    jobs: Sequence[Any],
+    workers: int,
+    chunksize: int,
+) -> list[tuple[NDArray, NDArray]]:
+    """``[function(job) for job in jobs]``, on ``workers`` forked processes when there are
+    several (the results do not depend on the count)."""
     if workers > 1 and len(jobs) > 1:
         import multiprocessing
 
-        context = multiprocessing.get_context("fork")
-        with context.Pool(min(workers, len(jobs))) as pool:
-            meshes = pool.map(_generated_canonical, jobs, chunksize=4)
-    else:
-        meshes = [_generated_canonical(job) for job in jobs]
-    return ShapeSet([v for v, _ in meshes], [f for _, f in meshes], list(keys))
+        with multiprocessing.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+            return pool.map(function, jobs, chunksize=chunksize)
+    return [function(job) for job in jobs]
 
 
 def generate_shape_set(
@@ -442,13 +451,7 @@ def collection_shape_set(
         for index, (family, seed) in enumerate(keys)
         if index >= len(meshes)
     ]
-    if workers > 1 and len(jobs) > 1:
-        import multiprocessing
-
-        with multiprocessing.get_context("fork").Pool(min(workers, len(jobs))) as pool:
-            meshes += pool.map(_collection_canonical, jobs, chunksize=2)
-    else:
-        meshes += [_collection_canonical(job) for job in jobs]
+    meshes += _map_jobs(_collection_canonical, jobs, workers, chunksize=2)
     if cache_dir and jobs:
         _write_cache(
             Path(cache_dir) / f"{prefix}{n_shapes}{suffix}",
