@@ -9,6 +9,8 @@ Backends (all agree to 1e-5; ``tests/litege_core/descriptor/test_descriptor_udf.
 * ``"kdtree"`` — :class:`scipy.spatial.cKDTree` built on the sample points, queried at the
   centres (``workers`` threads). Exact (float64).
 * ``"pykdtree"`` — the same with ``pykdtree`` (OpenMP), an optional dependency. Exact.
+* ``"triton"`` — the same brute force fused into one GPU kernel (a running minimum of exact
+  squared differences per voxel centre; nothing but the output is written). Needs Triton.
 * ``"torch"`` — brute force on one device, batched over ``B`` clouds: squared distances by
   ``baddbmm`` in float32 over chunks of centres, the ``candidates`` nearest by that estimate,
   then their exact distance by coordinate differences (plain ``|c|² + |p|² − 2c·p`` in float32
@@ -34,9 +36,11 @@ jobs shared the cores, so absolute values vary by up to 2× between runs, rankin
 On a CPU the k-d trees win every regime, single shape or batched, by 5–65× over brute force
 (a batch is a loop of independent trees: nothing is shared between clouds), and ``pykdtree``
 beats ``cKDTree`` by 1.3–3×. ``auto`` therefore picks ``pykdtree`` when it is installed, else
-``kdtree`` with all cores (``workers=-1``, 1.3–1.6× faster on batches), on a CPU device, and
-``torch`` on a CUDA device: brute force on a GPU is what the authors (pytorch3d ``knn_points``)
-do, but it was **not measured here** (no GPU in this task).
+``kdtree`` with all cores (``workers=-1``, 1.3–1.6× faster on batches), on a CPU device. On a
+CUDA device it picks ``triton`` (:mod:`litege_core.descriptor.udf_triton`: one fused kernel,
+exact differences, no distance block in memory) where Triton is installed, else ``torch``:
+brute force on a GPU is what the authors (pytorch3d ``knn_points``) do. GPU timings: BENCHMARKS
+"batch-table-cuda".
 """
 
 from __future__ import annotations
@@ -67,6 +71,7 @@ class UdfBackend(ParsableEnum, noun="UDF backend"):
     KDTREE = "kdtree"
     PYKDTREE = "pykdtree"
     TORCH = "torch"
+    TRITON = "triton"
 
 
 def pykdtree_available() -> bool:
@@ -80,7 +85,9 @@ def resolve_backend(backend: str | UdfBackend, device: torch.device | str = "cpu
     if chosen is not UdfBackend.AUTO:
         return chosen
     if device_type(device) != "cpu":
-        return UdfBackend.TORCH
+        from litege_core.descriptor.udf_triton import triton_available
+
+        return UdfBackend.TRITON if triton_available(device_type(device)) else UdfBackend.TORCH
     return UdfBackend.PYKDTREE if pykdtree_available() else UdfBackend.KDTREE
 
 
@@ -214,12 +221,20 @@ class UdfEvaluator:
         self.backend = resolve_backend(backend, self.device)
         if self.backend is UdfBackend.PYKDTREE and not pykdtree_available():
             raise MissingDependencyError("the 'pykdtree' UDF backend needs `pip install pykdtree`")
+        if self.backend is UdfBackend.TRITON:
+            from litege_core.descriptor.udf_triton import triton_available
+
+            if not triton_available(self.device.type):
+                raise MissingDependencyError(
+                    f"the 'triton' UDF backend needs Triton and a CUDA device (got "
+                    f"{self.device.type}; TRITON_INTERPRET=1 runs it on the CPU, slowly)"
+                )
         self.workers = workers
         self._centers64 = as_points(centers, "centers")
         self._centers64.setflags(write=False)
         self._centers_t = (
             torch.from_numpy(self._centers64.astype(np.float32)).to(self.device)
-            if self.backend is UdfBackend.TORCH
+            if self.backend in (UdfBackend.TORCH, UdfBackend.TRITON)
             else None
         )
 
@@ -240,11 +255,18 @@ class UdfEvaluator:
         """
         import torch
 
-        batch = stack_clouds(clouds)
-        if self.backend is UdfBackend.TORCH:
-            assert self._centers_t is not None
-            tensor = torch.from_numpy(batch).to(self.device)
+        if self._centers_t is not None:  # a tensor backend: a tensor stays on its device
+            tensor = (
+                clouds.to(self.device, torch.float32)
+                if isinstance(clouds, torch.Tensor)
+                else torch.from_numpy(stack_clouds(clouds)).to(self.device)
+            )
+            if self.backend is UdfBackend.TRITON:
+                from litege_core.descriptor.udf_triton import udf_triton
+
+                return udf_triton(tensor, self._centers_t)
             return udf_torch(tensor, self._centers_t)
+        batch = stack_clouds(clouds)
         rows = np.empty((batch.shape[0], self.n_centers), dtype=np.float32)
         for b in range(batch.shape[0]):  # one tree per cloud: nothing to share between them
             points = batch[b].astype(np.float64)
@@ -279,18 +301,15 @@ def compute_udf(
     backend: str | UdfBackend = UdfBackend.AUTO,
     workers: int = 1,
 ) -> NDArray:
-    """One-off UDF of one cloud: ``(P, 3)`` points, ``(M, 3)`` centres → ``(M,)`` float64
-    (float32 precision for the torch backend)."""
+    """One-off UDF of one cloud on the CPU: ``(P, 3)`` points, ``(M, 3)`` centres → ``(M,)``
+    float64 (float32 precision for the tensor backends)."""
     chosen = resolve_backend(backend)
     if chosen is UdfBackend.KDTREE:
         return udf_kdtree(points, centers, workers=workers)
     if chosen is UdfBackend.PYKDTREE:
         return udf_pykdtree(points, centers)
-    import torch
-
-    pts = torch.from_numpy(as_points(points, "points", dtype=np.float32))
-    ctr = torch.from_numpy(as_points(centers, "centers", dtype=np.float32))
-    return udf_torch(pts[None], ctr)[0].double().numpy()
+    cloud = as_points(points, "points", dtype=np.float32)[None]
+    return UdfEvaluator(centers, backend=chosen)(cloud)[0].double().numpy()
 
 
 __all__ = [

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
@@ -21,6 +22,7 @@ from litege_core.canonical import (
     calibrate_poisson_target,
     canonicalize,
     canonicalize_bbox,
+    canonicalize_bbox_many,
     canonicalize_poisson,
     canonicalize_unit_area,
     pca_alignment,
@@ -280,6 +282,67 @@ def test_non_finite_input_raises():
     points[3, 1] = np.nan
     with pytest.raises(NonFiniteError):
         canonicalize_bbox(points)
+
+
+DEVICES = [
+    "cpu",
+    pytest.param(
+        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+    ),
+]
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_bbox_many_agrees_with_the_one_cloud_reference(device):
+    rng = np.random.default_rng(3)
+    sizes = [2000, 301, 2000, 300, 17, 2000]  # ragged: odd and even sizes, groups of one
+    clouds = [
+        rng.normal(size=(n, 3)) * rng.uniform(0.5, 3.0, size=3) + rng.normal(size=3) * 10
+        for n in sizes
+    ]
+    batch = canonicalize_bbox_many(clouds, device)
+    assert batch.clouds.shape == (len(sizes), max(sizes), 3)
+    assert batch.clouds.dtype == torch.float32 and batch.clouds.device.type == device
+    for cloud, transform, padded in zip(
+        clouds, batch.transforms, batch.clouds.cpu().numpy(), strict=True
+    ):
+        reference = canonicalize_bbox(cloud)
+        assert transform.allclose(reference, atol=1e-12)
+        n = cloud.shape[0]
+        np.testing.assert_allclose(padded[:n], reference.apply(cloud), rtol=0, atol=1e-5)
+        np.testing.assert_array_equal(padded[n:], np.broadcast_to(padded[0], padded[n:].shape))
+
+
+def test_bbox_many_median_sign_rule_uses_the_mean_of_the_middle_two():
+    # an even cloud whose two middle projections straddle 0 on the first axis: the mean of
+    # the middle two decides the sign, as np.median does (torch.median would take the lower)
+    x = np.array([-5.0, -4.0, -3.0, -0.1, 0.3, 1.0, 2.0, 9.0])
+    cloud = np.column_stack([x * 3.0, np.sin(np.arange(8.0)), np.cos(np.arange(8.0)) * 0.1])
+    cloud = cloud - cloud.mean(axis=0)
+    transform = canonicalize_bbox_many([cloud]).transforms[0]
+    assert transform.allclose(canonicalize_bbox(cloud), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "points",
+    [
+        np.ones((10, 3)),  # zero extent
+        np.outer(np.linspace(-1, 1, 20), [1.0, 2.0, 3.0]) + 5.0,  # collinear
+    ],
+)
+def test_bbox_many_names_the_degenerate_cloud(points):
+    good = np.random.default_rng(0).normal(size=(points.shape[0], 3))
+    with pytest.raises(DegenerateShapeError, match=r"clouds\[1\]"):
+        canonicalize_bbox_many([good, points])
+
+
+def test_bbox_many_refuses_an_empty_batch_and_bad_clouds():
+    with pytest.raises(InputError):
+        canonicalize_bbox_many([])
+    with pytest.raises(DegenerateShapeError):
+        canonicalize_bbox_many([np.zeros((3, 3))])
+    with pytest.raises(NonFiniteError):
+        canonicalize_bbox_many([np.full((5, 3), np.nan)])
 
 
 # --------------------------------------------------------------------------- unit area

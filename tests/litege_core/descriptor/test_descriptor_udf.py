@@ -8,6 +8,7 @@ import torch
 
 from litege_core.descriptor import udf as udf_mod
 from litege_core.descriptor.grid import VoxelGrid
+from litege_core.descriptor.udf_triton import triton_available, udf_triton
 from litege_core.errors import (
     ArrayShapeError,
     EmptyShapeError,
@@ -89,7 +90,8 @@ def test_auto_backend_resolution() -> None:
     backend = udf_mod.UdfBackend
     expected = backend.PYKDTREE if udf_mod.pykdtree_available() else backend.KDTREE
     assert udf_mod.resolve_backend("auto", "cpu") is expected
-    assert udf_mod.resolve_backend("auto", "cuda") is udf_mod.UdfBackend.TORCH
+    on_gpu = udf_mod.UdfBackend.TRITON if triton_available("cuda") else backend.TORCH
+    assert udf_mod.resolve_backend("auto", "cuda") is on_gpu
     assert udf_mod.resolve_backend("torch", "cpu") is udf_mod.UdfBackend.TORCH
     with pytest.raises(InputError):
         udf_mod.resolve_backend("faiss")
@@ -126,3 +128,36 @@ def test_invalid_inputs() -> None:
     if not torch.cuda.is_available():
         with pytest.raises(InputError):
             udf_mod.UdfEvaluator(centers, device="cuda")
+
+
+# Triton runs on a CUDA GPU, or on the CPU under its interpreter (TRITON_INTERPRET=1, slow:
+# small sizes). Without Triton (the CPU install) these are skipped; the GPU run covers them.
+TRITON_DEVICE = next((d for d in ("cuda", "cpu") if triton_available(d)), None)
+needs_triton = pytest.mark.skipif(TRITON_DEVICE is None, reason="Triton cannot run here")
+
+
+@needs_triton
+@pytest.mark.parametrize("n_points", [1, 57, 130])
+def test_triton_kernel_matches_reference(n_points: int) -> None:
+    centers = _centers(300 if TRITON_DEVICE == "cpu" else 3000)
+    clouds = [_cloud(n_points, s) for s in range(3)] + [_cloud(max(1, n_points // 3), 9)]
+    evaluator = udf_mod.UdfEvaluator(centers, backend="triton", device=TRITON_DEVICE)
+    got = evaluator(clouds).cpu()
+    assert got.shape == (4, centers.shape[0]) and got.dtype == torch.float32
+    for b, cloud in enumerate(clouds):
+        reference = udf_mod.udf_reference(cloud.astype(np.float64), centers)
+        np.testing.assert_allclose(got[b].numpy(), reference, atol=TOL, rtol=0)
+    # the same numbers as the torch backend's refined candidates, from a device tensor
+    tensor = torch.from_numpy(udf_mod.stack_clouds(clouds)).to(TRITON_DEVICE)
+    ctr = torch.from_numpy(centers.astype(np.float32)).to(TRITON_DEVICE)
+    torch.testing.assert_close(
+        udf_triton(tensor, ctr).cpu(), udf_mod.udf_torch(tensor, ctr).cpu(), rtol=0, atol=1e-6
+    )
+
+
+def test_triton_backend_without_triton_is_reported(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("TRITON_INTERPRET", raising=False)
+    with pytest.raises(MissingDependencyError, match="triton"):
+        udf_mod.UdfEvaluator(_centers(10), backend="triton", device="cpu")
+    with pytest.raises(ArrayShapeError):
+        udf_triton(torch.zeros(2, 5), torch.zeros(4, 3))
