@@ -338,8 +338,9 @@ def canonicalize_bbox_many(
     for b, cloud in enumerate(points):
         by_size.setdefault(cloud.shape[0], []).append(b)
     for size, members in by_size.items():
-        stacked = torch.from_numpy(np.stack([points[b] for b in members])).to(dev)
-        group, result = _bbox_frames(stacked, members)  # (G, P, 3) float64
+        stacked = np.stack([points[b] for b in members])  # (G, P, 3), a fresh copy
+        group, result = _bbox_frames(torch.from_numpy(stacked).to(dev), members)
+        del stacked
         index = torch.tensor(members, device=dev)
         padded[index, :size] = result.float()
         if size < width:
@@ -353,18 +354,20 @@ def _bbox_frames(
     stacked: torch.Tensor, members: Sequence[int]
 ) -> tuple[list[Transform], torch.Tensor]:
     """The batched half of :func:`canonicalize_bbox_many`: ``(G, P, 3)`` float64 clouds →
-    their transforms and the ``(G, P, 3)`` float64 canonical clouds (on the same device)."""
+    their transforms and the ``(G, P, 3)`` float64 canonical clouds (on the same device).
+    ``stacked`` is overwritten (centred in place)."""
     centers = stacked.mean(dim=1)  # (G, 3)
-    centered = stacked - centers[:, None, :]
+    centered = stacked.sub_(centers[:, None, :])  # in place: the batch is a fresh copy
     rotations = _pca_rotations(centered, members)  # (G, 3, 3)
     aligned = centered @ rotations.transpose(1, 2)  # (G, P, 3)
+    del centered, stacked
     dx, dy, dz = (aligned.amax(dim=1) - aligned.amin(dim=1)).unbind(dim=1)
     areas = 2.0 * (dx * dy + dy * dz + dz * dx)
     _check_batch(areas > 0.0, members, "the aligned bounding box has zero surface area")
     scales = BBOX_SQRT_AREA / areas.sqrt()
     host = (rotations.cpu().numpy(), centers.cpu().numpy(), scales.cpu().numpy())
     transforms = [Transform(host[0][g], host[1][g], float(host[2][g])) for g in range(len(members))]
-    return transforms, aligned * scales[:, None, None]
+    return transforms, aligned.mul_(scales[:, None, None])
 
 
 def _pca_rotations(centered: torch.Tensor, members: Sequence[int]) -> torch.Tensor:

@@ -3,7 +3,7 @@ preprocessing included (canonicalization, UDF-PCA, embeddings), for B = 1, 4, 8,
 time and allocator-exact peak memory, on the CPU always and on CUDA whenever it is available.
 
 Usage: python scripts/bench_batch_table.py [--model quadrupeds] [--runs 5] [--threads 1]
-           [--precision float32] [--lattice auto] [--no-cuda]
+           [--precision float32] [--lattice auto] [--no-cuda] [--cuda-udf auto,torch]
 Clouds: area-weighted samples of 8 distinct procedural quadrupeds (test seeds), reused
 cyclically; nothing is cached between runs. Memory: numpy peak by tracemalloc + torch
 CPU-allocator peak by torch.profiler memory events (+ CUDA allocator peak on a GPU), above what
@@ -59,6 +59,11 @@ def main() -> None:
     parser.add_argument("--precision", default="float32", help="Predictor precision")
     parser.add_argument("--lattice", default="auto", help="Predictor descriptor_lattice")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA rows")
+    parser.add_argument(
+        "--cuda-udf",
+        default="auto",
+        help="comma-separated UDF backends of the CUDA rows (auto = triton where installed)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     names = families("quadruped")
@@ -91,14 +96,19 @@ def main() -> None:
         "- the paper's GPU figures (RTX A4000) are shown for reference only: different "
         "hardware, not a like-for-like comparison"
     )
-    for device in devices:
+    runs = [("cpu", "auto")] + [("cuda", b) for b in args.cuda_udf.split(",") if "cuda" in devices]
+    for device, udf_backend in runs:
         predictor = Predictor(
             load_shipped(args.model, device),
             device,
             precision=args.precision,
             descriptor_lattice=args.lattice,
+            udf_backend=udf_backend,
         )
-        print(f"\n**{device}** ({predictor.precision}, lattice {predictor.descriptor_lattice})\n")
+        print(
+            f"\n**{device}** ({predictor.precision}, lattice {predictor.descriptor_lattice}, "
+            f"head {predictor.head}, UDF {predictor.engine.udf.backend.value})\n"
+        )
         print("\n".join(_table(predictor, clouds, args.runs)))
 
 

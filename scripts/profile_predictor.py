@@ -20,8 +20,9 @@ Stages, run one after the other exactly as :meth:`Predictor.register_many` and
 public API's):
 
 * ``sampling``: :func:`shape_samples` (2000 area-weighted points on a mesh; nothing on a cloud);
-* ``canonicalize``: :func:`canonicalize_bbox` and the transform of the samples;
-* ``UDF``: the unsigned distance field at the informative voxels (k-d tree per cloud);
+* ``canonicalize``: :func:`canonicalize_bbox_many` (the frames and the canonical samples);
+* ``UDF``: the unsigned distance field at the informative voxels (k-d tree per cloud on a
+  CPU, one batched kernel on a GPU);
 * ``PCA``: ``(udf − μ)Pᵀ`` and the reconstruction residual;
 * ``shape MLP``: :meth:`Predictor.restore_many` (shape MLP, per-shape bias, the states);
 * ``point features``: :meth:`Predictor.resolve` of sources and targets (the point MLP of the
@@ -65,9 +66,10 @@ import torch
 
 from litege_core import __version__
 from litege_core.arrays import frozen
-from litege_core.canonical import canonicalize_bbox
+from litege_core.canonical import canonicalize_bbox_many
 from litege_core.evaluation.speed import (
     cpu_name,
+    device_sync,
     numpy_peak,
     peak_memory,
     time_call,
@@ -139,14 +141,14 @@ def make_workloads() -> dict[str, Workload]:
 def stage_functions(predictor: Predictor, work: Workload) -> list[tuple[str, Callable]]:
     """The stages of one end-to-end run, as ``(name, fn(context) -> None)`` in order; each
     reads what earlier stages left in the shared ``context`` dict."""
-    engine = predictor.bundle.basis.engine(predictor.device, lattice=predictor.descriptor_lattice)
+    engine = predictor.engine
 
     def sampling(c: dict) -> None:
         c["samples"] = [shape_samples(s, predictor.n_mesh_samples, 0) for s in work.shapes]
 
     def canonicalize(c: dict) -> None:
-        c["transforms"] = [canonicalize_bbox(p) for p in c["samples"]]
-        c["clouds"] = [t.apply(p) for t, p in zip(c["transforms"], c["samples"], strict=True)]
+        batch = canonicalize_bbox_many(c["samples"], predictor.device)
+        c["transforms"], c["clouds"] = batch.transforms, batch.clouds
 
     def udf(c: dict) -> None:
         c["udf"] = engine.udf(c["clouds"])
@@ -174,10 +176,9 @@ def stage_functions(predictor: Predictor, work: Workload) -> list[tuple[str, Cal
         c["states"] = predictor.restore_many(work.shapes, records)
 
     def features(c: dict) -> None:
-        c["blocks"] = [
-            (predictor.resolve(state, s, "source"), predictor.resolve(state, t, "target"))
-            for state, s, t in zip(c["states"], work.sources, work.targets, strict=True)
-        ]
+        sources = predictor._resolve_many(c["states"], work.sources, "source")
+        targets = predictor._resolve_many(c["states"], work.targets, "target")
+        c["blocks"] = list(zip(sources, targets, strict=True))
 
     def head(c: dict) -> None:
         c["out"] = evaluate_blocks(predictor, c["blocks"])
@@ -234,13 +235,17 @@ def profile_stages(predictor: Predictor, work: Workload, runs: int) -> dict[str,
     """Median CPU ms per stage, per-stage allocator peaks and the end-to-end figures."""
     stages = stage_functions(predictor, work)
     cpu: dict[str, list[float]] = {name: [] for name, _ in stages}
+    sync = device_sync(predictor.device)
+    clock = time.process_time if sync is None else time.perf_counter  # GPU: wall, synced
     for run in range(runs + 1):
         context: dict = {}
         for name, fn in stages:
-            start = time.process_time()
+            start = clock()
             fn(context)
+            if sync is not None:
+                sync()
             if run:  # run 0 warms up
-                cpu[name].append(1000.0 * (time.process_time() - start))
+                cpu[name].append(1000.0 * (clock() - start))
     numpy_mb: dict[str, float] = {}
     torch_mb: dict[str, float] = {}
     context = {}
@@ -249,7 +254,7 @@ def profile_stages(predictor: Predictor, work: Workload, runs: int) -> dict[str,
     context = {}
     for name, fn in stages:  # torch allocator peaks (a separate run: see speed.py)
         _, torch_mb[name] = torch_cpu_peak(partial(fn, context))
-    timing = time_call(lambda: end_to_end(predictor, work), runs=runs, warmup=1)
+    timing = time_call(lambda: end_to_end(predictor, work), runs=runs, warmup=1, sync=sync)
     total = peak_memory(lambda: end_to_end(predictor, work), predictor.device)
     return {
         "cpu_ms": {name: statistics.median(v) for name, v in cpu.items()},
@@ -259,6 +264,7 @@ def profile_stages(predictor: Predictor, work: Workload, runs: int) -> dict[str,
         "e2e_wall_ms": timing.wall_ms,
         "peak_numpy_mb": total.numpy_mb,
         "peak_torch_mb": total.torch_mb,
+        "peak_cuda_mb": total.cuda_mb,
     }
 
 
@@ -316,12 +322,14 @@ def report(
     runs: int,
     command: str,
     svgs: Sequence[str],
+    device: str = "cpu",
 ) -> str:
     lines = ["### Where the time and the memory go: predictor stage profile\n"]
+    gpu = f", GPU {torch.cuda.get_device_name(0)}" if device.startswith("cuda") else ""
     lines.append(
         f"- date {date.today()}; {cpu_name()}, {os.cpu_count()} logical CPUs (shared with "
-        f"other jobs), torch {torch.__version__} with 1 thread, numpy {np.__version__}, "
-        f"litege {__version__}; model `quadrupeds`; command `{command}`"
+        f"other jobs){gpu}, torch {torch.__version__} with 1 thread, numpy {np.__version__}, "
+        f"litege {__version__}; model `quadrupeds` on `{device}`; command `{command}`"
     )
     lines.append(
         "- workloads (preprocessing included): "
@@ -336,6 +344,11 @@ def report(
         "- memory: allocator-exact peak MB above the stage's start, numpy (tracemalloc) + "
         "torch CPU allocator (profiler memory events); not RSS"
     )
+    if device != "cpu":
+        lines.append(
+            "- on the GPU a stage's ms is wall time up to a `torch.cuda.synchronize()` after it "
+            "(the kernels it queued included); whole workload: CUDA allocator peak as well"
+        )
     if svgs:
         lines.append(f"- flame graphs (py-spy, baseline configuration): {', '.join(svgs)}")
     for config in configs:
@@ -375,7 +388,13 @@ def report(
         lines.append(
             "| **whole workload** | "
             + " | ".join(
-                f"**{per[w]['peak_numpy_mb']:.1f} + {per[w]['peak_torch_mb']:.1f}**" for w in per
+                f"**{per[w]['peak_numpy_mb']:.1f} + {per[w]['peak_torch_mb']:.1f}**"
+                + (
+                    ""
+                    if per[w]["peak_cuda_mb"] is None
+                    else f" (CUDA {per[w]['peak_cuda_mb']:.1f})"
+                )
+                for w in per
             )
             + " |"
         )
@@ -391,6 +410,7 @@ def main() -> None:
         help="PRECISION/LATTICE, repeatable (default: float32/full, auto/full, auto/stride2)",
     )
     parser.add_argument("--workload", action="append", choices=list(SLUG.values()))
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (stages timed by wall)")
     parser.add_argument("--flamegraph", metavar="DIR", help="write py-spy SVGs into DIR")
     parser.add_argument("--flamegraph-loops", type=int, default=20)
     parser.add_argument("--loop", choices=list(SLUG.values()), help=argparse.SUPPRESS)
@@ -404,11 +424,13 @@ def main() -> None:
     workloads = make_workloads()
     if args.workload:
         workloads = {k: v for k, v in workloads.items() if SLUG[k] in args.workload}
-    bundle = load_shipped("quadrupeds")
+    bundle = load_shipped("quadrupeds", args.device)
     results: dict[str, dict[str, dict[str, Any]]] = {}
     for config in configs:
         precision, _, lattice = config.partition("/")
-        predictor = Predictor(bundle, precision=precision, descriptor_lattice=lattice or "full")
+        predictor = Predictor(
+            bundle, args.device, precision=precision, descriptor_lattice=lattice or "full"
+        )
         label = f"{predictor.precision}/{predictor.descriptor_lattice}"
         if precision == "auto":
             label = f"auto → {label}"
@@ -419,7 +441,7 @@ def main() -> None:
             print(f"{label} {name}: done", file=sys.stderr, flush=True)
     svgs = flamegraphs(Path(args.flamegraph), args.flamegraph_loops) if args.flamegraph else []
     command = "python scripts/profile_predictor.py " + " ".join(sys.argv[1:])
-    print(report(results, list(results), workloads, args.runs, command.strip(), svgs))
+    print(report(results, list(results), workloads, args.runs, command.strip(), svgs, args.device))
 
 
 if __name__ == "__main__":

@@ -164,6 +164,11 @@ class Predictor:
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
             on it; paths follow the network's field. The graph's edges are vetoed by the head
             the calibration names (``veto_head``: the shipped ones use the small head).
+        udf_backend: how the descriptor's UDF is computed (:mod:`litege_core.descriptor.udf`):
+            ``"auto"`` (default: a k-d tree on a CPU, the fused Triton kernel on a GPU where
+            Triton is installed, else batched torch), ``"kdtree"``, ``"pykdtree"``,
+            ``"torch"`` or ``"triton"``. The backends agree to 1e-5. :attr:`engine` is the
+            basis placed on the device with it.
 
     Raises:
         ArtifactError: the bundle's pipeline is not one this predictor implements.
@@ -179,6 +184,7 @@ class Predictor:
         descriptor_lattice: str = AUTO_LATTICE,
         head: str | SmallHead = AUTO_HEAD,
         fusion: str | FusionCalibration = "none",
+        udf_backend: str = "auto",
     ) -> None:
         pipeline = bundle.pipeline
         check_pipeline(bundle.name, pipeline)
@@ -190,6 +196,7 @@ class Predictor:
         self.network = bundle.network.eval()
         self.precision = resolve_precision(precision, self.device)
         self.descriptor_lattice = bundle.basis.resolve_lattice(descriptor_lattice)
+        self.engine = bundle.basis.engine(self.device, udf_backend, self.descriptor_lattice)
         self.folded = FoldedGeodesicNet(self.network, self.device, precision=self.precision)
         self.small_head_config: dict[str, Any] | None = None
         self._net: FoldedGeodesicNet | FoldedSmallHead = self.folded
@@ -226,6 +233,7 @@ class Predictor:
                 precision=precision,
                 descriptor_lattice=descriptor_lattice,
                 head=self.fusion.veto_head,
+                udf_backend=udf_backend,
             )
 
     def _fusion_of(self, fusion: str | FusionCalibration) -> FusionCalibration | None:
@@ -273,8 +281,7 @@ class Predictor:
         samples = [shape_samples(s, self.n_mesh_samples, seed) for s in shapes]
         canonical = canonicalize_bbox_many(samples, self.device)  # frames on the device
         transforms = canonical.transforms
-        engine = self.bundle.basis.engine(self.device, lattice=self.descriptor_lattice)
-        described = engine.describe_with_residual(canonical.clouds)
+        described = self.engine.describe_with_residual(canonical.clouds)
         descriptors = described.descriptors.detach().cpu().numpy().astype(np.float32)
         residuals = described.residual.detach().cpu().numpy().astype(np.float64)
         records = [
