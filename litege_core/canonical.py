@@ -355,54 +355,65 @@ def _bbox_frames(
 ) -> tuple[list[Transform], torch.Tensor]:
     """The batched half of :func:`canonicalize_bbox_many`: ``(G, P, 3)`` float64 clouds →
     their transforms and the ``(G, P, 3)`` float64 canonical clouds (on the same device).
-    ``stacked`` is overwritten (centred in place)."""
-    centers = stacked.mean(dim=1)  # (G, 3)
-    centered = stacked.sub_(centers[:, None, :])  # in place: the batch is a fresh copy
-    rotations = _pca_rotations(centered, members)  # (G, 3, 3)
-    aligned = centered @ rotations.transpose(1, 2)  # (G, P, 3)
-    del centered, stacked
-    dx, dy, dz = (aligned.amax(dim=1) - aligned.amin(dim=1)).unbind(dim=1)
-    areas = 2.0 * (dx * dy + dy * dz + dz * dx)
-    _check_batch(areas > 0.0, members, "the aligned bounding box has zero surface area")
-    scales = BBOX_SQRT_AREA / areas.sqrt()
-    host = (rotations.cpu().numpy(), centers.cpu().numpy(), scales.cpu().numpy())
-    transforms = [Transform(host[0][g], host[1][g], float(host[2][g])) for g in range(len(members))]
-    return transforms, aligned.mul_(scales[:, None, None])
-
-
-def _pca_rotations(centered: torch.Tensor, members: Sequence[int]) -> torch.Tensor:
-    """The rotations of :func:`pca_alignment` for ``(G, P, 3)`` centred float64 clouds →
-    ``(G, 3, 3)``; ``members`` names the clouds in error messages."""
+    ``stacked`` is overwritten (centred in place). The ``(G, P, ·)`` work runs on the device;
+    the ``(G, 3, 3)`` eigen-decompositions run in numpy (a batched GPU ``eigh`` of 3 × 3
+    matrices costs milliseconds of solver set-up), with three small transfers in all."""
     import torch
 
-    covariance = centered.transpose(1, 2) @ centered / (centered.shape[1] - 1)
-    eigenvalues, eigenvectors = torch.linalg.eigh(covariance)  # ascending, (G, 3), (G, 3, 3)
-    eigenvectors = eigenvectors * torch.where(eigenvectors[:, :1, :] < 0.0, -1.0, 1.0)
-    order = torch.argsort(-eigenvalues, dim=1, stable=True)
-    eigenvalues = eigenvalues.gather(1, order)
-    axes = eigenvectors.gather(2, order[:, None, :].expand(-1, 3, -1))
+    device = stacked.device
+    centers = stacked.mean(dim=1)  # (G, 3)
+    centered = stacked.sub_(centers[:, None, :])
+    rotations = _pca_rotations(centered, members)  # (G, 3, 3) numpy
+    aligned = centered @ torch.from_numpy(rotations).to(device).transpose(1, 2)  # (G, P, 3)
+    del centered, stacked
+    extent = torch.cat([aligned.amax(dim=1) - aligned.amin(dim=1), centers], dim=1)
+    dx, dy, dz, *center = extent.cpu().numpy().T
+    areas = 2.0 * (dx * dy + dy * dz + dz * dx)
+    _check_batch(areas > 0.0, members, "the aligned bounding box has zero surface area")
+    scales = BBOX_SQRT_AREA / np.sqrt(areas)
+    origins = np.stack(center, axis=1)
+    transforms = [
+        Transform(rotations[g], origins[g], float(scales[g])) for g in range(len(members))
+    ]
+    return transforms, aligned.mul_(torch.from_numpy(scales).to(device)[:, None, None])
+
+
+def _pca_rotations(centered: torch.Tensor, members: Sequence[int]) -> NDArray:
+    """The rotations of :func:`pca_alignment` for ``(G, P, 3)`` centred float64 clouds on a
+    device → ``(G, 3, 3)`` float64 numpy; ``members`` names the clouds in error messages."""
+    import torch
+
+    covariance = (centered.transpose(1, 2) @ centered / (centered.shape[1] - 1)).cpu().numpy()
+    try:
+        eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending, (G, 3), (G, 3, 3)
+    except np.linalg.LinAlgError as exc:
+        raise ComputationError(f"PCA eigen-decomposition failed: {exc}") from exc
+    eigenvectors = eigenvectors * np.where(eigenvectors[:, :1, :] < 0.0, -1.0, 1.0)
+    order = np.argsort(-eigenvalues, axis=1, kind="stable")
+    eigenvalues = np.take_along_axis(eigenvalues, order, axis=1)
+    axes = np.take_along_axis(eigenvectors, order[:, None, :], axis=2)
     _check_batch(eigenvalues[:, 0] > 0.0, members, "cannot align points that all coincide")
     _check_batch(
         eigenvalues[:, 1] > _RANK_TOLERANCE * eigenvalues[:, 0],
         members,
         "points are collinear: the second principal axis is undefined",
     )
-    projected = centered @ axes[:, :, :2]  # (G, P, 2)
+    projected = centered @ torch.from_numpy(axes[:, :, :2].copy()).to(centered.device)
     size = centered.shape[1]
     low = projected.kthvalue((size + 1) // 2, dim=1).values  # the middle two, as np.median
     high = low if size % 2 else projected.kthvalue(size // 2 + 1, dim=1).values
-    medians = (low + high) / 2.0
-    signs = torch.where(medians < 0.0, -1.0, 1.0)
+    medians = ((low + high) / 2.0).cpu().numpy()  # (G, 2)
+    signs = np.where(medians < 0.0, -1.0, 1.0)
     first = axes[:, :, 0] * signs[:, :1]
     second = axes[:, :, 1] * signs[:, 1:]
-    return torch.stack([first, second, torch.linalg.cross(first, second)], dim=1)
+    return np.stack([first, second, np.cross(first, second)], axis=1)
 
 
-def _check_batch(valid: torch.Tensor, members: Sequence[int], message: str) -> None:
+def _check_batch(valid: NDArray, members: Sequence[int], message: str) -> None:
     """Raise :class:`DegenerateShapeError` naming the first cloud where ``valid`` is false."""
-    bad = (~valid).nonzero()
-    if bad.numel():
-        raise DegenerateShapeError(f"clouds[{members[int(bad[0, 0])]}]: {message}")
+    bad = np.flatnonzero(~valid)
+    if bad.size:
+        raise DegenerateShapeError(f"clouds[{members[int(bad[0])]}]: {message}")
 
 
 # --------------------------------------------------------------------------- matching pipeline

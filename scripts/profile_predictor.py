@@ -105,7 +105,9 @@ class Workload:
     note: str
 
 
-def make_workloads() -> dict[str, Workload]:
+def make_workloads(wanted: Sequence[str] = WORKLOADS) -> dict[str, Workload]:
+    """The ``wanted`` workloads (the 1K × 1K mesh needs pymeshlab to remesh: built only when
+    asked for)."""
     names = families("quadruped")
     generated = [
         generate_shape("quadruped", names[i % len(names)], 2_000_000 + i) for i in range(8)
@@ -114,14 +116,8 @@ def make_workloads() -> dict[str, Workload]:
         Shape.from_arrays(point_cloud(g.vertices, g.faces, 2000, i).points)
         for i, g in enumerate(generated)
     ]
-    dog = generate_shape("quadruped", "dog", 2_000_000)
-    remeshed = isotropic_remesh(dog.vertices, dog.faces, 5000)
-    mesh = Shape.from_arrays(remeshed.vertices, remeshed.faces)
-    rng = np.random.default_rng(0)
-    src = rng.choice(mesh.n_points, 1000, replace=False)
-    dst = rng.choice(mesh.n_points, 1000, replace=False)
     batch = [clouds[i % 8] for i in range(64)]
-    return {
+    workloads = {
         "1 pair": Workload("1 pair", [clouds[1]], [[0]], [[1]], "2000-point cloud"),
         "distance field": Workload(
             "distance field", [clouds[1]], [[0]], [None], "2000-point cloud, 1 → 2000"
@@ -129,10 +125,18 @@ def make_workloads() -> dict[str, Workload]:
         "64 × 1 query": Workload(
             "64 × 1 query", batch, [[0]] * 64, [[1]] * 64, "64 clouds of 2000 points"
         ),
-        "1K × 1K": Workload(
-            "1K × 1K", [mesh], [src], [dst], f"{mesh.n_points}-vertex mesh, 1000 × 1000"
-        ),
     }
+    if "1K × 1K" in wanted:
+        dog = generate_shape("quadruped", "dog", 2_000_000)
+        remeshed = isotropic_remesh(dog.vertices, dog.faces, 5000)
+        mesh = Shape.from_arrays(remeshed.vertices, remeshed.faces)
+        rng = np.random.default_rng(0)
+        src = rng.choice(mesh.n_points, 1000, replace=False)
+        dst = rng.choice(mesh.n_points, 1000, replace=False)
+        workloads["1K × 1K"] = Workload(
+            "1K × 1K", [mesh], [src], [dst], f"{mesh.n_points}-vertex mesh, 1000 × 1000"
+        )
+    return {name: workloads[name] for name in WORKLOADS if name in wanted}
 
 
 # --------------------------------------------------------------------------- the stages
@@ -306,7 +310,7 @@ def loop_workload(slug: str, loops: int) -> None:
     """Child process of :func:`flamegraphs`: one workload end to end, ``loops`` times."""
     torch.set_num_threads(1)
     name = next(k for k, v in SLUG.items() if v == slug)
-    work = make_workloads()[name]
+    work = make_workloads([name])[name]
     predictor = Predictor(load_shipped("quadrupeds"))
     for _ in range(loops):
         end_to_end(predictor, work)
@@ -421,9 +425,8 @@ def main() -> None:
         return
     torch.set_num_threads(1)
     configs = args.config or ["float32/full", "auto/full", "auto/stride2"]
-    workloads = make_workloads()
-    if args.workload:
-        workloads = {k: v for k, v in workloads.items() if SLUG[k] in args.workload}
+    wanted = [k for k in WORKLOADS if not args.workload or SLUG[k] in args.workload]
+    workloads = make_workloads(wanted)
     bundle = load_shipped("quadrupeds", args.device)
     results: dict[str, dict[str, dict[str, Any]]] = {}
     for config in configs:
