@@ -340,6 +340,8 @@ class Predictor:
             self.device, torch.float32
         )
         canonical = [t.apply(s.vertices) for t, s in zip(transforms, shapes, strict=True)]
+        uploaded = torch.from_numpy(np.concatenate(canonical)).to(self.device, torch.float32)
+        per_shape = uploaded.split([points.shape[0] for points in canonical])  # one copy
         with torch.no_grad():
             shape_emb = self._shape_mlp(descriptors)  # (B, n)
             biases = self.folded.shape_bias(shape_emb)  # (B, n)
@@ -357,13 +359,13 @@ class Predictor:
                 vertices=shape.vertices,
                 canonical_points=frozen(points),
                 faces=shape.faces,
-                canonical_vertices=torch.from_numpy(points).to(self.device, torch.float32),
+                canonical_vertices=vertices if len(shapes) == 1 else vertices.clone(),
                 shape_embedding=shape_emb[b].clone(),
                 shape_bias=biases[b].clone(),
                 record=record,
             )
-            for b, (shape, record, points) in enumerate(
-                zip(shapes, records, canonical, strict=True)
+            for b, (shape, record, points, vertices) in enumerate(
+                zip(shapes, records, canonical, per_shape, strict=True)
             )
         ]
 
