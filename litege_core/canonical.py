@@ -65,9 +65,9 @@ DEFAULT_CENTER_SAMPLES = 8000
 ROTATION_TOLERANCE = 1e-6
 """Largest accepted ``|RᵀR − I|`` entry for a rotation matrix."""
 
-DEVICE_MIN_CLOUDS = 4
-"""Clouds of one size from which :func:`canonicalize_bbox_many` computes their frames on an
-accelerator (fewer: on the CPU, then uploaded)."""
+BATCHED_MIN_CLOUDS = 4
+"""Clouds of one size from which :func:`canonicalize_bbox_many` computes their frames as
+batched tensor code on the device (fewer: the one-cloud reference, in numpy)."""
 
 _RANK_TOLERANCE = 1e-12  # eigenvalue ratio λ1/λ0 below which the points count as collinear
 _NO_LIMITS = ShapeLimits(max_vertices=sys.maxsize, max_faces=sys.maxsize)
@@ -320,9 +320,9 @@ def canonicalize_bbox_many(
     the mean-of-middle-two median, the aligned bounding box) and agrees with it to float64
     rounding (``tests/litege_core/test_canonical.py``). 64 clouds of 2000 points take about
     30 ms on one core of the development CPU, against 45 ms for the reference loop, and 4 ms
-    on an H200 (BENCHMARKS "batch-table-cuda"). Fewer than :data:`DEVICE_MIN_CLOUDS` clouds
-    of one size are computed on the CPU and uploaded: on a GPU, one cloud costs 1.4 ms of
-    kernel launches and synchronisations against 0.3 ms on the CPU.
+    on an H200 (BENCHMARKS "batch-table-cuda"). Fewer than :data:`BATCHED_MIN_CLOUDS` clouds
+    of one size go through the one-cloud reference in numpy instead (then one upload): one
+    cloud costs 1.1–1.6 ms of tensor-op overhead batched, on a GPU or a CPU, against 0.5 ms.
 
     Args:
         clouds: ``B ≥ 1`` arrays ``(P_b, 3)``, ``P_b ≥ 4``; sizes may differ.
@@ -345,10 +345,14 @@ def canonicalize_bbox_many(
     for b, cloud in enumerate(points):
         by_size.setdefault(cloud.shape[0], []).append(b)
     for size, members in by_size.items():
-        stacked = np.stack([points[b] for b in members])  # (G, P, 3), a fresh copy
-        where = dev if len(members) >= DEVICE_MIN_CLOUDS else torch.device("cpu")
-        group, result = _bbox_frames(torch.from_numpy(stacked).to(where), members)
-        del stacked
+        if len(members) < BATCHED_MIN_CLOUDS:  # the one-cloud reference, then one upload
+            group = [_named_bbox(points[b], b) for b in members]
+            canonical = [t.apply(points[b]) for t, b in zip(group, members, strict=True)]
+            result = torch.from_numpy(np.stack(canonical))
+        else:
+            stacked = np.stack([points[b] for b in members])  # (G, P, 3), a fresh copy
+            group, result = _bbox_frames(torch.from_numpy(stacked).to(dev), members)
+            del stacked
         index = torch.tensor(members, device=dev)
         padded[index, :size] = result.to(dev, torch.float32)
         if size < width:
@@ -356,6 +360,14 @@ def canonicalize_bbox_many(
         for g, b in enumerate(members):
             transforms[b] = group[g]
     return CanonicalBatch(transforms, padded)
+
+
+def _named_bbox(points: NDArray, index: int) -> Transform:
+    """:func:`canonicalize_bbox` whose errors name ``clouds[index]``."""
+    try:
+        return canonicalize_bbox(points)
+    except DegenerateShapeError as exc:
+        raise DegenerateShapeError(f"clouds[{index}]: {exc}") from exc
 
 
 def _bbox_frames(
@@ -628,10 +640,10 @@ def poisson_frame(
 
 
 __all__ = [
+    "BATCHED_MIN_CLOUDS",
     "BBOX_SQRT_AREA",
     "DEFAULT_BBOX_SAMPLES",
     "DEFAULT_CENTER_SAMPLES",
-    "DEVICE_MIN_CLOUDS",
     "POISSON_8K_CLOUD",
     "POISSON_500_CLOUD",
     "POISSON_BROKEN_MESH",

@@ -12,6 +12,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from litege_core.canonical import (
+    BATCHED_MIN_CLOUDS,
     BBOX_SQRT_AREA,
     POISSON_8K_CLOUD,
     POISSON_500_CLOUD,
@@ -295,7 +296,8 @@ DEVICES = [
 @pytest.mark.parametrize("device", DEVICES)
 def test_bbox_many_agrees_with_the_one_cloud_reference(device):
     rng = np.random.default_rng(3)
-    sizes = [2000, 301, 2000, 300, 17, 2000]  # ragged: odd and even sizes, groups of one
+    # ragged: a batched group (2000 points), a small group (300) and singletons (301, 17)
+    sizes = [2000, 301, 2000, 300, 17, 2000, 300] + [2000] * (BATCHED_MIN_CLOUDS - 2)
     clouds = [
         rng.normal(size=(n, 3)) * rng.uniform(0.5, 3.0, size=3) + rng.normal(size=3) * 10
         for n in sizes
@@ -319,8 +321,9 @@ def test_bbox_many_median_sign_rule_uses_the_mean_of_the_middle_two():
     x = np.array([-5.0, -4.0, -3.0, -0.1, 0.3, 1.0, 2.0, 9.0])
     cloud = np.column_stack([x * 3.0, np.sin(np.arange(8.0)), np.cos(np.arange(8.0)) * 0.1])
     cloud = cloud - cloud.mean(axis=0)
-    transform = canonicalize_bbox_many([cloud]).transforms[0]
-    assert transform.allclose(canonicalize_bbox(cloud), atol=1e-12)
+    clouds = [cloud + shift for shift in range(BATCHED_MIN_CLOUDS)]  # the batched path
+    for transform, moved in zip(canonicalize_bbox_many(clouds).transforms, clouds, strict=True):
+        assert transform.allclose(canonicalize_bbox(moved), atol=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -330,10 +333,11 @@ def test_bbox_many_median_sign_rule_uses_the_mean_of_the_middle_two():
         np.outer(np.linspace(-1, 1, 20), [1.0, 2.0, 3.0]) + 5.0,  # collinear
     ],
 )
-def test_bbox_many_names_the_degenerate_cloud(points):
+@pytest.mark.parametrize("copies", [1, BATCHED_MIN_CLOUDS])  # the one-cloud and batched paths
+def test_bbox_many_names_the_degenerate_cloud(points, copies):
     good = np.random.default_rng(0).normal(size=(points.shape[0], 3))
     with pytest.raises(DegenerateShapeError, match=r"clouds\[1\]"):
-        canonicalize_bbox_many([good, points])
+        canonicalize_bbox_many([good, points] + [good] * (copies - 1))
 
 
 def test_bbox_many_refuses_an_empty_batch_and_bad_clouds():
