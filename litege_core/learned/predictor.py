@@ -472,8 +472,13 @@ class Predictor:
             counts = [indices.shape[0] for _, _, indices in pending]
             canonical = [state.canonical_points[indices] for _, state, indices in pending]
             positions = torch.from_numpy(np.concatenate(canonical)).to(self.device, torch.float32)
-            biases = torch.stack([state.shape_bias for _, state, _ in pending])
-            rows = torch.repeat_interleave(biases, torch.tensor(counts, device=self.device), 0)
+            if len(pending) == 1:
+                rows = pending[0][1].shape_bias  # (n,), broadcast over the rows
+            else:  # each row its shape's bias; the row → shape index built on the host
+                shape_of_row = np.repeat(np.arange(len(pending)), counts)
+                rows = torch.stack([state.shape_bias for _, state, _ in pending]).index_select(
+                    0, torch.from_numpy(shape_of_row).to(self.device)
+                )
             with torch.no_grad():
                 features = self._features_of(positions, rows).split(counts)
             for (b, state, indices), feature, where, points in zip(
