@@ -40,6 +40,7 @@ from litege_core.train.distill import (
     distill_small_head,
     measure_agreement,
 )
+from litege_core.train.tnet import collection_shape_set
 
 
 def main() -> None:
@@ -54,6 +55,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--category", default=None, help="procedural category (default: model)")
     parser.add_argument("--agreement-shapes", type=int, default=8)
+    parser.add_argument(
+        "--extra", default=None, help="collection source of extra views: rigged or makehuman"
+    )
+    parser.add_argument("--extra-shapes", type=int, default=160, help="posed extra meshes")
+    parser.add_argument("--extra-fraction", type=float, default=0.5, help="share of views")
+    parser.add_argument(
+        "--extra-cache", default="out/tnet-shapes", help="cache of the posed extra meshes"
+    )
     parser.add_argument("--ship", action="store_true", help="copy the sidecar into the bundle")
     args = parser.parse_args()
     torch.set_num_threads(max(1, args.threads))
@@ -75,9 +84,20 @@ def main() -> None:
         minutes=args.minutes,
         steps=args.steps,
         seed=args.seed,
+        extra_fraction=args.extra_fraction if args.extra else 0.0,
     )
+    extra: list = []
+    if args.extra:  # the posed collection meshes the T-Net trainer uses (same seeds, cached)
+        mark = time.monotonic()
+        shapes = collection_shape_set(
+            args.extra, "train", args.extra_shapes, cache_dir=args.extra_cache
+        )
+        extra = list(zip(shapes.vertices, shapes.faces, strict=True))
+        log(f"{len(extra)} {args.extra} meshes in {time.monotonic() - mark:.0f} s")
     log(f"distilling {bundle.name} ({bundle.content_hash[:12]}…): {config.to_dict()}")
-    result = distill_small_head(teacher, config, category=args.category, log=log)
+    result = distill_small_head(
+        teacher, config, category=args.category, extra_meshes=extra, log=log
+    )
     student = Predictor(bundle, head=result.head, descriptor_lattice="full")
     category = result.settings["category"]
     start = time.monotonic()

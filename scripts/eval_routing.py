@@ -3,7 +3,7 @@ costs (issue 14).
 
 Usage: python scripts/eval_routing.py [--quadrupeds NAME_OR_DIR] [--humans NAME_OR_DIR]
     [--sets tosca,faust] [--settings mesh,cloud_2000,cloud_300] [--sources 12]
-    [--eval-data ../shared/eval-data]
+    [--eval-data ../shared/eval-data] [--router none|shipped|DIR]
 
 ``LITEGE_DEFAULT_MODEL=auto`` (the default) registers an upload under every loaded geodesic
 model and keeps the one with the lowest OOD z-score. This registers every TOSCA animal, the
@@ -25,6 +25,7 @@ import numpy as np
 
 from litege_core.evaluation.geodesic import make_input, real_eval_shapes, real_shape_paths
 from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned.router import load_router
 
 OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
 
@@ -49,8 +50,18 @@ def main() -> None:
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--eval-data", default="../shared/eval-data")
     parser.add_argument("--cache", default="out/exact-cache", help="exact-row cache")
+    parser.add_argument(
+        "--router", default="none", help="category router: none, shipped or a directory"
+    )
     args = parser.parse_args()
     models = {"quadrupeds": predictor(args.quadrupeds), "humans": predictor(args.humans)}
+    router = (
+        None
+        if args.router == "none"
+        else load_router(None if args.router == "shipped" else args.router)
+    )
+    if args.router != "none" and router is None:
+        parser.error("no shipped router")
     settings = [s.strip() for s in args.settings.split(",") if s.strip()]
     print("### `auto` model routing of the real dev shapes\n")
     print(
@@ -61,13 +72,21 @@ def main() -> None:
         "sources, GT mean 100; command `python scripts/eval_routing.py "
         f"--quadrupeds {args.quadrupeds} --humans {args.humans} --sets {args.sets} "
         f"--settings {args.settings} "
-        f"--sources {args.sources}`\n"
+        f"--sources {args.sources} --router {args.router}`"
     )
+    if router is not None:
+        print(
+            f"- router `{args.router}` ({router.metadata.get('command', '')}): its choice where "
+            f"its probability ≥ {router.min_probability}, else the lower z-score (the "
+            "service's `auto` with that router)"
+        )
+    with_router = router is not None
     print(
-        "| set | setting | shapes | routed to the other model | median z, own model | "
+        "\n| set | setting | shapes | routed to the other model | median z, own model | "
         "median z, other | error, own model | error, `auto` | error, other model |"
+        + (" routed to the other, router | error, router |" if with_router else "")
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if with_router else ""))
     for set_name in [s.strip() for s in args.sets.split(",") if s.strip()]:
         own = OWN_MODEL[set_name]
         other = "humans" if own == "quadrupeds" else "quadrupeds"
@@ -75,8 +94,8 @@ def main() -> None:
         shapes = real_eval_shapes(paths, set_name, args.sources, args.cache)
         for setting in settings:
             z: dict[str, list[float]] = {own: [], other: []}
-            errors: dict[str, list[float]] = {own: [], other: [], "auto": []}
-            wrong = 0
+            errors: dict[str, list[float]] = {own: [], other: [], "auto": [], "router": []}
+            wrong = wrong_routed = 0
             for k, shape in enumerate(shapes):
                 item = make_input(shape, setting, k)
                 scored = {}
@@ -89,12 +108,19 @@ def main() -> None:
                 chosen = own if scored[own][0] <= scored[other][0] else other
                 errors["auto"].append(scored[chosen][1])
                 wrong += chosen != own
-            print(
+                if router is not None:
+                    routed = router.route([item.shape], list(models))[0] or chosen
+                    errors["router"].append(scored[routed][1])
+                    wrong_routed += routed != own
+            row = (
                 f"| {set_name} | {setting} | {len(shapes)} | {wrong} | "
                 f"{np.median(z[own]):.2f} | {np.median(z[other]):.2f} | "
                 f"{np.mean(errors[own]):.2f} | {np.mean(errors['auto']):.2f} | "
                 f"{np.mean(errors[other]):.2f} |"
             )
+            if router is not None:
+                row += f" {wrong_routed} | {np.mean(errors['router']):.2f} |"
+            print(row)
 
 
 if __name__ == "__main__":

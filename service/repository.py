@@ -17,10 +17,12 @@ are deleted and read as missing.
 
 Model ``"auto"`` (:data:`AUTO_MODEL`; the default when the settings say so) registers or looks
 a shape up under **every** loaded model (records found are restored, missing ones computed in
-one batch per model and written back) and answers with the one of lowest OOD score
-(:attr:`ShapeState.ood_score`, ties to the first loaded), with every model's score. Records
-are deterministic, so the choice is too; it is remembered with the chosen live state, so
-a later ``auto`` lookup of a live shape costs what a named one does.
+one batch per model and written back) and answers with the model of the shape's category where
+the category router (:mod:`litege_core.learned.router`) is confident, else with the one of
+lowest OOD score (:attr:`ShapeState.ood_score`, ties to the first loaded), with every model's
+score. Records and router inputs are deterministic, so the choice is too; it is remembered
+with the chosen live state, so a later ``auto`` lookup of a live shape costs what a named one
+does.
 
 The runtime calls the repository from its single compute thread;
 :meth:`ShapeRepository.shape` is also safe from other threads (the viewer).
@@ -35,6 +37,7 @@ from dataclasses import dataclass
 
 from litege_core.errors import ArtifactError, LiteGEError
 from litege_core.learned import Predictor, ShapeRecord, ShapeState
+from litege_core.learned.router import CategoryRouter
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
@@ -114,11 +117,13 @@ class ShapeRepository:
         ttl_s: float | None,
         metrics: ServiceMetrics,
         limits: ShapeLimits,
+        router: CategoryRouter | None = None,
     ) -> None:
         if default_model != AUTO_MODEL and default_model not in predictors:
             raise UnknownModelError(f"default model {default_model!r} is not loaded")
         self.predictors = dict(predictors)
         self.default_model = default_model
+        self.router = router
         self.artifacts = ShapeStore(store, limits=limits, ttl_s=ttl_s)
         self.metrics = metrics
         self._live: ByteLRU[tuple[str, str], _Live] = ByteLRU(
@@ -244,9 +249,12 @@ class ShapeRepository:
                 self._write_record(name, state, shape=geometry)
                 unstored.discard(shape_id)
                 states[shape_id][name] = state
-        for shape_id, positions in pending.items():
+        routed: list[str | None] = [None] * len(pending)
+        if self.router is not None and len(names) > 1:
+            routed = self.router.route([shapes[s] for s in pending], names)
+        for (shape_id, positions), by_router in zip(pending.items(), routed, strict=True):
             scores = {name: float(states[shape_id][name].ood_score) for name in names}
-            chosen = min(names, key=lambda n: _rank(scores[n]))
+            chosen = by_router or min(names, key=lambda n: _rank(scores[n]))
             state = states[shape_id][chosen]
             self._remember(chosen, shapes[shape_id], state, scores)
             for n, i in enumerate(positions):

@@ -23,6 +23,7 @@ from litege_core.engines import ClassicalPath
 from litege_core.errors import LiteGEError, MethodNotApplicableError, ShapeTooLargeError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
 from litege_core.learned import GeodesicPath, Predictor, load_shipped, shipped_bundles
+from litege_core.learned.router import CategoryRouter, load_router
 from litege_core.matching.model import MatchingModel
 from litege_core.matching.refine import REFINE_METHODS
 from litege_core.query import PointQuery, QueryLike, parse_query
@@ -380,6 +381,17 @@ def _blocks(query: PointQuery, size: int) -> Iterator[PointQuery]:
         raise ValueError("an 'all' query has no blocks before the shape is known")
 
 
+def _load_router(setting: str) -> CategoryRouter | None:
+    """The category router a ``router`` setting names (``shipped``: ``None`` if the package
+    ships none; ``none``; or a directory, which must hold one)."""
+    if setting == "none":
+        return None
+    try:
+        return load_router(None if setting == "shipped" else setting)
+    except LiteGEError as exc:
+        raise UnknownModelError(f"router {setting!r}: {exc}") from exc
+
+
 class Runtime:
     """Models, store, repository and batcher of one process (build with :meth:`start`)."""
 
@@ -390,6 +402,7 @@ class Runtime:
         store: ArtifactStore,
         metrics: ServiceMetrics,
         matching_models: Mapping[str, MatchingModel] | None = None,
+        router: CategoryRouter | None = None,
     ) -> None:
         self.settings = settings
         self.metrics = metrics
@@ -407,6 +420,7 @@ class Runtime:
             ttl_s=settings.cache_ttl_s,
             metrics=metrics,
             limits=self.limits,
+            router=router,
         )
         self.matching = MatchingRepository(
             matching_models or {},
@@ -506,6 +520,7 @@ class Runtime:
 
         predictors = await asyncio.to_thread(load)
         matching = await asyncio.to_thread(load_matching)
+        router = await asyncio.to_thread(_load_router, settings.router)
         if store is None:
             store = make_store(
                 settings.redis_url,
@@ -514,7 +529,7 @@ class Runtime:
                 ttl_s=settings.cache_ttl_s,
                 write_behind_bytes=settings.write_behind_bytes,
             )
-        runtime = cls(settings, predictors, store, metrics, matching)
+        runtime = cls(settings, predictors, store, metrics, matching, router)
         runtime.batcher.start()
         log.info(
             "runtime ready",
@@ -562,6 +577,13 @@ class Runtime:
                 "matching_models": {
                     name: {"bundle_hash": m.content_hash, "category": m.category}
                     for name, m in self.matching.models.items()
+                },
+                "router": None
+                if (router := self.repository.router) is None
+                else {
+                    "categories": list(router.categories),
+                    "models": router.models,
+                    "min_probability": router.min_probability,
                 },
                 "device": str(self.device),
                 "store": {

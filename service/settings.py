@@ -31,6 +31,10 @@ class Settings(BaseSettings):
     scores the shape and the lowest out-of-distribution z-score wins; with one model loaded,
     that one) or the name of a loaded model (then a query naming no model uses the first model,
     this one first, that the shape is registered under)."""
+    router: str = "shipped"
+    """How ``auto`` picks a model: ``shipped`` (the package's category router, where it ships
+    one: its category where it is confident, else the lowest z-score), ``none`` (the lowest
+    z-score alone) or a router directory (``scripts/train_router.py``)."""
     geodesic_fusion: Literal["none", "graph"] = "none"
     """``graph``: every learned geodesic answer blends the network with the model's calibrated,
     network-pruned kNN-graph Dijkstra (``litege_core.learned.fusion``; more accurate on real

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -89,6 +89,8 @@ class DistillConfig:
         near_fraction: share of near pairs among a view's pairs.
         near_neighbours: a near pair joins a point and one of its this many nearest points.
         mesh_fraction: share of views that are the (rotated) mesh instead of a cloud.
+        extra_fraction: share of views made from the extra meshes given to
+            :func:`distill_small_head` (0: procedural shapes only).
         lr: peak Adam learning rate.
         final_lr_fraction: learning rate at the end, as a fraction of ``lr``.
         warmup_steps: linear warm-up.
@@ -112,6 +114,7 @@ class DistillConfig:
     near_fraction: float = 0.25
     near_neighbours: int = 32
     mesh_fraction: float = 0.3
+    extra_fraction: float = 0.0
     lr: float = 2e-3
     final_lr_fraction: float = 0.02
     warmup_steps: int = 200
@@ -131,7 +134,7 @@ class DistillConfig:
                 raise InputError(f"{name} must be a positive integer, got {value!r}")
         if not self.minutes > 0 or not self.lr > 0:
             raise InputError("minutes and lr must be positive")
-        for name in ("near_fraction", "mesh_fraction", "final_lr_fraction"):
+        for name in ("near_fraction", "mesh_fraction", "extra_fraction", "final_lr_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(f"{name} must lie in [0, 1]")
         if self.relative_weight < 0 or self.views_per_batch > self.pool_views:
@@ -202,7 +205,15 @@ def view_shape(
     """The input a user could send for procedural shape ``(category, family, seed)``: the
     rotated mesh (probability ``mesh_fraction``) or an augmented cloud."""
     generated = generate_shape(category, family, seed, reject=False)
-    vertices, faces = np.asarray(generated.vertices), np.asarray(generated.faces)
+    return mesh_view(generated.vertices, generated.faces, rng, config)
+
+
+def mesh_view(
+    vertices: NDArray, faces: NDArray, rng: np.random.Generator, config: DistillConfig
+) -> tuple[Shape, str]:
+    """The input a user could send for a mesh ``(V, 3)``, ``(F, 3)``: the randomly rotated mesh
+    (probability ``mesh_fraction``) or an augmented cloud; and its kind."""
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
     if rng.random() < config.mesh_fraction:
         rotation = random_rotation(rng)
         return Shape.from_arrays(vertices @ rotation.T, faces), "mesh"
@@ -272,6 +283,7 @@ def distill_small_head(
     config: DistillConfig = DistillConfig(),
     *,
     category: str | None = None,
+    extra_meshes: Sequence[tuple[NDArray, NDArray]] = (),
     log: Callable[[str], None] | None = None,
 ) -> DistillResult:
     """Train a :class:`SmallHead` on the teacher's head outputs (module docstring).
@@ -281,6 +293,10 @@ def distill_small_head(
         config: sizes, budgets and seeds.
         category: procedural category of the views (default: from the bundle name —
             ``quadrupeds`` → quadruped, ``humans`` → biped — else the bundle's category).
+        extra_meshes: ``(vertices, faces)`` meshes beside the procedural shapes (e.g. posed
+            collection animals, :func:`litege_core.train.tnet.collection_shape_set`): with
+            probability :attr:`~DistillConfig.extra_fraction` a view is made from the next of
+            them (in order, cycled) instead of a procedural shape.
         log: called with one line of progress at a time.
 
     Returns:
@@ -295,22 +311,31 @@ def distill_small_head(
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
 
-    made = 0
+    if config.extra_fraction > 0 and not extra_meshes:
+        raise InputError("extra_fraction > 0 needs extra meshes")
+    made = extra_made = 0
 
     def new_view() -> LabelledView:
-        nonlocal made
+        nonlocal made, extra_made
         index = made
         made += 1
         view_rng = np.random.default_rng([config.seed, index, 0])
-        shape, kind = view_shape(
-            category, names[index % len(names)], config.seed_offset + index, view_rng, config
-        )
+        if extra_meshes and view_rng.random() < config.extra_fraction:
+            vertices, faces = extra_meshes[extra_made % len(extra_meshes)]
+            extra_made += 1
+            shape, kind = mesh_view(vertices, faces, view_rng, config)
+            kind = f"extra {kind}"
+        else:
+            shape, kind = view_shape(
+                category, names[index % len(names)], config.seed_offset + index, view_rng, config
+            )
         return label_view(teacher, shape, index, kind, config, config.seed)
 
     pool = [new_view() for _ in range(config.pool_views)]
     mean_g = float(torch.cat([v.geodesic for v in pool]).mean())
     say(
-        f"pool of {len(pool)} views ({sum(v.kind == 'mesh' for v in pool)} meshes) in "
+        f"pool of {len(pool)} views ({sum(v.kind.endswith('mesh') for v in pool)} meshes, "
+        f"{sum(v.kind.startswith('extra') for v in pool)} of extra meshes) in "
         f"{time.monotonic() - start:.1f} s; mean teacher geodesic {mean_g:.4f}"
     )
     head = SmallHead(teacher.folded.width, config.features, config.hidden, teacher.folded.output)
@@ -370,6 +395,8 @@ def distill_small_head(
         "category": category,
         "families": list(names),
         "view_seeds": [config.seed_offset, config.seed_offset + made - 1],
+        "extra_meshes": len(extra_meshes),
+        "extra_views": extra_made,
         "mean_teacher_geodesic": mean_g,
     }
     return DistillResult(head, step, made, seconds, stopped_by, history, settings)

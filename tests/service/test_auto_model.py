@@ -13,10 +13,13 @@ import pytest
 import torch
 
 from litege_core.learned import Predictor, load_shipped
+from litege_core.learned.router import CategoryRouter, RouterNet
 from litege_core.shape import Shape
 from litege_core.synth import generate_shape
 from service.client import LiteGEClient, ProblemError
+from service.errors import UnknownModelError
 from service.grpc_client import GrpcClient
+from service.runtime import _load_router
 from service.settings import Settings
 
 MODELS = ("quadrupeds", "humans")
@@ -53,8 +56,21 @@ def scores(predictors, dog, human) -> dict[str, dict[str, float]]:
 
 @pytest.fixture(scope="module")
 def auto_service(live_service_factory):
-    """Both models, the settings' own default (``auto``)."""
-    return live_service_factory(grpc=True, models=MODELS, default_model=Settings().default_model)
+    """Both models, the settings' own default (``auto``), routed by the OOD score alone."""
+    return live_service_factory(
+        grpc=True, models=MODELS, default_model=Settings().default_model, router="none"
+    )
+
+
+def _fixed_router(directory, human_logit: float) -> str:
+    """A router that gives every shape the same ``p(human) = sigmoid(human_logit)``."""
+    net = RouterNet(2)
+    with torch.no_grad():
+        net.classifier[-1].weight.zero_()
+        net.classifier[-1].bias.copy_(torch.tensor([0.0, human_logit]))
+    models = {"quadruped": "quadrupeds", "human": "humans"}
+    CategoryRouter(net, ("quadruped", "human"), models).save(directory)
+    return str(directory)
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +107,12 @@ def test_upload_picks_the_model_of_lowest_ood_score(auto_service, dog, human, sc
 def test_queries_run_under_the_chosen_model(auto_service, human, predictors):
     with LiteGEClient(auto_service.base_url, binary=False) as client:
         shape_id = client.register_arrays(human.vertices, human.faces)["shape_id"]
-        expected = predictors["humans"].distances(predictors["humans"].register(human), [0, 9])
+        state = predictors["humans"].register(human)
         for model in (None, "auto"):
+            # the same query history as the service's state: the first query embeds its two
+            # sources alone, the second reads them from the feature table the first one built
+            # (float32 rounding of a 2-row and an N-row product may differ in the last bits)
+            expected = predictors["humans"].distances(state, [0, 9])
             np.testing.assert_allclose(
                 client.geodesic(shape_id, [0, 9], "all", model=model), expected, rtol=1e-5
             )
@@ -178,3 +198,27 @@ def test_auto_registrations_in_one_batch(auto_service, dog, human):
     infos = auto_service.call(both())
     assert [i.model for i in infos] == ["quadrupeds", "humans"]
     assert all(i.created and set(i.model_scores) == set(MODELS) for i in infos)
+
+
+def test_a_confident_router_decides_and_an_unsure_one_leaves_the_ood_rule(
+    live_service_factory, tmp_path_factory, dog, scores
+):
+    assert scores["dog"]["quadrupeds"] < scores["dog"]["humans"]  # the OOD rule: quadrupeds
+    for logit, expected in ((8.0, "humans"), (0.5, "quadrupeds")):  # p(human) 0.9997, 0.62
+        router = _fixed_router(tmp_path_factory.mktemp("router"), logit)
+        service = live_service_factory(models=MODELS, default_model="auto", router=router)
+        with LiteGEClient(service.base_url) as client:
+            info = client.register_arrays(dog.vertices, dog.faces)
+            assert info["model"] == expected
+            assert info["model_scores"]["quadrupeds"] == pytest.approx(
+                scores["dog"]["quadrupeds"], abs=1e-4
+            )
+            ready = client.ready()
+            assert ready["router"]["models"] == {"quadruped": "quadrupeds", "human": "humans"}
+
+
+def test_router_setting():
+    assert Settings().router == "shipped"
+    assert _load_router("none") is None
+    with pytest.raises(UnknownModelError, match="router"):
+        _load_router("/nonexistent/router")
