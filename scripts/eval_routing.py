@@ -109,7 +109,8 @@ def main() -> None:
                 errors["auto"].append(scored[chosen][1])
                 wrong += chosen != own
                 if router is not None:
-                    routed = router.route([item.shape], list(models))[0] or chosen
+                    categories = {m.bundle.category: name for name, m in models.items()}
+                    routed = router.route([item.shape], categories)[0] or chosen
                     errors["router"].append(scored[routed][1])
                     wrong_routed += routed != own
             row = (

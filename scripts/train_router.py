@@ -7,10 +7,11 @@ Meshes (generated, never the dev set; cached as the T-Net trainer caches them, s
 ``--procedural`` procedural quadrupeds and as many procedural bipeds (train split), and
 ``--collection`` posed rigged animals and as many posed MakeHuman bodies
 (``../shared/train-data``); validation: a quarter as many of each from the val split.
-Categories: ``quadruped`` (procedural quadrupeds, rigged animals) → model ``quadrupeds``,
-``human`` (procedural bipeds, MakeHuman bodies) → model ``humans``. Training:
-:mod:`litege_core.train.router`. Writes ``router.safetensors`` and ``router.json`` into
-``--out`` (``--ship``: also into ``litege_core/models/router``) and prints the summary.
+Categories (the bundles' own): ``quadruped`` (procedural quadrupeds, rigged animals: the
+``quadrupeds`` model), ``biped`` (procedural bipeds, MakeHuman bodies: the ``humans``
+model). Training: :mod:`litege_core.train.router`. Writes ``router.safetensors`` and
+``router.json`` into ``--out`` (``--ship``: also into ``litege_core/models/router``) and prints
+the summary.
 """
 
 from __future__ import annotations
@@ -32,8 +33,7 @@ from litege_core.learned.router import SHIPPED_ROUTER, CategoryRouter
 from litege_core.train.router import RouterTrainConfig, config_dict, train_router
 from litege_core.train.tnet import collection_shape_set, generate_shape_set
 
-CATEGORIES = ("quadruped", "human")
-MODELS = {"quadruped": "quadrupeds", "human": "humans"}
+CATEGORIES = ("quadruped", "biped")  # the bundles' categories (quadrupeds, humans)
 SOURCES = (  # (label, kind, name): procedural category or collection source
     (0, "procedural", "quadruped"),
     (1, "procedural", "biped"),
@@ -93,7 +93,7 @@ def main() -> None:
         "best_step": result.best_step,
         "command": "python scripts/train_router.py " + " ".join(sys.argv[1:]),
     }
-    router = CategoryRouter(result.net, CATEGORIES, MODELS, metadata=metadata)
+    router = CategoryRouter(result.net, CATEGORIES, metadata=metadata)
     config_written = router.save(args.out)
     if args.ship:
         SHIPPED_ROUTER.mkdir(parents=True, exist_ok=True)

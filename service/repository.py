@@ -251,7 +251,10 @@ class ShapeRepository:
                 states[shape_id][name] = state
         routed: list[str | None] = [None] * len(pending)
         if self.router is not None and len(names) > 1:
-            routed = self.router.route([shapes[s] for s in pending], names)
+            by_category: dict[str, str] = {}
+            for name in names:  # the first loaded model of each category
+                by_category.setdefault(self.predictors[name].bundle.category, name)
+            routed = self.router.route([shapes[s] for s in pending], by_category)
         for (shape_id, positions), by_router in zip(pending.items(), routed, strict=True):
             scores = {name: float(states[shape_id][name].ood_score) for name in names}
             chosen = by_router or min(names, key=lambda n: _rank(scores[n]))

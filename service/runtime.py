@@ -582,7 +582,6 @@ class Runtime:
                 if (router := self.repository.router) is None
                 else {
                     "categories": list(router.categories),
-                    "models": router.models,
                     "min_probability": router.min_probability,
                 },
                 "device": str(self.device),

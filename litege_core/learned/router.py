@@ -14,18 +14,19 @@ keeps the one of lowest OOD z-score. On real humans that rule errs (BENCHMARKS
   views, with random axis sign flips, a random order of the two minor axes and small rotations
   of the frame, so that no decision rests on the PCA sign rule
   (:mod:`litege_core.train.router`); never on the dev set;
-* **files** — ``router.safetensors`` (float32 weights) and ``router.json`` (categories, the
-  model each routes to, training summary, weights hash), shipped in
-  ``litege_core/models/router/``.
+* **files** — ``router.safetensors`` (float32 weights) and ``router.json`` (categories,
+  training summary, weights hash), shipped in ``litege_core/models/router/``.
 
-The router decides where it is confident (probability ≥ ``min_probability``, from its file);
-elsewhere the caller keeps its own rule (the service: the lowest z-score).
+Categories are the bundles' own (``quadruped``, ``biped``: :attr:`ModelBundle.category`), so a
+caller maps them to whichever loaded model has that category. The router decides where it is
+confident (probability ≥ ``min_probability``, from its file); elsewhere the caller keeps its
+own rule (the service: the lowest z-score).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -98,19 +99,17 @@ def router_points(points: NDArray, n_points: int = ROUTER_POINTS, seed: int = 0)
 
 @dataclass
 class CategoryRouter:
-    """A trained :class:`RouterNet` with its categories and the model each routes to.
+    """A trained :class:`RouterNet` with its categories.
 
     Attributes:
         net: the classifier (eval mode, CPU).
-        categories: ``C`` category names, in logit order.
-        models: category → geodesic model name.
+        categories: ``C`` bundle categories (``quadruped``, ``biped``), in logit order.
         min_probability: confidence from which :meth:`route` decides.
         metadata: training summary (JSON).
     """
 
     net: RouterNet
     categories: tuple[str, ...]
-    models: dict[str, str]
     min_probability: float = DEFAULT_MIN_PROBABILITY
     metadata: dict[str, Any] = field(default_factory=dict)
 
@@ -119,8 +118,6 @@ class CategoryRouter:
             raise InputError(
                 f"{len(self.categories)} categories for a {self.net.n_classes}-class network"
             )
-        if set(self.models) - set(self.categories):
-            raise InputError("models names a category the router does not have")
         if not 0.0 < self.min_probability <= 1.0:
             raise InputError("min_probability must lie in (0, 1]")
         self.net.eval()
@@ -136,16 +133,15 @@ class CategoryRouter:
         return torch.softmax(logits.double(), dim=1).numpy()
 
     def route(
-        self, shapes: Sequence[Shape], available: Sequence[str], seed: int = 0
+        self, shapes: Sequence[Shape], models: Mapping[str, str], seed: int = 0
     ) -> list[str | None]:
-        """The model each shape belongs to among ``available`` model names, or ``None`` where
-        the router is not confident enough (or its category's model is not available)."""
+        """The model each shape belongs to, from ``models`` (category → model name), or
+        ``None`` where the router is not confident enough or no model has its category."""
         chosen: list[str | None] = []
         for row in self.probabilities(shapes, seed):
             best = int(np.argmax(row))
-            model = self.models.get(self.categories[best])
             confident = row[best] >= self.min_probability
-            chosen.append(model if confident and model in available else None)
+            chosen.append(models.get(self.categories[best]) if confident else None)
         return chosen
 
     def save(self, directory: str | os.PathLike) -> dict[str, Any]:
@@ -164,7 +160,6 @@ class CategoryRouter:
             "format_version": ROUTER_FORMAT,
             "network": self.net.config(),
             "categories": list(self.categories),
-            "models": dict(self.models),
             "min_probability": self.min_probability,
             "points": ROUTER_POINTS,
             "weights_sha256": file_sha256(directory / ROUTER_WEIGHTS),
@@ -199,7 +194,6 @@ class CategoryRouter:
             return cls(
                 net,
                 tuple(config["categories"]),
-                dict(config["models"]),
                 float(config["min_probability"]),
                 dict(config.get("metadata", {})),
             )

@@ -63,13 +63,12 @@ def auto_service(live_service_factory):
 
 
 def _fixed_router(directory, human_logit: float) -> str:
-    """A router that gives every shape the same ``p(human) = sigmoid(human_logit)``."""
+    """A router that gives every shape the same ``p(biped) = sigmoid(human_logit)``."""
     net = RouterNet(2)
     with torch.no_grad():
         net.classifier[-1].weight.zero_()
         net.classifier[-1].bias.copy_(torch.tensor([0.0, human_logit]))
-    models = {"quadruped": "quadrupeds", "human": "humans"}
-    CategoryRouter(net, ("quadruped", "human"), models).save(directory)
+    CategoryRouter(net, ("quadruped", "biped")).save(directory)
     return str(directory)
 
 
@@ -214,7 +213,7 @@ def test_a_confident_router_decides_and_an_unsure_one_leaves_the_ood_rule(
                 scores["dog"]["quadrupeds"], abs=1e-4
             )
             ready = client.ready()
-            assert ready["router"]["models"] == {"quadruped": "quadrupeds", "human": "humans"}
+            assert ready["router"]["categories"] == ["quadruped", "biped"]
 
 
 def test_router_setting():

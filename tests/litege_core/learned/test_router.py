@@ -37,9 +37,7 @@ def _router(min_probability: float = 0.9, bias: tuple[float, float] = (0.0, 0.0)
     with torch.no_grad():
         net.classifier[-1].weight.zero_()
         net.classifier[-1].bias.copy_(torch.tensor(bias))
-    return CategoryRouter(
-        net, ("quadruped", "human"), {"quadruped": "q", "human": "h"}, min_probability
-    )
+    return CategoryRouter(net, ("quadruped", "biped"), min_probability)
 
 
 def test_router_points_are_the_canonical_frame_and_deterministic():
@@ -61,18 +59,19 @@ def test_router_net_maps_clouds_to_logits():
     with pytest.raises(InputError):
         RouterNet(1)
     with pytest.raises(InputError):
-        CategoryRouter(net, ("a", "b"), {})
+        CategoryRouter(net, ("a", "b"))  # 2 categories, 3 classes
 
 
 def test_route_decides_only_when_confident_and_available():
     shapes = [Shape.from_arrays(_cloud(1)), Shape.from_arrays(ELLIPSOID.vertices, ELLIPSOID.faces)]
-    sure = _router(bias=(0.0, 5.0))  # p(human) = 0.993
+    models = {"quadruped": "q", "biped": "h"}
+    sure = _router(bias=(0.0, 5.0))  # p(biped) = 0.993
     np.testing.assert_allclose(sure.probabilities(shapes)[:, 1], 1 / (1 + np.exp(-5.0)))
-    assert sure.route(shapes, ["q", "h"]) == ["h", "h"]
-    assert sure.route(shapes, ["q"]) == [None, None]  # its category's model is not loaded
+    assert sure.route(shapes, models) == ["h", "h"]
+    assert sure.route(shapes, {"quadruped": "q"}) == [None, None]  # no model of its category
     unsure = _router(bias=(0.0, 1.0))  # p = 0.73 < 0.9
-    assert unsure.route(shapes, ["q", "h"]) == [None, None]
-    assert sure.route([], ["q"]) == []
+    assert unsure.route(shapes, models) == [None, None]
+    assert sure.route([], models) == []
 
 
 def test_save_load_round_trip_and_tampering(tmp_path):
@@ -82,7 +81,7 @@ def test_save_load_round_trip_and_tampering(tmp_path):
     router.save(tmp_path)
     loaded = load_router(tmp_path)
     assert loaded is not None
-    assert loaded.categories == router.categories and loaded.models == router.models
+    assert loaded.categories == router.categories
     assert loaded.min_probability == 0.8
     shapes = [Shape.from_arrays(_cloud(2))]
     np.testing.assert_allclose(loaded.probabilities(shapes), router.probabilities(shapes))
