@@ -763,7 +763,9 @@ class Runtime:
         refine: str | None = None,
     ) -> Correspondence:
         """Match ``queries`` of the source shape (indices, xyz points in its units, or
-        ``"all"``) on the target shape; both must be registered.
+        ``"all"``) on the target shape; both must be registered. ``model`` ``None``: the
+        matching model of the source shape's category where the category router is confident
+        (:meth:`_matching_model_of`), else the first loaded.
 
         The queries run in chunks of ``correspond_chunk``, one compute job each, so other
         requests interleave with a large one; a request that times out or is cancelled stops
@@ -778,7 +780,10 @@ class Runtime:
             MethodNotApplicableError: a refinement with a point cloud (from the job).
             MissingDependencyError: a refinement without pyFM (from the job).
         """
-        name = self.matching.model_name(model)  # unknown model: fail before queueing
+        if model is None and self.repository.router is not None and len(self.matching.models) > 1:
+            name = await asyncio.to_thread(self._matching_model_of, source_shape_id)
+        else:
+            name = self.matching.model_name(model)  # unknown model: fail before queueing
         refine = self.refine_name(refine)
         query = await self.parse_query(queries, "queries")
         if not query.is_all:
@@ -806,6 +811,22 @@ class Runtime:
             sum(p.evaluations for p in parts),
             refinement=parts[0].refinement,
         )
+
+    def _matching_model_of(self, source_shape_id: str) -> str:
+        """The matching model of a request naming none, with a category router loaded: the
+        (first) matching model of the source shape's category where the router is confident,
+        else the default one. Thread-safe (the shape's geometry, the router's forward pass).
+
+        Raises:
+            ShapeNotFoundError: the source shape is not registered.
+        """
+        assert self.repository.router is not None
+        by_category: dict[str, str] = {}
+        for name, matching in self.matching.models.items():
+            by_category.setdefault(matching.category, name)
+        shape = self.repository.shape(source_shape_id)
+        routed = self.repository.router.route([shape], by_category)[0]
+        return routed or self.matching.model_name(None)
 
     async def _submit(self, kind: str, job: Any, deadline: _Deadline, token: CancelToken) -> Any:
         return await self.batcher.submit(kind, job, timeout_s=deadline.remaining(), token=token)

@@ -129,7 +129,11 @@ class CorrespondenceRequest(_Request):
         "or 'all' (every source vertex/point)",
     )
     return_distance: bool = Field(False, description="also return the distance at each match")
-    model: str | None = Field(None, description="matching model (default: the service's)")
+    model: str | None = Field(
+        None,
+        description="matching model (default: the model of the source shape's category where "
+        "the service's category router is confident, else the service's first)",
+    )
     refine: RefineName = Field(
         "none",
         description="'none' (default): the learned matches; 'zoomout': refine them with ZoomOut "

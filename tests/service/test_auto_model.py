@@ -216,6 +216,23 @@ def test_a_confident_router_decides_and_an_unsure_one_leaves_the_ood_rule(
             assert ready["router"]["categories"] == ["quadruped", "biped"]
 
 
+def test_correspondences_naming_no_model_follow_the_router(
+    live_service_factory, tmp_path_factory, dog, human
+):
+    # both shipped matching models; the fixed router calls every shape a biped (p 0.9997),
+    # then nothing with confidence (p 0.62): the humans model, then the first (quadrupeds)
+    for logit, expected in ((8.0, "humans"), (0.5, "quadrupeds")):
+        router = _fixed_router(tmp_path_factory.mktemp("router"), logit)
+        service = live_service_factory(models=("quadrupeds",), router=router)
+        with LiteGEClient(service.base_url) as client:
+            source = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
+            target = client.register_arrays(human.vertices, human.faces)["shape_id"]
+            answer = client.correspondences(source, target, [0, 5])
+            assert answer["model"] == expected and answer["matches"].shape == (2,)
+            named = client.correspondences(source, target, [0, 5], model="quadrupeds")
+            assert named["model"] == "quadrupeds"
+
+
 def test_router_setting():
     assert Settings().router == "shipped"
     assert _load_router("none") is None
