@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from litege_core.errors import InputError
 from litege_core.learned import Predictor
@@ -16,6 +17,7 @@ from litege_core.train.distill import (
     distill_small_head,
     label_view,
     measure_agreement,
+    mesh_view,
     view_shape,
 )
 
@@ -84,3 +86,18 @@ def test_bad_settings_are_input_errors(toy_predictor) -> None:
         DistillConfig(views_per_batch=10, pool_views=4)
     with pytest.raises(InputError, match="no procedural category"):
         distill_small_head(toy_predictor, DistillConfig(**TINY))  # a "toy" bundle
+
+
+def test_extra_meshes_make_a_share_of_the_views(toy_predictor) -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    extra = [(np.asarray(sphere.vertices) * [2.0, 1.0, 0.6], np.asarray(sphere.faces))]
+    config = DistillConfig(**{**TINY, "steps": 6}, extra_fraction=0.5)
+    result = distill_small_head(toy_predictor, config, category="quadruped", extra_meshes=extra)
+    assert result.settings["extra_meshes"] == 1
+    assert 0 < result.settings["extra_views"] < result.views  # about half of the 3 + 0 views
+    shape, kind = mesh_view(*extra[0], np.random.default_rng(0), config)
+    assert kind in ("mesh", "cloud") and shape.n_points > 0
+    with pytest.raises(InputError, match="extra meshes"):
+        distill_small_head(toy_predictor, config, category="quadruped")
+    with pytest.raises(InputError):
+        DistillConfig(extra_fraction=1.5)
