@@ -25,7 +25,7 @@ import numpy as np
 
 from litege_core.evaluation.geodesic import make_input, real_eval_shapes, real_shape_paths
 from litege_core.learned import Predictor, load_bundle, load_shipped
-from litege_core.learned.router import load_router
+from litege_core.learned.router import first_of_each_category, load_router
 
 OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
 
@@ -109,8 +109,9 @@ def main() -> None:
                 errors["auto"].append(scored[chosen][1])
                 wrong += chosen != own
                 if router is not None:
-                    categories = {m.bundle.category: name for name, m in models.items()}
-                    routed = router.route([item.shape], categories)[0] or chosen
+                    categories = {name: m.bundle.category for name, m in models.items()}
+                    routed = router.route([item.shape], first_of_each_category(categories))[0]
+                    routed = routed or chosen
                     errors["router"].append(scored[routed][1])
                     wrong_routed += routed != own
             row = (

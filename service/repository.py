@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 from litege_core.errors import ArtifactError, LiteGEError
 from litege_core.learned import Predictor, ShapeRecord, ShapeState
-from litege_core.learned.router import CategoryRouter
+from litege_core.learned.router import CategoryRouter, first_of_each_category
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
@@ -251,9 +251,9 @@ class ShapeRepository:
                 states[shape_id][name] = state
         routed: list[str | None] = [None] * len(pending)
         if self.router is not None and len(names) > 1:
-            by_category: dict[str, str] = {}
-            for name in names:  # the first loaded model of each category
-                by_category.setdefault(self.predictors[name].bundle.category, name)
+            by_category = first_of_each_category(
+                {name: self.predictors[name].bundle.category for name in names}
+            )
             routed = self.router.route([shapes[s] for s in pending], by_category)
         for (shape_id, positions), by_router in zip(pending.items(), routed, strict=True):
             scores = {name: float(states[shape_id][name].ood_score) for name in names}

@@ -23,7 +23,7 @@ from litege_core.engines import ClassicalPath
 from litege_core.errors import LiteGEError, MethodNotApplicableError, ShapeTooLargeError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
 from litege_core.learned import GeodesicPath, Predictor, load_shipped, shipped_bundles
-from litege_core.learned.router import CategoryRouter, load_router
+from litege_core.learned.router import CategoryRouter, first_of_each_category, load_router
 from litege_core.matching.model import MatchingModel
 from litege_core.matching.refine import REFINE_METHODS
 from litege_core.query import PointQuery, QueryLike, parse_query
@@ -821,9 +821,9 @@ class Runtime:
             ShapeNotFoundError: the source shape is not registered.
         """
         assert self.repository.router is not None
-        by_category: dict[str, str] = {}
-        for name, matching in self.matching.models.items():
-            by_category.setdefault(matching.category, name)
+        by_category = first_of_each_category(
+            {name: matching.category for name, matching in self.matching.models.items()}
+        )
         shape = self.repository.shape(source_shape_id)
         routed = self.repository.router.route([shape], by_category)[0]
         return routed or self.matching.model_name(None)

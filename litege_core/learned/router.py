@@ -201,6 +201,15 @@ class CategoryRouter:
             raise ArtifactError(f"router in {directory} is inconsistent: {exc}") from exc
 
 
+def first_of_each_category(categories: Mapping[str, str]) -> dict[str, str]:
+    """``model name → category`` (in loading order) → ``category → the first model of it``:
+    the ``models`` argument of :meth:`CategoryRouter.route`."""
+    chosen: dict[str, str] = {}
+    for name, category in categories.items():
+        chosen.setdefault(category, name)
+    return chosen
+
+
 def load_router(directory: str | os.PathLike | None = None) -> CategoryRouter | None:
     """The router in ``directory`` (default: the shipped one; ``None`` if none is shipped)."""
     if directory is None:
@@ -218,6 +227,7 @@ __all__ = [
     "SHIPPED_ROUTER",
     "CategoryRouter",
     "RouterNet",
+    "first_of_each_category",
     "load_router",
     "router_points",
 ]

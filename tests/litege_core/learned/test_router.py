@@ -16,6 +16,7 @@ from litege_core.learned.router import (
     ROUTER_WEIGHTS,
     CategoryRouter,
     RouterNet,
+    first_of_each_category,
     load_router,
     router_points,
 )
@@ -94,3 +95,8 @@ def test_save_load_round_trip_and_tampering(tmp_path):
     (tmp_path / ROUTER_WEIGHTS).write_bytes(b"not safetensors")
     with pytest.raises(ArtifactError):
         load_router(tmp_path)
+
+
+def test_first_model_of_each_category():
+    loaded = {"quadrupeds": "quadruped", "dogs": "quadruped", "humans": "biped"}
+    assert first_of_each_category(loaded) == {"quadruped": "quadrupeds", "biped": "humans"}
