@@ -377,7 +377,7 @@ def _bbox_frames(
     their transforms and the ``(G, P, 3)`` float64 canonical clouds (on the same device).
     ``stacked`` is overwritten (centred in place). The ``(G, P, ·)`` work runs on the device;
     the ``(G, 3, 3)`` eigen-decompositions run in numpy (a batched GPU ``eigh`` of 3 × 3
-    matrices costs milliseconds of solver set-up), with three small transfers in all."""
+    matrices costs milliseconds of solver set-up), with six small host–device transfers."""
     import torch
 
     device = stacked.device
