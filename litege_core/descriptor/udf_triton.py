@@ -11,7 +11,9 @@ output is the only memory written: ``(B, M)`` float32.
 
 Triton is optional (the GPU image has it; a CPU install does not). ``TRITON_INTERPRET=1``
 runs the same kernel on CPU tensors, which is how the tests check it on a machine without a
-GPU (``tests/litege_core/descriptor/test_descriptor_udf.py``).
+GPU (``tests/litege_core/descriptor/test_descriptor_udf.py``; Triton 3.6's interpreter needs
+numpy ≤ 2.2 for the kernel's loop bound — checked that way on 2026-11-27 — and the tests ran
+compiled on an H200).
 """
 
 from __future__ import annotations
