@@ -96,7 +96,7 @@ from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
 from litege_core.projection import snap
-from litege_core.query import PointQuery, QueryLike, parse_query
+from litege_core.query import QueryLike, parse_query
 from litege_core.shape import Shape
 
 DEFAULT_CHUNK_PAIRS = 16_384
@@ -438,36 +438,41 @@ class Predictor:
             ArrayShapeError: non-integer indices, xyz not ``(Q, 3)``, empty query.
             NonFiniteError: NaN, infinite or absurdly large xyz.
         """
-        return self._resolve_parsed(state, parse_query(query, what).check(state.n_points, what))
-
-    def _resolve_parsed(self, state: ShapeState, parsed: PointQuery) -> ResolvedPoints:
-        if parsed.points is not None:
-            return self._resolve_points(state, parsed.points)
-        if parsed.indices is not None:
-            return self._from_indices(state, parsed.indices)
-        return ResolvedPoints(
-            self.point_table(state),
-            state.canonical_vertices,
-            state.canonical_points,
-            state.vertices,
-            np.arange(state.n_points),
-        )
+        return self._resolve_many([state], [query], what)[0]
 
     def _resolve_many(
         self, states: Sequence[ShapeState], queries: Sequence[QueryLike], what: str
     ) -> list[ResolvedPoints]:
         """:meth:`resolve` of ``(state, query)`` pairs; the index queries that embed their
-        points on the fly (:meth:`_embeds_on_the_fly`) share one point-MLP call, each row with
-        its own shape's bias, instead of one call per shape (64 shapes × 1 query: one call)."""
+        points on the fly (:meth:`_embeds_on_the_fly`, xyz points snapped to vertices included)
+        share one point-MLP call, each row with its own shape's bias, instead of one call per
+        shape (64 shapes × 1 query: one call)."""
         resolved: list[ResolvedPoints | None] = []
         pending: list[tuple[int, ShapeState, NDArray]] = []
         for b, (state, query) in enumerate(zip(states, queries, strict=True)):
             parsed = parse_query(query, what).check(state.n_points, what)
-            if parsed.indices is not None and self._embeds_on_the_fly(state, parsed.indices):
-                pending.append((b, state, parsed.indices))
+            indices = parsed.indices
+            if parsed.points is not None:  # xyz: onto the surface, a vertex where it lands on one
+                snapped = snap(state.projector, state.transform.apply(parsed.points))
+                if snapped.indices is None:
+                    resolved.append(self.embed_canonical(state, snapped.points))
+                    continue
+                indices = snapped.indices
+            if indices is None:  # every point
+                resolved.append(
+                    ResolvedPoints(
+                        self.point_table(state),
+                        state.canonical_vertices,
+                        state.canonical_points,
+                        state.vertices,
+                        np.arange(state.n_points),
+                    )
+                )
+            elif self._embeds_on_the_fly(state, indices):
+                pending.append((b, state, indices))
                 resolved.append(None)
             else:
-                resolved.append(self._resolve_parsed(state, parsed))
+                resolved.append(self._from_table(state, indices))
         if pending:
             counts = [indices.shape[0] for _, _, indices in pending]
             canonical = [state.canonical_points[indices] for _, state, indices in pending]
@@ -494,27 +499,16 @@ class Predictor:
         points (at most :data:`TABLE_FRACTION` of the shape) to build one."""
         return self._table(state) is None and indices.shape[0] <= TABLE_FRACTION * state.n_points
 
-    def _from_indices(self, state: ShapeState, indices: NDArray) -> ResolvedPoints:
+    def _from_table(self, state: ShapeState, indices: NDArray) -> ResolvedPoints:
+        """Index query rows of the state's feature table (built now if missing)."""
         index_t = torch.from_numpy(indices).to(self.device)
-        positions = state.canonical_vertices.index_select(0, index_t)
-        if self._embeds_on_the_fly(state, indices):
-            with torch.no_grad():
-                features = self._features_of(positions, state.shape_bias)
-        else:
-            features = self.point_table(state).index_select(0, index_t)
         return ResolvedPoints(
-            features,
-            positions,
+            self.point_table(state).index_select(0, index_t),
+            state.canonical_vertices.index_select(0, index_t),
             state.canonical_points[indices],
             state.vertices[indices],
             indices,
         )
-
-    def _resolve_points(self, state: ShapeState, user_points: NDArray) -> ResolvedPoints:
-        snapped = snap(state.projector, state.transform.apply(user_points))
-        if snapped.indices is not None:
-            return self._from_indices(state, snapped.indices)
-        return self.embed_canonical(state, snapped.points)
 
     def point_features(self, state: ShapeState, positions: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical positions on ``state`` → ``(R, F)`` head features
