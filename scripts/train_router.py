@@ -21,6 +21,7 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -30,7 +31,7 @@ from pathlib import Path
 import torch
 
 from litege_core.learned.router import SHIPPED_ROUTER, CategoryRouter
-from litege_core.train.router import RouterTrainConfig, config_dict, train_router
+from litege_core.train.router import RouterTrainConfig, train_router
 from litege_core.train.tnet import collection_shape_set, generate_shape_set
 
 CATEGORIES = ("quadruped", "biped")  # the bundles' categories (quadrupeds, humans)
@@ -77,7 +78,7 @@ def main() -> None:
     config = RouterTrainConfig(steps=args.steps, minutes=args.minutes, seed=args.seed)
     result = train_router(train, val, len(CATEGORIES), config, log)
     metadata = {
-        "config": config_dict(config),
+        "config": dataclasses.asdict(config),
         "train_meshes": {
             f"{kind} {name}": count
             for (_, kind, name), count in zip(

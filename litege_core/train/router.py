@@ -24,8 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -208,15 +207,9 @@ def train_router(
     return RouterTrainResult(net, step, time.monotonic() - start, best_accuracy, best_step, history)
 
 
-def config_dict(config: RouterTrainConfig) -> dict[str, Any]:
-    """The config as JSON (for the router's metadata)."""
-    return asdict(config)
-
-
 __all__ = [
     "RouterTrainConfig",
     "RouterTrainResult",
-    "config_dict",
     "perturbed_frame",
     "train_router",
     "view_points",
