@@ -152,9 +152,15 @@ class Transform:
         return cls(np.eye(3), np.zeros(3), 1.0)
 
     def apply(self, points: ArrayLike) -> NDArray:
-        """Input → canonical: ``(..., 3)`` points to ``(..., 3)`` float64."""
-        values = _last_axis_3(points, "points")
-        return self.scale * ((values - self.center) @ self.rotation.T)
+        """Input → canonical: ``(..., 3)`` points to ``(..., 3)`` float64.
+
+        Each point is mapped on its own, by elementwise products and sums in a fixed order (no
+        matrix kernel, whose rounding depends on the array's size): a subset of the points maps
+        to exactly the rows of the whole (:attr:`ShapeState.canonical_points` is built lazily
+        on that promise)."""
+        d = _last_axis_3(points, "points") - self.center
+        r = self.rotation
+        return self.scale * (d[..., :1] * r[:, 0] + d[..., 1:2] * r[:, 1] + d[..., 2:] * r[:, 2])
 
     def invert(self, points: ArrayLike) -> NDArray:
         """Canonical → input: ``(..., 3)`` points to ``(..., 3)`` float64."""

@@ -335,16 +335,13 @@ class Predictor:
                 raise ArrayShapeError(
                     f"record descriptor has shape {record.descriptor.shape}, bundle expects ({k},)"
                 )
-        transforms = [r.transform for r in records]
         descriptors = torch.from_numpy(np.stack([r.descriptor for r in records])).to(
             self.device, torch.float32
         )
-        canonical = [t.apply(s.vertices) for t, s in zip(transforms, shapes, strict=True)]
-        uploaded = torch.from_numpy(np.concatenate(canonical)).to(self.device, torch.float32)
-        per_shape = uploaded.split([points.shape[0] for points in canonical])  # one copy
         with torch.no_grad():
             shape_emb = self._shape_mlp(descriptors)  # (B, n)
             biases = self.folded.shape_bias(shape_emb)  # (B, n)
+        # Rows as views of the two (B, n) batch tensors: no per-shape device copies.
         return [
             ShapeState(
                 shape_id=record.shape_id,
@@ -357,15 +354,14 @@ class Predictor:
                 ood_calibrated=self._ood is not None,
                 bundle_hash=record.bundle_hash,
                 vertices=shape.vertices,
-                canonical_points=frozen(points),
                 faces=shape.faces,
-                canonical_vertices=vertices if len(shapes) == 1 else vertices.clone(),
-                shape_embedding=shape_emb[b].clone(),
-                shape_bias=biases[b].clone(),
+                device=self.device,
+                shape_embedding=embedding,
+                shape_bias=bias,
                 record=record,
             )
-            for b, (shape, record, points, vertices) in enumerate(
-                zip(shapes, records, canonical, per_shape, strict=True)
+            for shape, record, embedding, bias in zip(
+                shapes, records, shape_emb.unbind(), biases.unbind(), strict=True
             )
         ]
 
@@ -475,7 +471,7 @@ class Predictor:
                 resolved.append(self._from_table(state, indices))
         if pending:
             counts = [indices.shape[0] for _, _, indices in pending]
-            canonical = [state.canonical_points[indices] for _, state, indices in pending]
+            canonical = [state.canonical_rows(indices) for _, state, indices in pending]
             positions = torch.from_numpy(np.concatenate(canonical)).to(self.device, torch.float32)
             if len(pending) == 1:
                 rows = pending[0][1].shape_bias  # (n,), broadcast over the rows
@@ -505,7 +501,7 @@ class Predictor:
         return ResolvedPoints(
             self.point_table(state).index_select(0, index_t),
             state.canonical_vertices.index_select(0, index_t),
-            state.canonical_points[indices],
+            state.canonical_rows(indices),
             state.vertices[indices],
             indices,
         )

@@ -108,19 +108,20 @@ class ShapeState:
         bundle_hash: content hash of the bundle the state was computed with.
         vertices: ``(N, 3)`` float64 vertices in the user's frame (read-only, the shape's own
             array).
-        canonical_points: ``(N, 3)`` float64 canonical vertices (read-only numpy).
         faces: ``(F, 3)`` int64 triangles (read-only) for meshes, ``None`` for clouds.
-        canonical_vertices: ``(N, 3)`` float32 tensor, canonical vertices, on the device.
+        device: the predictor's device, where the state's tensors live.
         shape_embedding: ``(n,)`` tensor, the shape MLP output.
         shape_bias: ``(n,)`` tensor, shape part of the folded point MLP.
         record: the :class:`ShapeRecord` the state was built from (what a cache stores).
 
-    Tensors are shared with the predictor's caches: treat them as read-only. Two things are
-    built on first use and kept with the state: the ``(N, 2n)`` head-feature table of every
-    point (:attr:`feature_table`, built by :meth:`Predictor.point_table` when a query needs
-    most points; a query of a few points embeds just those), and the surface projector used by
-    xyz queries and paths. A small-head predictor (``Predictor(..., head="small")``) keeps its
-    own ``(N, m)`` table beside it, under another key (:meth:`Predictor.point_table`).
+    Tensors are shared with the predictor's caches: treat them as read-only. Four things are
+    built on first use and kept with the state: the canonical vertices (:attr:`canonical_points`
+    on the host, :attr:`canonical_vertices` on the device; a query of a few points maps just
+    those), the ``(N, 2n)`` head-feature table of every point (:attr:`feature_table`, built by
+    :meth:`Predictor.point_table` when a query needs most points; a query of a few points
+    embeds just those), and the surface projector used by xyz queries and paths. A small-head
+    predictor (``Predictor(..., head="small")``) keeps its own ``(N, m)`` table beside it,
+    under another key (:meth:`Predictor.point_table`).
     """
 
     shape_id: str
@@ -133,9 +134,8 @@ class ShapeState:
     ood_calibrated: bool
     bundle_hash: str
     vertices: NDArray = field(repr=False)
-    canonical_points: NDArray = field(repr=False)
     faces: NDArray | None = field(repr=False)
-    canonical_vertices: torch.Tensor = field(repr=False)
+    device: torch.device
     shape_embedding: torch.Tensor = field(repr=False)
     shape_bias: torch.Tensor = field(repr=False)
     record: ShapeRecord | None = field(default=None, repr=False)
@@ -151,8 +151,29 @@ class ShapeState:
         return self.ood_score > OOD_Z_THRESHOLD if self.ood_calibrated else None
 
     @property
-    def device(self) -> torch.device:
-        return self.canonical_vertices.device
+    def canonical_points(self) -> NDArray:
+        """``(N, 3)`` float64 canonical vertices (read-only numpy; mapped on first use)."""
+        points = self._lazy.get("canonical_points")
+        if points is None:
+            points = self._lazy["canonical_points"] = frozen(self.transform.apply(self.vertices))
+        return points
+
+    def canonical_rows(self, indices: NDArray) -> NDArray:
+        """``(Q, 3)`` float64 canonical coordinates of vertices ``indices``: the rows of
+        :attr:`canonical_points`, without mapping the other vertices while it is not built."""
+        points = self._lazy.get("canonical_points")
+        if points is None:
+            return self.transform.apply(self.vertices[indices])
+        return points[indices]
+
+    @property
+    def canonical_vertices(self) -> torch.Tensor:
+        """``(N, 3)`` float32 canonical vertices on :attr:`device` (uploaded on first use)."""
+        vertices = self._lazy.get("canonical_vertices")
+        if vertices is None:
+            points = self.canonical_points.astype(np.float32)  # a writable copy
+            vertices = self._lazy["canonical_vertices"] = torch.from_numpy(points).to(self.device)
+        return vertices
 
     @property
     def feature_table(self) -> torch.Tensor | None:
@@ -161,16 +182,20 @@ class ShapeState:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the cached arrays and tensors, including the feature tables once
-        built (the full head's and a small head's) and graph-fusion graphs (sparse), for cache
-        accounting."""
-        tensors = [self.canonical_vertices, self.shape_embedding, self.shape_bias]
-        tensors += [v for k, v in self._lazy.items() if k.startswith("features")]
+        """Bytes held by the cached arrays and tensors, for cache accounting: including, once
+        built, the canonical vertices, the feature tables (the full head's and a small head's)
+        and graph-fusion graphs (sparse)."""
+        tensors = [self.shape_embedding, self.shape_bias]
+        tensors += [
+            v for k, v in self._lazy.items() if k.startswith(("features", "canonical_vertices"))
+        ]
         total = sum(t.numel() * t.element_size() for t in tensors)
         for key, graph in self._lazy.items():
             if key.startswith("fusion.graph"):
                 total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes
-        total += self.canonical_points.nbytes + self.descriptor.nbytes
+        if "canonical_points" in self._lazy:
+            total += self._lazy["canonical_points"].nbytes
+        total += self.descriptor.nbytes
         return int(total + (0 if self.faces is None else self.faces.nbytes))
 
     @property

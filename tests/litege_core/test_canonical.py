@@ -108,6 +108,17 @@ def test_apply_then_invert_is_identity(transform):
     assert transform.inverse().inverse().allclose(transform, atol=1e-9)
 
 
+@settings(max_examples=30, deadline=None)
+@given(transform=transforms())
+def test_apply_maps_each_point_on_its_own(transform):
+    """A subset of the points maps to exactly the rows of the whole (lazy canonical points)."""
+    many = np.random.default_rng(0).normal(size=(1037, 3)) * 5
+    whole = transform.apply(many)
+    for rows in (np.array([0]), np.array([1036, 5, 5, 17]), np.arange(3, 700, 7)):
+        np.testing.assert_array_equal(transform.apply(many[rows]), whole[rows])
+    np.testing.assert_array_equal(transform.apply(many[9]), whole[9])  # one (3,) point
+
+
 @settings(max_examples=60, deadline=None)
 @given(transform=transforms())
 def test_forward_formula_and_matrix(transform):

@@ -177,6 +177,11 @@ def test_few_point_queries_embed_only_their_points(predictor, mesh):
     state = predictor.register(mesh, seed=3)
     few = predictor.distances(state, [3, 7], [1, 2, 400])
     assert state.feature_table is None  # a small query never builds the whole table
+    # ... nor maps or uploads every vertex; its rows are exactly those of the whole
+    assert "canonical_points" not in state._lazy and "canonical_vertices" not in state._lazy
+    rows = state.canonical_rows(np.array([400, 3]))
+    np.testing.assert_array_equal(rows, state.canonical_points[[400, 3]])
+    np.testing.assert_array_equal(state.canonical_rows(np.array([400, 3])), rows)
     predictor.point_table(state)
     np.testing.assert_allclose(predictor.distances(state, [3, 7], [1, 2, 400]), few, rtol=1e-5)
     alone = predictor.register(mesh, seed=3)
