@@ -55,6 +55,14 @@ def random_rotation(seed: int | np.random.Generator) -> NDArray:
     return Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
 
 
+def small_rotation(max_angle: float, rng: np.random.Generator) -> NDArray:
+    """A ``(3, 3)`` rotation about a uniformly random axis by an angle uniform in
+    ``[0, max_angle]`` radians."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return Rotation.from_rotvec(axis * rng.uniform(0.0, max_angle)).as_matrix()
+
+
 def rotate(points: NDArray, rotation: NDArray) -> NDArray:
     """Rotate ``(N, 3)`` points about the origin: ``p ↦ R p``."""
     return points @ rotation.T
@@ -206,4 +214,5 @@ __all__ = [
     "point_cloud",
     "random_rotation",
     "rotate",
+    "small_rotation",
 ]

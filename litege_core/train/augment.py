@@ -11,7 +11,9 @@ canonical frame* (spec §1.2, §3.3, §7.2).
 * augmented views: ``n`` area-weighted samples (``log n`` uniform in ``[min_points,
   max_points]``), optionally a part cut away by two planes, optionally Gaussian noise of
   ``σ·√area`` (σ in unit-area units), optionally a uniform random rotation of everything.
-  Corruptions are applied to the cloud before canonicalization and before the UDF.
+  Corruptions are applied to the cloud before canonicalization and before the UDF. With
+  ``frame_jitter_degrees`` the view also carries a small rotation that turns its canonical
+  frame (:attr:`View.frame`, applied by :func:`litege_core.train.data.build_view_tables`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from numpy.typing import NDArray
 
 from litege_core.sampling import sample_surface
 from litege_core.train.config import AugmentConfig
-from litege_core.variants import add_noise, cut_by_planes, random_rotation
+from litege_core.variants import add_noise, cut_by_planes, random_rotation, small_rotation
 
 CLEAN = 0
 AUGMENTED = 1
@@ -40,6 +42,8 @@ class View(NamedTuple):
         kind: :data:`CLEAN` or :data:`AUGMENTED`.
         noise_sigma: the noise actually added, raw units (0 for none).
         cut_fraction: the fraction cut away (0 for none).
+        frame: ``(3, 3)`` rotation applied after canonicalization (``p_canonical ↦ J
+            p_canonical``; frame jitter), ``None`` for none.
     """
 
     points: NDArray
@@ -47,6 +51,7 @@ class View(NamedTuple):
     kind: int
     noise_sigma: float
     cut_fraction: float
+    frame: NDArray | None = None
 
 
 def clean_view(vertices: NDArray, faces: NDArray, n_samples: int, rng: np.random.Generator) -> View:
@@ -84,7 +89,10 @@ def augmented_view(
         sigma = settings.noise_sigma * math.sqrt(area)
         points = add_noise(points, sigma, rng)
     rotation = random_rotation(rng) if settings.rotate else np.eye(3)
-    return View(points @ rotation.T, rotation, AUGMENTED, sigma, cut)
+    frame = None  # drawn last: views without jitter keep their streams
+    if settings.frame_jitter_degrees > 0:
+        frame = small_rotation(math.radians(settings.frame_jitter_degrees), rng)
+    return View(points @ rotation.T, rotation, AUGMENTED, sigma, cut, frame)
 
 
 __all__ = ["AUGMENTED", "CLEAN", "View", "augmented_view", "clean_view"]

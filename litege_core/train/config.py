@@ -108,6 +108,12 @@ class AugmentConfig:
     (:func:`~litege_core.variants.cut_by_planes`); with ``rotate`` the whole input (cloud and
     mesh) is rotated uniformly at random, which the canonicalization must absorb. All
     corruptions act on the cloud before canonicalization and before the UDF (spec §7.2).
+
+    ``frame_jitter_degrees`` (geodesic training only; 0 = off, the paper) turns the canonical
+    frame of each augmented view by a random rotation of at most that angle (uniform axis,
+    angle uniform in ``[0, max]``) after canonicalization: the network learns to tolerate the
+    frame errors that PCA makes on real shapes (issue 14, step 2). The descriptor and the
+    canonical vertices see the same turned frame; distances are unchanged.
     """
 
     min_points: int = 300
@@ -118,9 +124,14 @@ class AugmentConfig:
     cut_min: float = 0.10
     cut_max: float = 0.15
     rotate: bool = True
+    frame_jitter_degrees: float = 0.0
 
     def __post_init__(self) -> None:
         _check(4 <= self.min_points <= self.max_points, "need 4 ≤ min_points ≤ max_points")
+        _check(
+            0.0 <= self.frame_jitter_degrees <= 90.0,
+            "augment.frame_jitter_degrees must lie in [0, 90]",
+        )
         for name in ("noise_probability", "cut_probability"):
             _check(0.0 <= getattr(self, name) <= 1.0, f"augment.{name} must lie in [0, 1]")
         _check(self.noise_sigma >= 0.0, "augment.noise_sigma must be ≥ 0")

@@ -1,7 +1,8 @@
 """Training and validation tables, built once before training, and vectorized pair batches.
 
 **Views.** Every shape of a split gets ``K`` views (:mod:`litege_core.train.augment`). For each
-view the transform ``T = canonicalize_bbox(view points)`` is computed, the descriptor is the
+view the transform ``T = canonicalize_bbox(view points)`` is computed (turned by the view's
+frame jitter, :attr:`~litege_core.train.augment.View.frame`, when it has one), the descriptor is the
 basis's UDF-PCA code of ``T(points)`` (batched through the basis engine), the canonical
 vertices are ``T(R · vertices)`` (the clean mesh moved like the view and canonicalized with the
 view's frame) and the canonical distance scale is ``T.scale``.
@@ -51,7 +52,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from litege_core.canonical import canonicalize_bbox
+from litege_core.canonical import Transform, canonicalize_bbox
 from litege_core.datasets import GeodesicDataset
 from litege_core.datasets.storage import MANIFEST
 from litege_core.descriptor import UdfPcaBasis
@@ -340,6 +341,10 @@ def build_view_tables(
         for j, view in enumerate(views):
             index = s * n_views + j
             transform = canonicalize_bbox(view.points)
+            if view.frame is not None:  # frame jitter: turn the canonical frame
+                transform = Transform(
+                    view.frame @ transform.rotation, transform.center, transform.scale
+                )
             n_s = shape_vertices.shape[0]
             canonical[index, :n_s] = transform.apply(shape_vertices @ view.rotation.T)
             scale[index] = transform.scale

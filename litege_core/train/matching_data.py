@@ -121,6 +121,11 @@ def build_matching_tables(
             descriptors.append(engine.describe_batch(kept).detach().float().cpu())
         pending.clear()
 
+    if augment.frame_jitter_degrees > 0:
+        raise InputError(
+            "augment.frame_jitter_degrees is for geodesic training: the matching network's "
+            "frames come from its T-Net"
+        )
     for s in range(n_shapes):
         for j in range(n_views):
             rng = np.random.default_rng([seed, int(arrays["seed"][s]), j])

@@ -5,6 +5,7 @@ import torch
 from litege_core.canonical import canonicalize_bbox
 from litege_core.datasets import GeodesicDataset
 from litege_core.descriptor import UdfPcaBasis
+from litege_core.errors import InputError
 from litege_core.train.augment import AUGMENTED, CLEAN, augmented_view, clean_view
 from litege_core.train.config import AugmentConfig
 from litege_core.train.data import build_view_tables, load_split_arrays, make_views
@@ -112,3 +113,50 @@ def test_view_tables_layout(train_split, toy_basis_path):
     torch.testing.assert_close(rechunked.descriptors, tables.descriptors, rtol=1e-5, atol=1e-6)
     assert torch.equal(again.descriptors, tables.descriptors)
     assert torch.equal(again.vertices, tables.vertices)
+
+
+def test_frame_jitter_turns_the_canonical_frame_of_augmented_views(train_split, toy_basis_path):
+    dataset, arrays = train_split
+    basis = UdfPcaBasis.load(toy_basis_path)
+    vertices = arrays["vertices"][0].astype(np.float64)
+    area = float(arrays["area"][0])
+    plain = AugmentConfig(min_points=200, max_points=800)
+    jittered = AugmentConfig(min_points=200, max_points=800, frame_jitter_degrees=12.0)
+    # the jitter is drawn last: the view itself is the one drawn without it
+    before = augmented_view(vertices, dataset.faces, area, plain, np.random.default_rng(3))
+    after = augmented_view(vertices, dataset.faces, area, jittered, np.random.default_rng(3))
+    np.testing.assert_array_equal(after.points, before.points)
+    assert before.frame is None
+    angles = []
+    for seed in range(60):
+        view = augmented_view(vertices, dataset.faces, area, jittered, np.random.default_rng(seed))
+        np.testing.assert_allclose(view.frame @ view.frame.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(view.frame) == pytest.approx(1.0)
+        angles.append(np.degrees(np.arccos(np.clip((np.trace(view.frame) - 1) / 2, -1, 1))))
+    assert max(angles) <= 12.0 + 1e-9 and min(angles) < 3.0 < 9.0 < max(angles)
+
+    def build(augment):
+        return build_view_tables(
+            arrays, dataset.faces, basis, n_views=2, clean_samples=400, augment=augment, seed=1
+        )
+
+    straight, turned = build(plain), build(jittered)
+    assert torch.equal(straight.vertices[0], turned.vertices[0])  # the clean view: no jitter
+    assert torch.equal(straight.scale, turned.scale)  # distances are unchanged
+    # view 1 (augmented): canonical vertices and descriptor both in the turned frame
+    views = make_views(vertices, dataset.faces, area, 2, 400, jittered, 1, int(arrays["seed"][0]))
+    frame = views[1].frame
+    np.testing.assert_allclose(
+        turned.vertices[1].numpy(), straight.vertices[1].numpy() @ frame.T, atol=1e-5
+    )
+    transform = canonicalize_bbox(views[1].points)
+    expected = basis.describe(transform.apply(views[1].points) @ frame.T)
+    np.testing.assert_allclose(turned.descriptors[1].numpy(), expected, atol=1e-5)
+    assert not np.allclose(turned.descriptors[1].numpy(), straight.descriptors[1].numpy())
+
+
+def test_frame_jitter_bounds():
+    with pytest.raises(InputError, match="frame_jitter_degrees"):
+        AugmentConfig(frame_jitter_degrees=-1.0)
+    with pytest.raises(InputError, match="frame_jitter_degrees"):
+        AugmentConfig(frame_jitter_degrees=120.0)
