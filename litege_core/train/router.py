@@ -29,12 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from litege_core.errors import InputError
 from litege_core.learned.router import RouterNet, router_points
 from litege_core.sampling import sample_surface
 from litege_core.validate import triangle_areas
+from litege_core.variants import small_rotation
 
 Mesh = tuple[NDArray, NDArray]
 
@@ -116,9 +116,7 @@ def perturbed_frame(
     canonical = router_points(points, seed=int(rng.integers(2**31)))
     flips = np.where(rng.random(3) < 0.5, -1.0, 1.0)
     order = [0, 2, 1] if rng.random() < 0.5 else [0, 1, 2]
-    axis = rng.normal(size=3)
-    angle = rng.uniform(0.0, math.radians(config.max_turn_degrees))
-    turn = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    turn = small_rotation(math.radians(config.max_turn_degrees), rng)
     return ((canonical[:, order] * flips) @ turn.T).astype(np.float32)
 
 
