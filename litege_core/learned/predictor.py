@@ -341,7 +341,7 @@ class Predictor:
         with torch.no_grad():
             shape_emb = self._shape_mlp(descriptors)  # (B, n)
             biases = self.folded.shape_bias(shape_emb)  # (B, n)
-        # Rows as views of the two (B, n) batch tensors: no per-shape device copies.
+        # Each state owns its rows (a view would keep, and be charged for, the whole batch).
         return [
             ShapeState(
                 shape_id=record.shape_id,
@@ -356,8 +356,8 @@ class Predictor:
                 vertices=shape.vertices,
                 faces=shape.faces,
                 device=self.device,
-                shape_embedding=embedding,
-                shape_bias=bias,
+                shape_embedding=embedding.clone(),
+                shape_bias=bias.clone(),
                 record=record,
             )
             for shape, record, embedding, bias in zip(

@@ -273,6 +273,8 @@ def test_register_many_equals_register(predictor, mesh, cloud):
         torch.testing.assert_close(predictor.point_table(state), predictor.point_table(single))
         table = state.feature_table
         assert table is not None and table.untyped_storage().size() == table.nbytes
+        for tensor in (state.shape_embedding, state.shape_bias, state.canonical_vertices):
+            assert tensor.untyped_storage().size() == tensor.nbytes  # not a view of the batch
     assert predictor.register_many([]) == []
 
 
