@@ -9,7 +9,9 @@ small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / `
 ``stride2`` (descriptor lattice); without them, the predictor's defaults (``auto``: the small
 head and the stride2 lattice for the shipped models), e.g. ``quadrupeds@fullhead+full`` (the
 trained network as trained), and ``fusion`` (the calibrated graph fusion,
-``Predictor(bundle, fusion="graph")``); ``--no-baselines`` leaves out heat and kNN;
+``Predictor(bundle, fusion="graph")``) and ``ttaC`` / ``ttaCxD`` (test-time augmentation: the
+distances averaged over the PCA frame and ``C`` turns of it by at most ``D`` degrees, default
+10, ``litege_core.evaluation.geodesic.frame_turns``); ``--no-baselines`` leaves out heat and kNN;
 ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
@@ -22,12 +24,14 @@ ratio against held-out procedural shapes of the same category.
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
@@ -36,6 +40,7 @@ from litege_core.evaluation.geodesic import (
     comparison_methods,
     comparison_table,
     evaluate_methods,
+    frame_turns,
     generated_eval_shapes,
     real_eval_shapes,
     real_shape_paths,
@@ -43,13 +48,26 @@ from litege_core.evaluation.geodesic import (
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_bundle, load_shipped
 
+TTA_OPTION = re.compile(r"tta(\d+)(?:x(\d+(?:\.\d+)?))?")
+
+
+def frame_turns_of(name: str) -> NDArray | None:
+    """The ``ttaC[xD]`` option of ``NAME_OR_DIR@OPTIONS`` as :func:`frame_turns`, or ``None``."""
+    _, _, text = name.partition("@")
+    for option in filter(None, text.split("+")):
+        found = TTA_OPTION.fullmatch(option)
+        if found:
+            return frame_turns(int(found[1]), float(found[2] or 10.0))
+    return None
+
 
 def load_predictor(name: str) -> Predictor:
     """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
     ``small`` / ``fullhead`` (head; default ``auto``), ``full`` / ``bcc`` / ``stride2``
-    (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion)."""
+    (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion);
+    ``ttaC[xD]`` is read by :func:`frame_turns_of`."""
     name, _, text = name.partition("@")
-    options = set(filter(None, text.split("+")))
+    options = {o for o in text.split("+") if o and not TTA_OPTION.fullmatch(o)}
     unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
@@ -84,10 +102,12 @@ def main() -> None:
     torch.set_num_threads(1)
     real = REAL_SETS[args.set]
     models = args.model or [f"{real.model}={real.model} (shipped)"]
-    predictors = {}
+    predictors, turns = {}, {}
     for item in models:
         name, _, label = item.partition("=")
         predictors[label or name] = load_predictor(name)
+        if (found := frame_turns_of(name)) is not None:
+            turns[label or name] = found
     settings = tuple(args.settings.split(","))
     paths = real_shape_paths(args.eval_data, args.set)
     if not paths:
@@ -97,7 +117,7 @@ def main() -> None:
     synthetic = generated_eval_shapes(
         real.category, args.synthetic, args.sources, cache_dir=args.cache
     )
-    compared = comparison_methods(predictors, baselines=not args.no_baselines)
+    compared = comparison_methods(predictors, baselines=not args.no_baselines, turns=turns)
 
     def methods(setting: str) -> dict[str, Method]:
         extra = {f"kNN Dijkstra (k={k})": baseline_method("knn_graph", k=k) for k in args.knn}

@@ -37,7 +37,7 @@ from litege_core.errors import ComputationError, InputError
 from litege_core.metrics import geodesic_error
 from litege_core.sampling import farthest_point_sampling, sample_surface
 from litege_core.shape import Shape
-from litege_core.variants import add_noise, cut_by_planes
+from litege_core.variants import add_noise, cut_by_planes, small_rotation
 
 SETTINGS = ("mesh", "cloud_2000", "cloud_300", "noise_0.01", "cut_10", "cut_15")
 KNN_NEIGHBOURS = 10
@@ -277,12 +277,52 @@ def register_in_frame(
     return predictor.restore(shape, record), choice
 
 
-def litege_method(predictor, frame: str = "pca", margin: float = 0.0) -> Method:
+def frame_turns(count: int, max_degrees: float, seed: int = 0) -> NDArray:
+    """``(count + 1, 3, 3)``: the identity, then ``count`` rotations about random axes by
+    angles uniform in ``[0, max_degrees]`` (the same draws as training's frame jitter)."""
+    rng = np.random.default_rng([seed, count])
+    turns = [small_rotation(np.radians(max_degrees), rng) for _ in range(count)]
+    return np.stack([np.eye(3), *turns])
+
+
+def register_turned(predictor, shape: Shape, turns: NDArray, *, seed: int = 0) -> list:
+    """One :class:`ShapeState` of ``shape`` per frame ``turns[i] @ R_pca``
+    (:func:`~litege_core.learned.frame.turned_frames`, restored like
+    :func:`register_in_frame`)."""
+    from litege_core.arrays import frozen
+    from litege_core.learned.describe import shape_samples
+    from litege_core.learned.frame import turned_frames
+    from litege_core.learned.state import ShapeRecord
+
+    points = shape_samples(shape, predictor.n_mesh_samples, seed)
+    choices = turned_frames(points, predictor.engine, turns)
+    records = [
+        ShapeRecord(
+            shape_id=shape.content_hash,
+            bundle_hash=predictor.bundle.content_hash,
+            transform=choice.transform,
+            descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
+            residual=choice.residual,
+            seed=int(seed),
+        )
+        for choice in choices
+    ]
+    return predictor.restore_many([shape] * len(records), records)
+
+
+def litege_method(
+    predictor, frame: str = "pca", margin: float = 0.0, turns: NDArray | None = None
+) -> Method:
     """LiteGE through a :class:`~litege_core.learned.predictor.Predictor`; ``frame`` other
     than ``"pca"`` selects the canonical frame among those candidates (see
-    :func:`register_in_frame`)."""
+    :func:`register_in_frame`); ``turns`` ``(C, 3, 3)`` (:func:`frame_turns`) instead averages
+    the distances predicted in the PCA frame turned by each (test-time augmentation)."""
 
     def run(item: EvalInput) -> NDArray:
+        if turns is not None:
+            states = register_turned(predictor, item.shape, turns)
+            fields = predictor.distances_many(states, [item.source_index] * len(states))
+            return np.mean(fields, axis=0)
         if frame == "pca":
             state = predictor.register(item.shape)
         else:
@@ -397,14 +437,21 @@ KNN = f"kNN Dijkstra (k={KNN_NEIGHBOURS})"
 
 
 def comparison_methods(
-    predictors: dict[str, object], baselines: bool = True
+    predictors: dict[str, object],
+    baselines: bool = True,
+    turns: dict[str, NDArray] | None = None,
 ) -> Callable[[str], dict[str, Method]]:
     """``setting → {name: method}`` for :func:`evaluate_methods`: one LiteGE row per named
-    predictor and, with ``baselines``, the heat method (mesh heat on meshes, point-cloud heat on
-    clouds, one name: :data:`HEAT`) and kNN-graph Dijkstra (:data:`KNN`)."""
+    predictor (averaged over the frames ``turns[name]`` where given, :func:`litege_method`)
+    and, with ``baselines``, the heat method (mesh heat on meshes, point-cloud heat on clouds,
+    one name: :data:`HEAT`) and kNN-graph Dijkstra (:data:`KNN`)."""
+    turns = turns or {}
 
     def methods(setting: str) -> dict[str, Method]:
-        found = {name: litege_method(predictor) for name, predictor in predictors.items()}
+        found = {
+            name: litege_method(predictor, turns=turns.get(name))
+            for name, predictor in predictors.items()
+        }
         if baselines:
             found[HEAT] = baseline_method("heat" if setting == "mesh" else "pointcloud_heat")
             found[KNN] = baseline_method("knn_graph", k=KNN_NEIGHBOURS)
@@ -537,6 +584,7 @@ __all__ = [
     "comparison_table",
     "evaluate",
     "evaluate_methods",
+    "frame_turns",
     "generated_eval_shapes",
     "litege_method",
     "make_input",
@@ -545,6 +593,7 @@ __all__ = [
     "real_eval_shapes",
     "real_shape_paths",
     "register_in_frame",
+    "register_turned",
     "results_table",
     "spread_table",
     "synthetic_eval_shapes",

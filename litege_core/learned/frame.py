@@ -127,6 +127,54 @@ def _engine(basis: UdfPcaBasis | DescriptorEngine, device) -> DescriptorEngine:
     return basis.engine(device)
 
 
+def _described(
+    samples: Sequence[ArrayLike], engine: DescriptorEngine, rotations: Sequence[NDArray]
+) -> tuple[list[Transform], list[NDArray], NDArray, NDArray]:
+    """Each shape's PCA frame turned by each of its rotations ``(C_b, 3, 3)``, described in
+    one UDF call: the PCA transforms, the ``ΣC_b`` turned canonical clouds, their residuals
+    ``(ΣC_b,)`` float64 and descriptors ``(ΣC_b, k)`` float32."""
+    transforms, clouds = [], []
+    for points, mats in zip(samples, rotations, strict=True):
+        transform = canonicalize_bbox(points)
+        canonical = transform.apply(points)
+        transforms.append(transform)
+        clouds += [canonical @ m.T for m in mats]
+    result = engine.describe_with_residual(clouds)
+    residuals = result.residual.detach().cpu().numpy().astype(np.float64)
+    codes = result.descriptors.detach().cpu().numpy().astype(np.float32)
+    return transforms, clouds, residuals, codes
+
+
+def turned_frames(
+    points: ArrayLike,
+    basis: UdfPcaBasis | DescriptorEngine,
+    rotations: ArrayLike,
+    device: str | torch.device = "cpu",
+) -> list[FrameChoice]:
+    """The PCA frame of one shape turned by each of ``rotations`` ``(C, 3, 3)`` (e.g. small
+    turns, for test-time augmentation or a frame-sensitivity probe), every one described; no
+    selection: choice ``i`` is the frame ``rotations[i] @ R_pca``."""
+    mats = np.asarray(rotations, dtype=np.float64)
+    if mats.ndim != 3 or mats.shape[1:] != (3, 3) or mats.shape[0] < 1:
+        raise InputError(f"rotations must have shape (C, 3, 3), got {mats.shape}")
+    [transform], clouds, residuals, codes = _described([points], _engine(basis, device), [mats])
+    mats.setflags(write=False)
+    scores = residuals.copy()
+    scores.setflags(write=False)
+    return [
+        FrameChoice(
+            transform=Transform(m @ transform.rotation, transform.center, transform.scale),
+            residual=float(residuals[i]),
+            descriptor=codes[i].copy(),
+            scores=scores,
+            index=i,
+            rotations=mats,
+            samples=clouds[i],
+        )
+        for i, m in enumerate(mats)
+    ]
+
+
 def select_frames(
     samples: Sequence[ArrayLike],
     basis: UdfPcaBasis | DescriptorEngine,
@@ -154,21 +202,15 @@ def select_frames(
     if not 0.0 <= margin < 1.0:
         raise InputError(f"margin must be in [0, 1), got {margin!r}")
     engine = _engine(basis, device)
-    transforms, clouds, rotations = [], [], []
+    rotations = []
     for points in samples:
-        transform = canonicalize_bbox(points)
-        canonical = transform.apply(points)
         eigenvalues = None
         if candidates == "swaps":
+            canonical = canonicalize_bbox(points).apply(points)
             centred = canonical - canonical.mean(axis=0)
             eigenvalues = np.sort(np.linalg.eigvalsh(centred.T @ centred))[::-1]
-        mats = np.stack(candidate_rotations(candidates, eigenvalues, swap_ratio))
-        transforms.append(transform)
-        rotations.append(mats)
-        clouds += [canonical @ m.T for m in mats]
-    result = engine.describe_with_residual(clouds)
-    residuals = result.residual.detach().cpu().numpy().astype(np.float64)
-    codes = result.descriptors.detach().cpu().numpy().astype(np.float32)
+        rotations.append(np.stack(candidate_rotations(candidates, eigenvalues, swap_ratio)))
+    transforms, clouds, residuals, codes = _described(samples, engine, rotations)
     choices, start = [], 0
     for transform, mats in zip(transforms, rotations, strict=True):
         scores = residuals[start : start + len(mats)]
@@ -218,4 +260,5 @@ __all__ = [
     "candidate_rotations",
     "select_frame",
     "select_frames",
+    "turned_frames",
 ]

@@ -130,6 +130,32 @@ def test_frame_selection_rows(eval_shape, toy_predictor):
     assert {r.method for r in results} >= {"LiteGE", "LiteGE (frame: signs)"}
 
 
+def test_frame_turns_and_test_time_augmentation(eval_shape, toy_predictor):
+    from litege_core.evaluation.geodesic import frame_turns, litege_method, register_turned
+
+    turns = frame_turns(4, 12.0)
+    assert turns.shape == (5, 3, 3)
+    np.testing.assert_array_equal(turns[0], np.eye(3))  # the PCA frame itself first
+    angles = np.degrees(np.arccos(np.clip((np.trace(turns, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert angles[0] == 0 and angles[1:].min() > 0 and angles.max() <= 12.0 + 1e-9
+    np.testing.assert_array_equal(frame_turns(4, 12.0), turns)  # deterministic
+    item = make_input(eval_shape, "cloud_300", seed=0)
+    plain = toy_predictor.register(item.shape)
+    states = register_turned(toy_predictor, item.shape, turns)
+    assert states[0].transform.allclose(plain.transform)
+    np.testing.assert_array_equal(states[0].descriptor, plain.descriptor)
+    for turn, state in zip(turns, states, strict=True):  # frame i = turns[i] @ R_pca
+        np.testing.assert_allclose(
+            state.transform.rotation, turn @ plain.transform.rotation, atol=1e-12
+        )
+    fields = [toy_predictor.distances(s, item.source_index) for s in states]
+    assert not np.allclose(fields[0], fields[1])  # the network sees the turn
+    averaged = litege_method(toy_predictor, turns=turns)(item)
+    np.testing.assert_allclose(averaged, np.mean(fields, axis=0), rtol=1e-5, atol=1e-6)
+    alone = litege_method(toy_predictor, turns=turns[:1])(item)  # the identity alone: plain
+    np.testing.assert_allclose(alone, litege_method(toy_predictor)(item), rtol=1e-6, atol=1e-6)
+
+
 def test_real_sets_skip_cleanly_without_the_data(tmp_path):
     from litege_core.evaluation.geodesic import REAL_SETS, real_shape_paths
 

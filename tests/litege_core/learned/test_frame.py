@@ -11,6 +11,7 @@ from litege_core.learned.frame import (
     candidate_rotations,
     select_frame,
     select_frames,
+    turned_frames,
 )
 from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
@@ -73,6 +74,26 @@ def test_pca_candidate_reproduces_the_default_description(basis):
     transform, residual, descriptor, scores = choice  # unpacks like a tuple
     assert transform is choice.transform and descriptor is choice.descriptor
     assert residual == choice.residual and scores is choice.scores
+
+
+def test_turned_frames_describe_each_turn_of_the_pca_frame(basis):
+    shape = _egg(104)
+    points = shape_samples(shape, 2000, 3)
+    turns = np.stack([np.eye(3), random_rotation(1), random_rotation(2)])
+    choices = turned_frames(points, basis, turns)
+    default = select_frame(points, basis, candidates="pca")
+    assert [c.index for c in choices] == [0, 1, 2]
+    assert choices[0].transform.allclose(default.transform)
+    np.testing.assert_array_equal(choices[0].descriptor, default.descriptor)
+    for turn, choice in zip(turns, choices, strict=True):
+        np.testing.assert_allclose(
+            choice.transform.rotation, turn @ default.transform.rotation, atol=1e-12
+        )
+        np.testing.assert_allclose(choice.samples, choice.transform.apply(points), atol=1e-9)
+        assert choice.residual == choice.scores[choice.index]
+    assert choices[1].residual != pytest.approx(choices[0].residual)  # described in its frame
+    with pytest.raises(InputError, match="rotations"):
+        turned_frames(points, basis, np.eye(3))
 
 
 def test_a_deliberately_flipped_frame_is_restored(basis):
