@@ -257,16 +257,23 @@ def register_in_frame(
     Returns:
         ``(state, choice)``: the :class:`ShapeState` and the :class:`FrameChoice`.
     """
-    from litege_core.arrays import frozen
     from litege_core.learned.describe import shape_samples
     from litege_core.learned.frame import select_frame
-    from litege_core.learned.state import ShapeRecord
 
     points = shape_samples(shape, predictor.n_mesh_samples, seed)
     choice = select_frame(
         points, predictor.bundle.basis, predictor.device, candidates, margin=margin
     )
-    record = ShapeRecord(
+    return predictor.restore(shape, _record(predictor, shape, choice, seed)), choice
+
+
+def _record(predictor, shape: Shape, choice, seed: int):
+    """The :class:`~litege_core.learned.state.ShapeRecord` of ``shape`` in the frame of a
+    :class:`~litege_core.learned.frame.FrameChoice`."""
+    from litege_core.arrays import frozen
+    from litege_core.learned.state import ShapeRecord
+
+    return ShapeRecord(
         shape_id=shape.content_hash,
         bundle_hash=predictor.bundle.content_hash,
         transform=choice.transform,
@@ -274,7 +281,6 @@ def register_in_frame(
         residual=choice.residual,
         seed=int(seed),
     )
-    return predictor.restore(shape, record), choice
 
 
 def frame_turns(count: int, max_degrees: float, seed: int = 0) -> NDArray:
@@ -289,24 +295,12 @@ def register_turned(predictor, shape: Shape, turns: NDArray, *, seed: int = 0) -
     """One :class:`ShapeState` of ``shape`` per frame ``turns[i] @ R_pca``
     (:func:`~litege_core.learned.frame.turned_frames`, restored like
     :func:`register_in_frame`)."""
-    from litege_core.arrays import frozen
     from litege_core.learned.describe import shape_samples
     from litege_core.learned.frame import turned_frames
-    from litege_core.learned.state import ShapeRecord
 
     points = shape_samples(shape, predictor.n_mesh_samples, seed)
     choices = turned_frames(points, predictor.engine, turns)
-    records = [
-        ShapeRecord(
-            shape_id=shape.content_hash,
-            bundle_hash=predictor.bundle.content_hash,
-            transform=choice.transform,
-            descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
-            residual=choice.residual,
-            seed=int(seed),
-        )
-        for choice in choices
-    ]
+    records = [_record(predictor, shape, choice, seed) for choice in choices]
     return predictor.restore_many([shape] * len(records), records)
 
 

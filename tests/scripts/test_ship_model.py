@@ -4,30 +4,12 @@ written before the category line named the shipping commit; every other line is 
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
 from litege_core.learned.bundle import MANIFEST, SHIPPED_DIR
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _load_script():
-    spec = importlib.util.spec_from_file_location(
-        "litege_ship_model", REPO / "scripts/ship_model.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-ship_model = _load_script()
 SHIPPED = sorted(p.parent.name for p in SHIPPED_DIR.glob(f"*/{MANIFEST}"))
 
 
@@ -36,7 +18,7 @@ def _without_category(card: str) -> str:
 
 
 @pytest.mark.parametrize("name", SHIPPED)
-def test_the_writer_reproduces_the_shipped_cards(name):
+def test_the_writer_reproduces_the_shipped_cards(name, ship_model):
     card = (SHIPPED_DIR / name / "MODEL_CARD.md").read_text()
     written = ship_model.rendered_card(SHIPPED_DIR / name)
     if "shipped at commit" in card:
@@ -45,13 +27,13 @@ def test_the_writer_reproduces_the_shipped_cards(name):
         assert _without_category(written) == _without_category(card)
 
 
-def test_an_int8_basis_is_on_the_card():
+def test_an_int8_basis_is_on_the_card(ship_model):
     manifest = json.loads((SHIPPED_DIR / "quadrupeds" / MANIFEST).read_text())
     assert "**Basis storage**: int8" in ship_model.model_card(manifest, basis_storage="int8")
     assert "Basis storage" not in ship_model.model_card(manifest)
 
 
-def test_cards_differ_by_kind():
+def test_cards_differ_by_kind(ship_model):
     geodesic = json.loads((SHIPPED_DIR / "quadrupeds" / MANIFEST).read_text())
     matching = json.loads((SHIPPED_DIR / "quadrupeds-matching" / MANIFEST).read_text())
     card = ship_model.model_card(geodesic, "| table |")
