@@ -96,6 +96,11 @@ def build_matching_tables(
     """
     if n_views < 1:
         raise InputError("n_views must be at least 1")
+    if augment.frame_jitter_degrees > 0:
+        raise InputError(
+            "augment.frame_jitter_degrees is for geodesic training: the matching network's "
+            "frames come from its T-Net"
+        )
     raw = np.asarray(arrays["vertices"], dtype=np.float64)
     n_shapes = raw.shape[0]
     engine = basis.engine(device)
@@ -121,11 +126,6 @@ def build_matching_tables(
             descriptors.append(engine.describe_batch(kept).detach().float().cpu())
         pending.clear()
 
-    if augment.frame_jitter_degrees > 0:
-        raise InputError(
-            "augment.frame_jitter_degrees is for geodesic training: the matching network's "
-            "frames come from its T-Net"
-        )
     for s in range(n_shapes):
         for j in range(n_views):
             rng = np.random.default_rng([seed, int(arrays["seed"][s]), j])
