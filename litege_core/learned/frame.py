@@ -128,21 +128,16 @@ def _engine(basis: UdfPcaBasis | DescriptorEngine, device) -> DescriptorEngine:
 
 
 def _described(
-    samples: Sequence[ArrayLike], engine: DescriptorEngine, rotations: Sequence[NDArray]
-) -> tuple[list[Transform], list[NDArray], NDArray, NDArray]:
-    """Each shape's PCA frame turned by each of its rotations ``(C_b, 3, 3)``, described in
-    one UDF call: the PCA transforms, the ``ΣC_b`` turned canonical clouds, their residuals
-    ``(ΣC_b,)`` float64 and descriptors ``(ΣC_b, k)`` float32."""
-    transforms, clouds = [], []
-    for points, mats in zip(samples, rotations, strict=True):
-        transform = canonicalize_bbox(points)
-        canonical = transform.apply(points)
-        transforms.append(transform)
-        clouds += [canonical @ m.T for m in mats]
+    canonical: Sequence[NDArray], engine: DescriptorEngine, rotations: Sequence[NDArray]
+) -> tuple[list[NDArray], NDArray, NDArray]:
+    """Each shape's canonical cloud ``(P_b, 3)`` turned by each of its rotations ``(C_b, 3,
+    3)``, described in one UDF call: the ``ΣC_b`` turned clouds, their residuals ``(ΣC_b,)``
+    float64 and descriptors ``(ΣC_b, k)`` float32."""
+    clouds = [cloud @ m.T for cloud, mats in zip(canonical, rotations, strict=True) for m in mats]
     result = engine.describe_with_residual(clouds)
     residuals = result.residual.detach().cpu().numpy().astype(np.float64)
     codes = result.descriptors.detach().cpu().numpy().astype(np.float32)
-    return transforms, clouds, residuals, codes
+    return clouds, residuals, codes
 
 
 def turned_frames(
@@ -157,7 +152,8 @@ def turned_frames(
     mats = np.asarray(rotations, dtype=np.float64)
     if mats.ndim != 3 or mats.shape[1:] != (3, 3) or mats.shape[0] < 1:
         raise InputError(f"rotations must have shape (C, 3, 3), got {mats.shape}")
-    [transform], clouds, residuals, codes = _described([points], _engine(basis, device), [mats])
+    transform = canonicalize_bbox(points)
+    clouds, residuals, codes = _described([transform.apply(points)], _engine(basis, device), [mats])
     mats.setflags(write=False)
     scores = residuals.copy()
     scores.setflags(write=False)
@@ -202,15 +198,18 @@ def select_frames(
     if not 0.0 <= margin < 1.0:
         raise InputError(f"margin must be in [0, 1), got {margin!r}")
     engine = _engine(basis, device)
-    rotations = []
+    transforms, canonical, rotations = [], [], []
     for points in samples:
+        transform = canonicalize_bbox(points)
+        cloud = transform.apply(points)
         eigenvalues = None
         if candidates == "swaps":
-            canonical = canonicalize_bbox(points).apply(points)
-            centred = canonical - canonical.mean(axis=0)
+            centred = cloud - cloud.mean(axis=0)
             eigenvalues = np.sort(np.linalg.eigvalsh(centred.T @ centred))[::-1]
+        transforms.append(transform)
+        canonical.append(cloud)
         rotations.append(np.stack(candidate_rotations(candidates, eigenvalues, swap_ratio)))
-    transforms, clouds, residuals, codes = _described(samples, engine, rotations)
+    clouds, residuals, codes = _described(canonical, engine, rotations)
     choices, start = [], 0
     for transform, mats in zip(transforms, rotations, strict=True):
         scores = residuals[start : start + len(mats)]
