@@ -30,6 +30,8 @@ def cmd_data_build(args: argparse.Namespace) -> int:
         changes["n_shapes"] = {**spec.n_shapes, **parse_split_counts(args.shapes)}
     if args.name is not None:
         changes["name"] = args.name
+    if args.first_index:
+        changes["first_index"] = args.first_index
     spec = dataclasses.replace(spec, **changes)
     directory = args.out or f"data/{spec.name}"
     share = None if args.shard is None else WorkShare.parse(args.shard)
@@ -103,6 +105,14 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     build.add_argument(
         "--name", default=None, help="dataset name (default CATEGORY-PRESET; kept in the manifest)"
+    )
+    build.add_argument(
+        "--first-index",
+        type=int,
+        default=0,
+        metavar="I",
+        help="start every split at shape I of the category's seed sequence, e.g. the train "
+        "count of an earlier set to add new shapes of the same distribution (default 0)",
     )
     build.add_argument("--out", default=None, help="directory (default data/NAME)")
     build.add_argument(

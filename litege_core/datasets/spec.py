@@ -10,10 +10,12 @@ Two kinds of dataset:
   sense across topologies, so ``n_shared_sources`` becomes the number of farthest-point
   sources of *each shape* (starting at its vertex 0).
 
-Shape ``k`` of a split has family ``families[k % len(families)]`` (or of that split's own
-family list, ``split_families``, when families are split by file) and seed
-``SPLIT_SEED_OFFSETS[split] + k``, so splits never share a seed and any shape can be
-regenerated from (category, family, seed).
+Shape ``k`` of a split is that split's shape ``i = first_index + k``: family
+``families[i % len(families)]`` (or of that split's own family list, ``split_families``, when
+families are split by file) and seed ``SPLIT_SEED_OFFSETS[split] + i``, so splits never share a
+seed and any shape can be regenerated from (category, family, seed). ``first_index`` (default
+0) lets a second dataset continue an earlier one's seeds, more shapes of the same distribution
+without rebuilding or repeating the first ones.
 
 Storage precision (decided here, recorded in the manifest):
 
@@ -59,6 +61,8 @@ class DatasetSpec:
         split_families: optional per-split family lists (a subset of ``families`` each),
             e.g. the files of a folder split train/val/test by file; ``None``: every split
             cycles through ``families``.
+        first_index: index of the first shape of every split in the category's seed
+            sequence (0 ≤ first_index < 1,000,000, the gap between split seed offsets).
     """
 
     name: str
@@ -70,6 +74,7 @@ class DatasetSpec:
     shard_size: int = 32
     kind: str = "template"
     split_families: dict[str, tuple[str, ...]] | None = None
+    first_index: int = 0
 
     def __post_init__(self) -> None:
         if not self.families:
@@ -91,6 +96,13 @@ class DatasetSpec:
             raise InputError("shape counts must be non-negative")
         if self.n_shared_sources < 1 or self.n_extra_sources < 0 or self.shard_size < 1:
             raise InputError("need n_shared_sources ≥ 1, n_extra_sources ≥ 0, shard_size ≥ 1")
+        seed_gap = SPLIT_SEED_OFFSETS["val"] - SPLIT_SEED_OFFSETS["train"]
+        last = self.first_index + max(self.n_shapes.values(), default=0)
+        if isinstance(self.first_index, bool) or self.first_index < 0 or last > seed_gap:
+            raise InputError(
+                f"first_index must be ≥ 0 and keep every split's seeds below {seed_gap:,} "
+                f"(got first_index {self.first_index} for {last - self.first_index} shapes)"
+            )
 
     @property
     def n_sources(self) -> int:
@@ -113,18 +125,22 @@ class DatasetSpec:
     def shape_key(self, split: str, index: int) -> tuple[str, int]:
         """``(family, seed)`` of shape ``index`` of ``split``."""
         families = self.families_of(split)
-        return families[index % len(families)], SPLIT_SEED_OFFSETS[split] + index
+        position = self.first_index + index
+        return families[position % len(families)], SPLIT_SEED_OFFSETS[split] + position
 
     def distance_dtype(self, split: str) -> str:
         return "float16" if split == "train" else "float32"
 
     def to_json(self) -> str:
-        """Canonical JSON; ``kind`` and ``split_families`` are written only when they differ
-        from the defaults, so template specs serialize exactly as format version 1 did."""
+        """Canonical JSON; ``kind``, ``split_families`` and ``first_index`` are written only
+        when they differ from the defaults, so template specs serialize exactly as format
+        version 1 did."""
         data = asdict(self)
         data["families"] = list(self.families)
         if self.kind == "template":
             del data["kind"]
+        if self.first_index == 0:
+            del data["first_index"]
         if self.split_families is None:
             del data["split_families"]
         else:

@@ -97,6 +97,48 @@ def test_parallel_build_equals_serial(tmp_path):
     ]
 
 
+def test_first_index_continues_the_seed_sequence_without_repeating_a_shape(tmp_path):
+    factory = EllipsoidFactory()
+    whole = build_dataset(
+        toy_spec(n_shapes={"train": 5, "val": 0, "test": 0}),
+        tmp_path / "whole",
+        factory,
+        distance_fn=edge_dijkstra,
+        progress=False,
+    )
+    first = build_dataset(
+        toy_spec(name="first", n_shapes={"train": 2, "val": 0, "test": 0}),
+        tmp_path / "first",
+        factory,
+        distance_fn=edge_dijkstra,
+        progress=False,
+    )
+    rest = build_dataset(
+        toy_spec(name="rest", n_shapes={"train": 3, "val": 1, "test": 0}, first_index=2),
+        tmp_path / "rest",
+        factory,
+        distance_fn=edge_dijkstra,
+        progress=False,
+    )
+    assert whole["counts"]["train"] == first["counts"]["train"] + rest["counts"]["train"]
+    full = GeodesicDataset(tmp_path / "whole").load_split("train")
+    head = GeodesicDataset(tmp_path / "first").load_split("train")
+    tail = GeodesicDataset(tmp_path / "rest").load_split("train")
+    np.testing.assert_array_equal(tail["seed"], [2, 3, 4])
+    np.testing.assert_array_equal(tail["family"], full["family"][2:])
+    for key in ("vertices", "sources", "distances"):
+        np.testing.assert_array_equal(np.concatenate([head[key], tail[key]]), full[key])
+    val = GeodesicDataset(tmp_path / "rest").load_split("val")
+    np.testing.assert_array_equal(val["seed"], [1_000_002])
+    assert rest["spec"]["first_index"] == 2 and "first_index" not in whole["spec"]
+
+
+@pytest.mark.parametrize("first_index", [-1, 999_998, True])
+def test_first_index_must_keep_seeds_inside_their_split(first_index):
+    with pytest.raises(InputError, match="first_index"):
+        toy_spec(first_index=first_index)
+
+
 def test_resume_recomputes_only_missing_or_damaged_shards(tmp_path):
     spec = toy_spec()
     calls = []

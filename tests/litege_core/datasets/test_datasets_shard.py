@@ -270,12 +270,14 @@ def test_cli_build_takes_shape_counts_a_name_and_the_solver(tmp_path, capsys):
     out = tmp_path / "tiny"
     argv = ["data", "build", "--category", "quadruped", "--shapes", "train=2,val=1,test=0"]
     argv += ["--name", "tiny-heat", "--solver", "heat", "--workers", "1", "--out", str(out)]
-    assert cli_main(argv) == 0
+    assert cli_main([*argv, "--first-index", "7"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["counts"] == {"train": 2, "val": 1, "test": 0}
     manifest = json.loads((out / "manifest.json").read_text())
     spec = json.loads(manifest["spec"]) if isinstance(manifest["spec"], str) else manifest["spec"]
     assert spec["name"] == "tiny-heat" and spec["category"] == "quadruped"
+    assert spec["first_index"] == 7
+    np.testing.assert_array_equal(GeodesicDataset(out).load_split("train")["seed"], [7, 8])
     assert manifest["solver"].startswith("heat method")
     assert cli_main(["data", "verify", str(out)]) == 0
 
