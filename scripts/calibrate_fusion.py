@@ -36,7 +36,7 @@ from litege_core.evaluation.geodesic import collection_eval_shapes, generated_ev
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_bundle, load_shipped
 from litege_core.learned.cards import write_sidecar_section
-from litege_core.learned.fusion import save_fusion
+from litege_core.learned.fusion import MESH_RINGS, save_fusion
 from litege_core.learned.small_head import small_head_config
 from litege_core.synth import CATEGORIES
 
@@ -121,10 +121,13 @@ def main() -> None:
     )
     a, c_z, c_n, c_r = calibration.gate
     print(
-        f"- graph: k = {calibration.k}, edges cut above {calibration.prune_ratio} × chord "
-        f"(predicted by the {veto_head} head); "
-        f"median graph / geodesic: {knots}; network weight = sigmoid({a:.3f} + {c_z:.3f}·z "
-        f"+ {c_n:.3f}·(log10 N − 3) + {c_r:.3f}·roughness)\n"
+        f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
+        f"× chord (predicted by the {veto_head} head); median graph / geodesic: {knots}; "
+        f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
+        f"+ {c_r:.3f}·roughness)\n"
+        f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
+        f"graph / geodesic {calibration.mesh_bias:.4f}; network weight "
+        f"sigmoid({calibration.mesh_gate:.3f})\n"
     )
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))

@@ -36,8 +36,9 @@ class Settings(BaseSettings):
     one: its category where it is confident, else the lowest z-score), ``none`` (the lowest
     z-score alone) or a router directory (``scripts/train_router.py``)."""
     geodesic_fusion: Literal["none", "graph"] = "none"
-    """``graph``: every learned geodesic answer blends the network with the model's calibrated,
-    network-pruned kNN-graph Dijkstra (``litege_core.learned.fusion``; more accurate on real
+    """``graph``: every learned geodesic answer blends the network with the model's calibrated
+    graph Dijkstra (a mesh's own edges; a cloud's network-pruned kNN graph;
+    ``litege_core.learned.fusion``; more accurate on real
     shapes far from the training families, slower on large shapes); every loaded model must
     ship its calibration. ``none``: the network alone. Paths follow the network either way."""
     geodesic_head: Literal["auto", "full", "small"] = "auto"

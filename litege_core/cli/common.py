@@ -158,15 +158,16 @@ same reason as :data:`LATTICE_CHOICES`; a test keeps the two equal)."""
 
 
 def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
-    """``--fusion none|graph``: the network alone, or blended with the model's calibrated,
-    network-pruned kNN-graph Dijkstra (:mod:`litege_core.learned.fusion`)."""
+    """``--fusion none|graph``: the network alone, or blended with the model's calibrated
+    graph Dijkstra (a mesh's edges, a cloud's network-pruned kNN graph;
+    :mod:`litege_core.learned.fusion`)."""
     parser.add_argument(
         "--fusion",
         choices=FUSIONS,
         default="none",
         help="none (default: the network's distances) or graph (blend them with a calibrated "
-        "kNN-graph Dijkstra on the shape's points, weighted by how unusual the shape is and "
-        "how dense its points are: more accurate on real shapes far from the training "
+        "graph Dijkstra (a mesh's own edges, a cloud's kNN graph), weighted by how unusual the "
+        "shape is and how dense its points are: more accurate on real shapes far from the training "
         "families, slower on large clouds)",
     )
 

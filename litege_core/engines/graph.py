@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from litege_core.engines._topology import unique_edges
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
 from litege_core.shape import Shape
@@ -114,6 +115,35 @@ def knn_graph(
     return edge_graph(n, edges, lengths.reshape(-1))
 
 
+def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
+    """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
+
+    Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
+    faces stay apart, while the chords across each vertex's neighbourhood straighten the
+    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges).
+
+    Args:
+        points: ``(N, 3)`` float64 vertices.
+        faces: ``(F, 3)`` int triangles into ``points``.
+        rings: largest number of mesh edges between two joined vertices (≥ 1).
+
+    Returns:
+        ``(N, N)`` upper-triangular CSR of chord lengths (see :func:`edge_graph`).
+    """
+    n = points.shape[0]
+    edges, _ = unique_edges(np.asarray(faces, dtype=np.int64))
+    step = sp.coo_array((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included
+    reach = step
+    for _ in range(rings - 1):
+        reach = reach @ step
+        reach.data[:] = 1.0  # membership only: keeps the counts from growing
+    upper = sp.triu(reach, k=1).tocoo()
+    pairs = np.column_stack([upper.row, upper.col]).astype(np.int64)
+    lengths = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    return edge_graph(n, pairs, lengths)
+
+
 class KnnGraphEngine(GeodesicEngine):
     """Dijkstra distances on the symmetric k-NN graph of a point cloud (or a mesh's vertices).
 
@@ -160,4 +190,5 @@ __all__ = [
     "dijkstra_rows",
     "edge_graph",
     "knn_graph",
+    "mesh_ring_graph",
 ]

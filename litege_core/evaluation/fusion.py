@@ -3,9 +3,10 @@
 The calibration shapes are ones we generate (held-out procedural shapes, rigged or MakeHuman
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
-per-setting medians (clean clouds) of the shapes' median graph / truth ratios, and the four
-gate constants
-minimise the mean per-shape error of the fused rows (Nelder–Mead, from ``w = 1/2``).
+per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
+the same median over the mesh inputs, whose graph is the mesh's own edges), and the four cloud
+gate constants and the mesh gate minimise the mean per-shape error of the fused rows
+(Nelder–Mead, from ``w = 1/2``).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import EvalShape, make_input
-from litege_core.learned.fusion import FusionCalibration, fuse, surface_roughness
+from litege_core.learned.fusion import MESH_RINGS, FusionCalibration, fuse, surface_roughness
 from litege_core.metrics import geodesic_error
 
 CALIBRATION_SETTINGS = (
@@ -42,11 +43,12 @@ DEFAULT_PRUNE_RATIO = 1.6
 @dataclass(frozen=True)
 class FusionSample:
     """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit), with the
-    gate's inputs (OOD z-score, point count, surface roughness)."""
+    gate's inputs (mesh or cloud, OOD z-score, point count, surface roughness)."""
 
     shape: str
     group: str
     setting: str
+    mesh: bool
     n_points: int
     z_score: float
     roughness: float
@@ -61,7 +63,15 @@ def probe_calibration(
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
     return FusionCalibration(
-        k, prune_ratio, (3.0,), (1.0,), (-60.0, 0.0, 0.0, 0.0), bundle_hash, veto_head=veto_head
+        k,
+        prune_ratio,
+        (3.0,),
+        (1.0,),
+        (-60.0, 0.0, 0.0, 0.0),
+        mesh_bias=1.0,
+        mesh_gate=-60.0,
+        bundle_hash=bundle_hash,
+        veto_head=veto_head,
     )
 
 
@@ -104,6 +114,7 @@ def collect_samples(
                     shape.name,
                     shape.group,
                     setting,
+                    state.faces is not None,
                     state.n_points,
                     float(state.ood_score),
                     surface_roughness(state.canonical_points),
@@ -136,6 +147,7 @@ def sample_error(sample: FusionSample, calibration: FusionCalibration | None, wh
         sample.z_score,
         sample.n_points,
         sample.roughness,
+        sample.mesh,
     )
     return _error(rows, sample.truth)
 
@@ -149,19 +161,25 @@ def fit_fusion(
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
 ) -> FusionCalibration:
-    """Bias knots and gate fitted on ``samples`` (see the module docstring)."""
+    """Bias knots and gates fitted on ``samples`` (see the module docstring). Without mesh
+    samples the mesh bias is 1 and the mesh gate gives the network all the weight."""
     from scipy.optimize import minimize
 
-    knots: dict[str, tuple[float, float]] = {}
-    for setting in sorted({s.setting for s in samples if s.setting.startswith("cloud_")}):
-        members = [s for s in samples if s.setting == setting]
+    def median_ratio(members: Sequence[FusionSample]) -> float:
         ratios = []
         for s in members:
             keep = (s.truth > 0) & np.isfinite(s.graph)
             ratios.append(float(np.median(s.graph[keep] / s.truth[keep])))
+        return float(np.median(ratios))
+
+    clouds = [s for s in samples if not s.mesh]
+    meshes = [s for s in samples if s.mesh]
+    knots: dict[str, tuple[float, float]] = {}
+    for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
+        members = [s for s in clouds if s.setting == setting]
         knots[setting] = (
             float(np.log10(np.mean([s.n_points for s in members]))),
-            float(np.median(ratios)),
+            median_ratio(members),
         )
     ordered = sorted(knots.values())
     base = FusionCalibration(
@@ -170,31 +188,41 @@ def fit_fusion(
         tuple(x for x, _ in ordered),
         tuple(b for _, b in ordered),
         (0.0, 0.0, 0.0, 0.0),
-        bundle_hash,
-        dict(fitted_on or {}),
-        veto_head,
+        mesh_bias=median_ratio(meshes) if meshes else 1.0,
+        mesh_gate=0.0 if meshes else 60.0,
+        bundle_hash=bundle_hash,
+        fitted_on=dict(fitted_on or {}),
+        veto_head=veto_head,
     )
+
+    def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
+        def loss(params: NDArray) -> float:
+            candidate = calibration(params)
+            return float(np.mean([sample_error(s, candidate, "fused") for s in members]))
+
+        # unit steps from w = 1/2 (scipy's default simplex is 0.00025 wide around zero)
+        return minimize(
+            loss,
+            start,
+            method="Nelder-Mead",
+            options={
+                "xatol": 1e-3,
+                "fatol": 1e-4,
+                "maxiter": 2000,
+                "initial_simplex": np.vstack([start, start + np.eye(start.size)]),
+            },
+        ).x
 
     def with_gate(gate: NDArray) -> FusionCalibration:
         a, c_z, c_n, c_r = (float(v) for v in gate)
         return replace(base, gate=(a, c_z, c_n, c_r))
 
-    def loss(gate: NDArray) -> float:
-        return float(np.mean([sample_error(s, with_gate(gate), "fused") for s in samples]))
-
-    start = np.zeros(4)  # w = 1/2 everywhere; unit steps (scipy's default 0.00025 from zero)
-    best = minimize(
-        loss,
-        start,
-        method="Nelder-Mead",
-        options={
-            "xatol": 1e-3,
-            "fatol": 1e-4,
-            "maxiter": 2000,
-            "initial_simplex": np.vstack([start, start + np.eye(4)]),
-        },
-    )
-    return with_gate(best.x)
+    if clouds:
+        base = with_gate(fitted(clouds, np.zeros(4), with_gate))
+    if meshes:
+        mesh_gate = fitted(meshes, np.zeros(1), lambda g: replace(base, mesh_gate=float(g[0])))
+        base = replace(base, mesh_gate=float(mesh_gate[0]))
+    return base
 
 
 def fusion_summary(
@@ -217,7 +245,8 @@ def fusion_summary(
                 row[what] = round(float(np.mean(errors)), 4)
             row["roughness"] = round(float(np.mean([s.roughness for s in members])), 4)
             weights = [
-                calibration.network_weight(s.z_score, s.n_points, s.roughness) for s in members
+                calibration.network_weight(s.z_score, s.n_points, s.roughness, s.mesh)
+                for s in members
             ]
             row["network_weight"] = round(float(np.mean(weights)), 4)
             summary.append(row)
@@ -227,8 +256,8 @@ def fusion_summary(
 def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
     """Markdown of :func:`fusion_summary`."""
     lines = [
-        f"| shapes | setting | n | network | pruned kNN graph (k = {k}) | fused | roughness | "
-        "network weight |",
+        f"| shapes | setting | n | network | graph (mesh: {MESH_RINGS}-ring; cloud: pruned kNN, "
+        f"k = {k}) | fused | roughness | network weight |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     lines += [

@@ -183,7 +183,7 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
     """The card's section on the bundle's optional sidecars (the small head, the graph-fusion
     calibration) present in ``directory``, with the calibration data's credits; ``None`` when
     there are none."""
-    from litege_core.learned.fusion import FUSION_CONFIG
+    from litege_core.learned.fusion import FUSION_CONFIG, MESH_RINGS
     from litege_core.learned.small_head import SMALL_HEAD_CONFIG
 
     directory = Path(directory)
@@ -204,13 +204,15 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), "
             '`Predictor(bundle, fusion="graph")`, `litege geodesic --fusion graph`, service '
             "`LITEGE_GEODESIC_FUSION=graph`. The network's distances are blended with a "
-            f"Dijkstra on the shape's k = {data['k']} nearest-neighbour graph whose edges the "
-            f"{data['veto_head']} head vetoes (cut where its predicted geodesic exceeds "
-            f"{data['prune_ratio']} × the chord); the graph's density bias and the blend weight "
-            "(a sigmoid of the shape's OOD z-score, log10 of its point count and its surface "
-            f"roughness) were fitted by `scripts/calibrate_fusion.py` on {shapes} only, never "
-            "on the real dev set. Constants, fit errors and the date are in the file; dev-set "
-            "results in BENCHMARKS.md (`fusion-*` sections). Paths follow the network's field."
+            f"Dijkstra: on a mesh over chords between vertices at most {MESH_RINGS} edges "
+            f"apart, on a point cloud over its k = {data['k']} nearest-neighbour graph whose "
+            f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
+            f"exceeds {data['prune_ratio']} × the chord); the graphs' biases and the blend "
+            "weights (on a cloud a sigmoid of the shape's OOD z-score, log10 of its point count "
+            "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "
+            f"{shapes} only, never on the real dev set. Constants, fit errors and the date are "
+            "in the file; dev-set results in BENCHMARKS.md (`fusion-*` sections). Paths follow "
+            "the network's field."
         )
         credits = [
             COLLECTION_CREDITS[c]

@@ -1,26 +1,30 @@
-"""Graph fusion: the network's distances blended with a calibrated, pruned kNN-graph Dijkstra.
+"""Graph fusion: the network's distances blended with a calibrated graph Dijkstra.
 
 On real shapes the network's error is dominated by shapes far from its training families (the
-error follows the out-of-distribution score), while a kNN-graph Dijkstra on a dense cloud
-is nearly unbiased wherever its graph has no shortcuts, and on a sparse one is poor everywhere.
-The fused estimate takes the better of the two per shape, with weights fitted on data we
-generate (procedural shapes, posed rigged animals, MakeHuman bodies; never the real dev set)::
+error follows the out-of-distribution score), while a graph Dijkstra on a dense cloud is nearly
+unbiased wherever its graph has no shortcuts, and on a sparse one is poor everywhere. The fused
+estimate takes the better of the two per shape, with weights fitted on data we generate
+(procedural shapes, posed rigged animals, MakeHuman bodies; never the real dev set)::
 
-    G_graph  = Dijkstra on the symmetric k-NN graph of the points (canonical frame), after
-               cutting every edge whose predicted geodesic exceeds ``prune_ratio`` × its
-               chord (the network vetoes shortcuts between touching parts; the veto is the
-               bundle's small head where the calibration says so: it costs one head
-               evaluation per edge, ~8 N for N points)
-    b(N)     = the graph's median over-estimate at N points (zig-zag paths), interpolated
-               in log10 N from calibration knots
-    w        = sigmoid(a + c_z · z + c_n · (log10 N − 3) + c_r · r)
+    G_graph  = for a mesh input, Dijkstra on chords between vertices at most ``MESH_RINGS``
+               mesh edges apart (the mesh's connectivity: no shortcut between parts that
+               touch); for a point cloud, on the symmetric k-NN graph of the points
+               (canonical frame) after cutting every edge whose predicted geodesic exceeds
+               ``prune_ratio`` × its chord (the network vetoes shortcuts between touching
+               parts; the veto is the bundle's small head where the calibration says so: it
+               costs one head evaluation per edge, ~8 N for N points)
+    b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
+               b(N) at N cloud points, interpolated in log10 N from calibration knots
+    w        = sigmoid(mesh_gate) on a mesh; for a cloud
+               sigmoid(a + c_z · z + c_n · (log10 N − 3) + c_r · r)
                (z: the shape's OOD z-score; r: its surface roughness, see
                :func:`surface_roughness`, high on noisy scans)
-    G        = w · G_network + (1 − w) · G_graph / b(N)
+    G        = w · G_network + (1 − w) · G_graph / b
 
 so a shape the network knows (low z), a sparse or a noisy cloud leans on the network, and an
-unusual shape sampled densely leans on the graph. Pairs the graph cannot join (another component)
-keep the network's value. Distances only: paths still follow the network's field.
+unusual shape sampled densely, or any mesh, leans on the graph. Pairs the graph cannot join
+(another component) keep the network's value. Distances only: paths still follow the network's
+field.
 
 The calibration is a sidecar of the bundle, like the small head: ``fusion.json`` beside the
 bundle files, naming the content hash of the bundle it was fitted for (a mismatch is refused),
@@ -49,11 +53,16 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 2
+FUSION_FORMAT = 3
+"""Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity)."""
 
 FUSIONS = ("none", "graph")
 """Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
 VETO_HEADS = ("full", "small")
+MESH_RINGS = 2
+"""Mesh edges between two vertices the graph of a mesh input joins by a chord
+(:func:`~litege_core.engines.graph.mesh_ring_graph`): on the real dev meshes and the calibration
+meshes two rings gave the lowest error of 1–3 (the own edges zig-zag, three admit shortcuts)."""
 ROUGHNESS_NEIGHBOURS = 16
 """Points per neighbourhood of :func:`surface_roughness` (the point itself included)."""
 ROUGHNESS_CHUNK = 65_536
@@ -72,7 +81,9 @@ class FusionCalibration:
         prune_ratio: an edge is cut when its predicted geodesic exceeds this × its chord.
         bias_log10_points: increasing knots of ``log10 N``.
         bias: the graph's median distance / true distance at each knot.
-        gate: ``(a, c_z, c_n, c_r)`` of the network's weight ``w``.
+        gate: ``(a, c_z, c_n, c_r)`` of the network's weight ``w`` on a point cloud.
+        mesh_bias: the mesh graph's median distance / true distance.
+        mesh_gate: the logit of the network's weight ``w`` on a mesh.
         bundle_hash: content hash of the bundle the calibration belongs to.
         fitted_on: what it was fitted on (free-form JSON: data, counts, errors).
         veto_head: the head whose edge predictions prune the graph: ``"small"`` (the
@@ -85,6 +96,8 @@ class FusionCalibration:
     bias_log10_points: tuple[float, ...]
     bias: tuple[float, ...]
     gate: tuple[float, float, float, float]
+    mesh_bias: float
+    mesh_gate: float
     bundle_hash: str
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
@@ -103,16 +116,28 @@ class FusionCalibration:
             raise ArtifactError(f"fusion veto_head must be {VETO_HEADS}, got {self.veto_head!r}")
         if len(self.gate) != 4 or not all(math.isfinite(v) for v in self.gate):
             raise ArtifactError(f"fusion gate must be four finite numbers, got {self.gate!r}")
+        if not (math.isfinite(self.mesh_bias) and self.mesh_bias > 0):
+            raise ArtifactError(f"fusion mesh_bias must be positive, got {self.mesh_bias!r}")
+        if not math.isfinite(self.mesh_gate):
+            raise ArtifactError(f"fusion mesh_gate must be finite, got {self.mesh_gate!r}")
 
-    def graph_bias(self, n_points: int) -> float:
-        """The graph's over-estimate factor at ``n_points`` points (clamped to the knots)."""
+    def graph_bias(self, n_points: int, mesh: bool = False) -> float:
+        """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
+        cloud points (clamped to the knots)."""
+        if mesh:
+            return self.mesh_bias
         return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
 
-    def network_weight(self, z_score: float, n_points: int, roughness: float) -> float:
-        """The network's weight ``w`` in ``[0, 1]`` for a shape of this OOD z, size and
-        surface roughness."""
-        a, c_z, c_n, c_r = self.gate
-        logit = a + c_z * float(z_score) + c_n * (math.log10(n_points) - 3.0) + c_r * roughness
+    def network_weight(
+        self, z_score: float, n_points: int, roughness: float, mesh: bool = False
+    ) -> float:
+        """The network's weight ``w`` in ``[0, 1]`` for a mesh, or for a cloud of this OOD z,
+        size and surface roughness."""
+        if mesh:
+            logit = self.mesh_gate
+        else:
+            a, c_z, c_n, c_r = self.gate
+            logit = a + c_z * float(z_score) + c_n * (math.log10(n_points) - 3.0) + c_r * roughness
         return float(1.0 / (1.0 + math.exp(-min(max(logit, -60.0), 60.0))))
 
     def to_json(self) -> dict[str, Any]:
@@ -122,7 +147,10 @@ class FusionCalibration:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> FusionCalibration:
         if (data.get("kind"), data.get("format_version")) != (FUSION_KIND, FUSION_FORMAT):
-            raise ArtifactError(f"{FUSION_CONFIG} is not a graph fusion of format {FUSION_FORMAT}")
+            raise ArtifactError(
+                f"{FUSION_CONFIG} is not a graph fusion of format {FUSION_FORMAT}; fit it again "
+                "(scripts/calibrate_fusion.py)"
+            )
         try:
             return cls(
                 k=int(data["k"]),
@@ -130,6 +158,8 @@ class FusionCalibration:
                 bias_log10_points=tuple(float(v) for v in data["bias_log10_points"]),
                 bias=tuple(float(v) for v in data["bias"]),
                 gate=tuple(float(v) for v in data["gate"]),  # type: ignore[arg-type]
+                mesh_bias=float(data["mesh_bias"]),
+                mesh_gate=float(data["mesh_gate"]),
                 bundle_hash=str(data["bundle_hash"]),
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
@@ -317,12 +347,14 @@ def fuse(
     z_score: float,
     n: int,
     roughness: float,
+    mesh: bool = False,
 ) -> NDArray:
-    """``w · network + (1 − w) · graph / b(n)`` (same units); the network alone where the
-    graph is ``inf``. ``network``, ``graph``: ``(S, T)``; returns float64 ``(S, T)``."""
-    weight = calibration.network_weight(z_score, n, roughness)
+    """``w · network + (1 − w) · graph / b`` (same units; ``mesh``: the graph is the mesh's
+    ring graph); the network alone where the graph is ``inf``. ``network``, ``graph``: ``(S, T)``;
+    returns float64 ``(S, T)``."""
+    weight = calibration.network_weight(z_score, n, roughness, mesh)
     network = np.asarray(network, np.float64)
-    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n)
+    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh)
     corrected = np.where(np.isfinite(corrected), corrected, network)
     return weight * network + (1.0 - weight) * corrected
 
@@ -330,6 +362,7 @@ def fuse(
 __all__ = [
     "FUSIONS",
     "FUSION_CONFIG",
+    "MESH_RINGS",
     "FusionCalibration",
     "fuse",
     "graph_rows",

@@ -75,6 +75,7 @@ from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.fusion import (
     FUSIONS,
+    MESH_RINGS,
     ROUGHNESS_NEIGHBOURS,
     FusionCalibration,
     fuse,
@@ -634,6 +635,39 @@ class Predictor:
         """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
         assert self.fusion is not None
         fusion = self.fusion
+        points = state.canonical_points
+        mesh = state.faces is not None
+        if mesh:  # the mesh's connectivity: no shortcut between touching parts, nothing to veto
+            graph, roughness = state._lazy.get("fusion.mesh_graph"), 0.0
+            if graph is None:
+                from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
+
+                graph = mesh_ring_graph(points, state.faces, MESH_RINGS)
+                state._lazy["fusion.mesh_graph"] = graph
+        else:
+            graph, roughness = self._cloud_graph(state)
+        tree = None
+        if src.indices is None or dst.indices is None:  # free points join through a KD-tree
+            tree = state._lazy.get("fusion.tree")
+            if tree is None:
+                from scipy.spatial import cKDTree
+
+                tree = state._lazy["fusion.tree"] = cKDTree(points)
+        rows = graph_rows(
+            graph,
+            points,
+            (src.indices, src.canonical),
+            (dst.indices, dst.canonical),
+            fusion.k,
+            tree,
+        )
+        return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness, mesh)
+
+    def _cloud_graph(self, state: ShapeState) -> tuple[Any, float]:
+        """The network-pruned k-NN graph of a cloud's canonical points and its surface
+        roughness, both kept with ``state``."""
+        assert self.fusion is not None
+        fusion = self.fusion
         key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
         points = state.canonical_points
         graph, roughness = state._lazy.get(key), state._lazy.get("fusion.roughness")
@@ -654,22 +688,7 @@ class Predictor:
                     neighbours,
                 )
                 state._lazy[key] = graph
-        tree = None
-        if src.indices is None or dst.indices is None:  # free points join through a KD-tree
-            tree = state._lazy.get("fusion.tree")
-            if tree is None:
-                from scipy.spatial import cKDTree
-
-                tree = state._lazy["fusion.tree"] = cKDTree(points)
-        rows = graph_rows(
-            graph,
-            points,
-            (src.indices, src.canonical),
-            (dst.indices, dst.canonical),
-            fusion.k,
-            tree,
-        )
-        return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness)
+        return graph, roughness
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
         """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical).

@@ -27,7 +27,9 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
     bundle = load_bundle(directory)
     save_fusion(
         directory,
-        FusionCalibration(8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0, 0.0), bundle.content_hash),
+        FusionCalibration(
+            8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0, 0.0), 1.0, 0.0, bundle.content_hash
+        ),
     )
     assert main([*args, "--fusion", "graph", "-o", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["fusion"] == "graph"

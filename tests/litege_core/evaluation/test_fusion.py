@@ -19,9 +19,17 @@ from litege_core.evaluation.fusion import (
 def _samples() -> list[FusionSample]:
     """Familiar shapes (z = 0): the network is nearly exact, the graph noisy. Unusual shapes
     (z = 4): the network is off by a shape-wide factor, the graph exact up to its bias 1.05
-    (at 1000 points) or 1.10 (at 300 points)."""
+    (at 1000 points) or 1.10 (at 300 points). Meshes: the network is noisy, the mesh-edge graph
+    exact up to its bias 1.06."""
     rng = np.random.default_rng(0)
     samples = []
+    for i in range(6):
+        truth = rng.uniform(10.0, 200.0, size=(4, 50))
+        network = truth * rng.normal(1.0, 0.1, truth.shape)
+        graph = truth * 1.06 * rng.normal(1.0, 0.005, truth.shape)
+        samples.append(
+            FusionSample(f"m{i}", "toy", "mesh", True, 800, 0.0, 0.1, network, graph, truth)
+        )
     for setting, n_points, bias in (("cloud_1000", 1000, 1.05), ("cloud_300", 300, 1.10)):
         for i in range(12):
             truth = rng.uniform(10.0, 200.0, size=(4, 50))
@@ -35,7 +43,9 @@ def _samples() -> list[FusionSample]:
                 graph = truth * bias * rng.normal(1.0, 0.3, truth.shape)
             z_score = 4.0 if unusual else 0.0
             samples.append(
-                FusionSample(f"s{i}", "toy", setting, n_points, z_score, 0.1, network, graph, truth)
+                FusionSample(
+                    f"s{i}", "toy", setting, False, n_points, z_score, 0.1, network, graph, truth
+                )
             )
     return samples
 
@@ -48,21 +58,43 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
     assert calibration.bias == pytest.approx((1.10, 1.05), abs=0.01)
     assert calibration.network_weight(0.0, 1000, 0.1) > 0.8
     assert calibration.network_weight(4.0, 1000, 0.1) < 0.2
+    assert calibration.mesh_bias == pytest.approx(1.06, abs=0.005)
+    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) < 0.1
     fused = np.mean([sample_error(s, calibration, "fused") for s in samples])
     network = np.mean([sample_error(s, None, "network") for s in samples])
     graph = np.mean([sample_error(s, None, "graph") for s in samples])
     assert fused < 0.5 * min(network, graph)
     summary = fusion_summary(samples, calibration)
-    assert [(r["setting"], r["shapes"]) for r in summary] == [("cloud_1000", 12), ("cloud_300", 12)]
-    assert summary[0]["fused"] < summary[0]["network"]
+    assert [(r["setting"], r["shapes"]) for r in summary] == [
+        ("mesh", 6),
+        ("cloud_1000", 12),
+        ("cloud_300", 12),
+    ]
+    assert all(r["fused"] < r["network"] for r in summary)
     table = fusion_table(summary, calibration.k)
-    assert "| toy | cloud_1000 | 12 |" in table and "| toy | cloud_300 | 12 |" in table
+    assert "| toy | cloud_1000 | 12 |" in table and "| toy | mesh | 6 |" in table
+
+
+def test_without_mesh_samples_meshes_keep_the_network() -> None:
+    clouds = [s for s in _samples() if not s.mesh]
+    calibration = fit_fusion(clouds, "h" * 64, k=8, prune_ratio=1.5)
+    assert calibration.mesh_bias == 1.0
+    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) == pytest.approx(1.0)
 
 
 def test_unreachable_graph_pairs_count_with_the_network_value() -> None:
     truth = np.array([[0.0, 10.0, 20.0]])
     sample = FusionSample(
-        "s", "toy", "cloud_300", 300, 0.0, 0.1, truth * 1.1, np.array([[0.0, 10.0, np.inf]]), truth
+        "s",
+        "toy",
+        "cloud_300",
+        False,
+        300,
+        0.0,
+        0.1,
+        truth * 1.1,
+        np.array([[0.0, 10.0, np.inf]]),
+        truth,
     )
     # pairs with truth > 0: |10 - 10| and |22 - 20| (the network's value), GT mean 15
     assert sample_error(sample, None, "graph") == pytest.approx(np.mean([0.0, 2.0]) * 100 / 15)

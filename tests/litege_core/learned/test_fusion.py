@@ -1,6 +1,6 @@
-"""Graph fusion (issue 14): the calibration file, the network-pruned kNN graph, graph rows for
-indexed and free points, the blend, and ``Predictor(bundle, fusion=...)`` checked against a
-graph built independently."""
+"""Graph fusion (issue 14): the calibration file, the network-pruned kNN graph of a cloud and
+the edge graph of a mesh, graph rows for indexed and free points, the blend, and
+``Predictor(bundle, fusion=...)`` checked against a graph built independently."""
 
 from __future__ import annotations
 
@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from litege_core.engines.graph import knn_graph
+from litege_core.engines.graph import knn_graph, mesh_ring_graph
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import (
     FUSION_CONFIG,
+    MESH_RINGS,
     FusionCalibration,
     fuse,
     graph_rows,
@@ -24,6 +25,7 @@ from litege_core.learned.fusion import (
     pruned_knn_graph,
     save_fusion,
 )
+from litege_core.shape import Shape
 
 
 def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
@@ -33,6 +35,8 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         bias_log10_points=(2.5, 3.0, 3.5),
         bias=(0.98, 1.01, 1.02),
         gate=(0.5, -1.0, -2.0, -10.0),
+        mesh_bias=1.04,
+        mesh_gate=-1.5,
         bundle_hash=bundle_hash,
         fitted_on={"shapes": {"toy": 3}},
     )
@@ -53,6 +57,9 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"bias": (1.0, -1.0, 1.0)},
         {"gate": (0.0, float("inf"), 0.0, 0.0)},
         {"gate": (0.0, 1.0, 0.0)},
+        {"mesh_bias": 0.0},
+        {"mesh_bias": float("nan")},
+        {"mesh_gate": float("inf")},
         {"veto_head": "tiny"},
     ],
 )
@@ -77,6 +84,11 @@ def test_network_weight_is_the_gate_sigmoid() -> None:
     assert calibration.network_weight(3.0, 1000, 0.1) < calibration.network_weight(0.0, 1000, 0.1)
     assert calibration.network_weight(0.0, 5000, 0.1) < calibration.network_weight(0.0, 300, 0.1)
     assert 0.0 <= calibration.network_weight(1e9, 10**9, 0.1) < 1e-20
+    # a mesh has its own gate and bias, whatever its z, size and roughness
+    for z, n in ((0.0, 300), (5.0, 10**5)):
+        mesh_weight = calibration.network_weight(z, n, 0.3, mesh=True)
+        assert mesh_weight == pytest.approx(1 / (1 + np.exp(1.5)))
+        assert calibration.graph_bias(n, mesh=True) == 1.04
 
 
 def test_roughness_grows_with_noise_and_ignores_scale(monkeypatch) -> None:
@@ -234,6 +246,10 @@ def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails()
     np.testing.assert_allclose(fuse(network, graph, only_network, 5.0, 300, 0.1), network)
     half = _calibration(gate=(0.0, 0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0))
     np.testing.assert_allclose(fuse(network, graph, half, 1.0, 1000, 0.1), [[0, 11, 20]])
+    mesh_graph_only = _calibration(gate=(60.0, 0.0, 0.0, 0.0), mesh_gate=-60.0, mesh_bias=1.2)
+    np.testing.assert_allclose(
+        fuse(network, graph, mesh_graph_only, 0.0, 1000, 0.1, mesh=True), [[0, 10, 20]]
+    )
 
 
 # ------------------------------------------------------------------ through the predictor
@@ -245,7 +261,14 @@ def bundle_dir(toy_bundle_dir_with_ood):
 
 
 def _graph_only(bundle_hash: str, prune_ratio: float = 1e9) -> FusionCalibration:
-    return _calibration(bundle_hash, gate=(-60.0, 0.0, 0.0, 0.0), prune_ratio=prune_ratio)
+    return _calibration(
+        bundle_hash, gate=(-60.0, 0.0, 0.0, 0.0), mesh_gate=-60.0, prune_ratio=prune_ratio
+    )
+
+
+def _cloud(shape: Shape) -> Shape:
+    """The vertices of a mesh as a point cloud (its fusion graph is the pruned kNN graph)."""
+    return Shape.from_arrays(np.asarray(shape.vertices))
 
 
 def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> None:
@@ -253,7 +276,7 @@ def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> N
     calibration = _graph_only(bundle.content_hash)
     predictor = Predictor(bundle, fusion=calibration)
     assert "fusion='graph'" in repr(predictor)
-    state = predictor.register(blob(3))
+    state = predictor.register(_cloud(blob(3)))
     before = state.nbytes
     sources = np.array([0, 17, 200])
     rows = predictor.distances(state, sources)
@@ -274,7 +297,7 @@ def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None
         Predictor(bundle, fusion=fusion)
         for fusion in ("none", _graph_only(bundle.content_hash), half)
     )
-    shape = blob(4)
+    shape = _cloud(blob(4))
     sources = np.array([5, 60])
     n_points = network.register(shape).n_points
     rows = {
@@ -288,6 +311,75 @@ def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None
     np.testing.assert_allclose(rows["fused"], mean, rtol=1e-4, atol=1e-4)
 
 
+def _reference_ring_graph(points: np.ndarray, faces: np.ndarray, rings: int):
+    """Slow reference of :func:`mesh_ring_graph`: a breadth-first search from every vertex."""
+    from litege_core.engines.graph import edge_graph
+
+    neighbours: dict[int, set[int]] = {i: set() for i in range(len(points))}
+    for a, b, c in faces.tolist():
+        neighbours[a] |= {b, c}
+        neighbours[b] |= {a, c}
+        neighbours[c] |= {a, b}
+    pairs = []
+    for start in range(len(points)):
+        seen, frontier = {start}, {start}
+        for _ in range(rings):
+            frontier = {j for i in frontier for j in neighbours[i]} - seen
+            seen |= frontier
+        pairs += [(start, j) for j in seen if j > start]
+    pairs = np.asarray(pairs)
+    lengths = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    return edge_graph(len(points), pairs, lengths)
+
+
+@pytest.mark.parametrize("rings", [1, 2, 3])
+def test_the_mesh_ring_graph_equals_a_breadth_first_reference(blob, rings) -> None:
+    shape = blob(2, 2)
+    points, faces = np.asarray(shape.vertices, np.float64), np.asarray(shape.faces)
+    fast, slow = mesh_ring_graph(points, faces, rings), _reference_ring_graph(points, faces, rings)
+    assert fast.nnz == slow.nnz
+    np.testing.assert_allclose(fast.toarray(), slow.toarray(), rtol=1e-12)
+
+
+def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    calibration = _graph_only(bundle.content_hash)
+    predictor = Predictor(bundle, fusion=calibration)
+    shape = blob(3)
+    state = predictor.register(shape)
+    sources = np.array([0, 17, 200])
+    rows = predictor.distances(state, sources)
+    points, faces = state.canonical_points, np.asarray(shape.faces)
+    reference = _reference_ring_graph(points, faces, MESH_RINGS)
+    expected = dijkstra(reference, directed=False, indices=sources)
+    expected /= calibration.mesh_bias * state.transform.scale
+    np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
+    # the cloud of the same vertices fuses with its kNN graph instead: other distances
+    cloud_rows = predictor.distances(predictor.register(_cloud(shape)), sources)
+    assert np.abs(cloud_rows - rows).max() > 1e-3 * rows.max()
+
+
+def test_the_mesh_ring_graph_keeps_touching_parts_apart() -> None:
+    # two parallel strips 0.01 apart (closer than their own edges), joined at one end by faces
+    t = np.linspace(0.0, 1.0, 11)
+    rows = [np.column_stack([t, np.full_like(t, y), np.zeros_like(t)]) for y in (0.0, 0.1)]
+    top = [np.column_stack([t, np.full_like(t, y), np.full_like(t, 0.01)]) for y in (0.0, 0.1)]
+    points = np.concatenate(rows + top)  # 44 points: strip A (0-21), strip B (22-43)
+    faces = []
+    for base in (0, 22):
+        for i in range(10):
+            a, b, c, d = base + i, base + i + 1, base + 11 + i, base + 12 + i
+            faces += [(a, b, c), (b, d, c)]
+    faces += [(0, 11, 22), (11, 33, 22)]  # the strips meet only along x = 0
+    far_a, far_b = 10, 32  # the x = 1 ends, 0.01 apart in space
+    for rings in (1, 2, 3):
+        graph = mesh_ring_graph(points, np.asarray(faces), rings)
+        through = dijkstra(graph, directed=False, indices=far_a)[far_b]
+        assert through > 1.5  # along strip A to x = 0 and back along strip B (chords cut
+        # the corner at x = 0 with more rings), never across the 0.01 gap
+    assert dijkstra(knn_graph(points, 4), directed=False, indices=far_a)[far_b] < 0.05
+
+
 def test_free_query_points_join_the_graph_through_their_nearest_points(bundle_dir, blob) -> None:
     from scipy.spatial import cKDTree
 
@@ -298,13 +390,15 @@ def test_free_query_points_join_the_graph_through_their_nearest_points(bundle_di
     state = predictor.register(shape)
     centroid = np.asarray(shape.vertices)[np.asarray(shape.faces)[30]].mean(axis=0)
     rows = predictor.distances(state, centroid[None], np.arange(50))
-    # independently: the projected point with chords to its 8 nearest points, then Dijkstra
+    # independently: the projected point with chords to its 8 nearest vertices, then Dijkstra
+    # over the mesh's ring graph
     canonical = state.transform.apply(np.asarray(centroid[None], np.float64))
     points = state.canonical_points
     chords, nearest = cKDTree(points).query(canonical[0], k=8)
-    through = dijkstra(knn_graph(points, 8), directed=False, indices=nearest)[:, :50]
+    mesh = mesh_ring_graph(points, np.asarray(shape.faces), MESH_RINGS)
+    through = dijkstra(mesh, directed=False, indices=nearest)[:, :50]
     expected = (chords[:, None] + through).min(axis=0)
-    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    expected /= calibration.mesh_bias * state.transform.scale
     # the query is projected onto the surface first: within a small fraction of an edge
     np.testing.assert_allclose(rows[0], expected, rtol=0.02, atol=0.02 * state.spacing)
 
@@ -340,7 +434,7 @@ def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, bl
     save_small_head(directory, SmallHead(bundle.network.width, 12, 8).eval(), bundle.content_hash)
     bundle = load_bundle(directory)
     small = Predictor(bundle, head="small")
-    shape = blob(6)
+    shape = _cloud(blob(6))
     state = small.register(shape)
     # the small head's own predictions (canonical units) decide which kNN edges survive
     predicted = small.distances(state, "all", "all").astype(np.float64) * state.transform.scale
