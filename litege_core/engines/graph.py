@@ -17,7 +17,6 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from litege_core.engines._topology import unique_edges
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
 from litege_core.shape import Shape
@@ -128,20 +127,24 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
         rings: largest number of mesh edges between two joined vertices (≥ 1).
 
     Returns:
-        ``(N, N)`` upper-triangular CSR of chord lengths (see :func:`edge_graph`).
+        ``(N, N)`` upper-triangular CSR of chord lengths, one entry per joined pair (explicit
+        zeros: coincident vertices), as :func:`edge_graph` builds it.
     """
     n = points.shape[0]
-    edges, _ = unique_edges(np.asarray(faces, dtype=np.int64))
-    step = sp.coo_array((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    faces = np.asarray(faces, dtype=np.int64)
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    ones = np.ones(len(half))  # repeated pairs add up: only membership matters
+    step = sp.coo_array((ones, (half[:, 0], half[:, 1])), shape=(n, n)).tocsr()
     step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included
     reach = step
     for _ in range(rings - 1):
         reach = reach @ step
         reach.data[:] = 1.0  # membership only: keeps the counts from growing
-    upper = sp.triu(reach, k=1).tocoo()
-    pairs = np.column_stack([upper.row, upper.col]).astype(np.int64)
-    lengths = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
-    return edge_graph(n, pairs, lengths)
+    upper = sp.triu(reach, k=1, format="csr")
+    upper.sort_indices()
+    rows = np.repeat(np.arange(n), np.diff(upper.indptr))
+    lengths = np.linalg.norm(points[rows] - points[upper.indices], axis=1)  # zeros stay entries
+    return sp.csr_array((lengths, upper.indices.copy(), upper.indptr.copy()), shape=(n, n))
 
 
 class KnnGraphEngine(GeodesicEngine):
