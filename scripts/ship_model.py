@@ -5,10 +5,12 @@ The card is generated from the bundle manifest (data, configuration, training, m
 git commit the bundle was trained at, and optionally an evaluation table (markdown file written
 by ``litege eval geodesic`` / ``litege eval matching``) and, for matching bundles, the T-Net's
 alignment report (``report.json`` of ``litege train tnet``). Checks the 30 MB budget of all
-shipped bundles together.
+shipped bundles together. ``--card-only`` rewrites the card of a bundle already shipped with a
+new evaluation table (e.g. after its fusion calibration was fitted again), nothing else.
 
 Usage:
     python scripts/ship_model.py out/train/geodesic-quadrupeds/bundle [--eval FILE.md]
+    python scripts/ship_model.py litege_core/models/humans --card-only --eval FILE.md
     python scripts/ship_model.py out/train/matching-quadrupeds/bundle --eval FILE.md \
         --tnet-report out/tnet-quadrupeds/report.json
 """
@@ -71,10 +73,11 @@ def _card_section(card: str, title_start: str) -> str | None:
     return match.group(1) if match else None
 
 
-def rendered_card(directory: Path) -> str:
+def rendered_card(directory: Path, evaluation: str | None = None) -> str:
     """The card of a shipped bundle written again from its manifest and basis, with the parts
     only the card holds (shipping commit, evaluation table, T-Net report) read from its
-    current ``MODEL_CARD.md``: equal to that file unless the bundle changed."""
+    current ``MODEL_CARD.md``: equal to that file unless the bundle changed. ``evaluation``
+    replaces the card's evaluation table."""
     card = (directory / "MODEL_CARD.md").read_text()
     manifest = json.loads((directory / MANIFEST).read_text())
     commit = re.search(r"shipped at commit `([^`]*)`", card)
@@ -85,7 +88,7 @@ def rendered_card(directory: Path) -> str:
     storage = UdfPcaBasis.load(directory / BASIS_FILE).component_storage
     return model_card(
         manifest,
-        _card_section(card, "Evaluation"),
+        _card_section(card, "Evaluation") if evaluation is None else evaluation,
         report,
         sidecar_section(directory),
         storage,
@@ -97,7 +100,17 @@ def main() -> None:
     parser.add_argument("bundle")
     parser.add_argument("--eval", default=None, help="markdown evaluation table to embed")
     parser.add_argument("--tnet-report", default=None, help="T-Net report.json (matching)")
+    parser.add_argument(
+        "--card-only", action="store_true", help="rewrite a shipped bundle's card with --eval"
+    )
     args = parser.parse_args()
+    if args.card_only:
+        if not args.eval:
+            raise SystemExit("--card-only needs --eval")
+        target = Path(args.bundle)
+        (target / "MODEL_CARD.md").write_text(rendered_card(target, Path(args.eval).read_text()))
+        print(f"rewrote the card of {target}")
+        return
     target = ship(args)
     total = sum(f.stat().st_size for f in SHIPPED_DIR.rglob("*") if f.is_file())
     print(f"shipped {target.name} → {target}; all shipped bundles: {total / 2**20:.1f} MiB")

@@ -27,6 +27,14 @@ def test_the_writer_reproduces_the_shipped_cards(name, ship_model):
         assert _without_category(written) == _without_category(card)
 
 
+def test_a_new_evaluation_table_replaces_the_cards(ship_model):
+    card = (SHIPPED_DIR / "humans" / "MODEL_CARD.md").read_text()
+    written = ship_model.rendered_card(SHIPPED_DIR / "humans", "| new | table |")
+    assert "| new | table |" in written and "| new | table |" not in card
+    before, after = card.split("## Evaluation")[0], written.split("## Evaluation")[0]
+    assert before == after  # everything above the table is kept
+
+
 def test_an_int8_basis_is_on_the_card(ship_model):
     manifest = json.loads((SHIPPED_DIR / "quadrupeds" / MANIFEST).read_text())
     assert "**Basis storage**: int8" in ship_model.model_card(manifest, basis_storage="int8")
