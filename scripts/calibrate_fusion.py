@@ -26,11 +26,12 @@ import torch
 from litege_core.evaluation.fusion import (
     CALIBRATION_SETTINGS,
     DEFAULT_K,
-    DEFAULT_PRUNE_RATIO,
+    PRUNE_RATIO_CANDIDATES,
     collect_samples,
     fit_fusion,
     fusion_summary,
     fusion_table,
+    mean_fused_error,
 )
 from litege_core.evaluation.geodesic import collection_eval_shapes, generated_eval_shapes
 from litege_core.evaluation.speed import cpu_name
@@ -54,7 +55,12 @@ def main() -> None:
     parser.add_argument("--dataset", action="append", default=[], help="collection dataset")
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--k", type=int, default=DEFAULT_K)
-    parser.add_argument("--prune-ratio", type=float, default=DEFAULT_PRUNE_RATIO)
+    parser.add_argument(
+        "--prune-ratio",
+        default=",".join(str(r) for r in PRUNE_RATIO_CANDIDATES),
+        help="comma-separated candidates: the one whose fit has the lowest mean fused error on "
+        "the calibration shapes is kept",
+    )
     parser.add_argument(
         "--veto-head",
         choices=("auto", "small", "full"),
@@ -83,9 +89,6 @@ def main() -> None:
             for s in collection_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
         ]
     settings = tuple(args.settings.split(","))
-    samples = collect_samples(
-        predictor, shapes, settings, k=args.k, prune_ratio=args.prune_ratio, veto_head=veto_head
-    )
     groups = sorted({s.group for s in shapes})
     fitted_on = {
         "shapes": {g: sum(s.group == g for s in shapes) for g in groups},
@@ -95,14 +98,23 @@ def main() -> None:
         "dataset_categories": [dataset_category(d) for d in args.dataset],
         "date": f"{datetime.now(UTC):%Y-%m-%d}",
     }
-    calibration = fit_fusion(
-        samples,
-        bundle.content_hash,
-        k=args.k,
-        prune_ratio=args.prune_ratio,
-        veto_head=veto_head,
-        fitted_on=fitted_on,
+    ratios = sorted(float(r) for r in args.prune_ratio.split(","))
+    by_ratio = collect_samples(
+        predictor, shapes, settings, k=args.k, prune_ratios=ratios, veto_head=veto_head
     )
+    candidates = []  # (mean fused error, prune ratio, samples, calibration)
+    for prune_ratio, samples in by_ratio.items():
+        calibration = fit_fusion(
+            samples,
+            bundle.content_hash,
+            k=args.k,
+            prune_ratio=prune_ratio,
+            veto_head=veto_head,
+            fitted_on=fitted_on,
+        )
+        error = mean_fused_error(samples, calibration)
+        candidates.append((error, prune_ratio, samples, calibration))
+    _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
     print(f"### Graph fusion calibration: `{bundle.name}`\n")
@@ -129,6 +141,9 @@ def main() -> None:
         f"graph / geodesic {calibration.mesh_bias:.4f}; network weight "
         f"sigmoid({calibration.mesh_gate:.3f})\n"
     )
+    if len(candidates) > 1:
+        tried = ", ".join(f"{ratio}: {error:.3f}" for error, ratio, _, _ in candidates)
+        print(f"- prune ratio candidates (mean fused error over all calibration inputs): {tried}\n")
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))
     if args.write:

@@ -38,6 +38,11 @@ clouds with three noise levels (unit-area units)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
+PRUNE_RATIO_CANDIDATES = (1.1, 1.2, 1.3, 1.6)
+"""Veto thresholds ``scripts/calibrate_fusion.py`` tries; the one whose fit has the lowest mean
+fused error on the calibration shapes is kept. A lower threshold cuts more shortcuts between
+parts that touch (the network under-estimates them too), a too low one cuts true surface edges
+of sparse clouds where the veto head over-estimates."""
 
 
 @dataclass(frozen=True)
@@ -81,48 +86,59 @@ def collect_samples(
     settings: Sequence[str] = CALIBRATION_SETTINGS,
     *,
     k: int = DEFAULT_K,
-    prune_ratio: float = DEFAULT_PRUNE_RATIO,
+    prune_ratios: Sequence[float] = (DEFAULT_PRUNE_RATIO,),
     veto_head: str = "full",
     seed: int = 0,
-) -> list[FusionSample]:
+) -> dict[float, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
-    them (``make_input(shape, setting, seed + i)``).
+    them (``make_input(shape, setting, seed + i)``), for each veto threshold.
 
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
         shapes: calibration shapes (exact rows at unit area).
+        prune_ratios: veto thresholds of the cloud graphs (the network rows are shared).
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
+
+    Returns:
+        ``{prune_ratio: samples}``, the samples in the same order for every threshold.
     """
     from litege_core.learned import Predictor
 
     bundle = predictor.bundle
-    graph_predictor = Predictor(
-        bundle,
-        predictor.device,
-        descriptor_lattice=predictor.descriptor_lattice,
-        head=predictor.head,
-        fusion=probe_calibration(bundle.content_hash, k, prune_ratio, veto_head),
-    )
-    samples = []
+    graph_predictors = {
+        ratio: Predictor(
+            bundle,
+            predictor.device,
+            descriptor_lattice=predictor.descriptor_lattice,
+            head=predictor.head,
+            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head),
+        )
+        for ratio in prune_ratios
+    }
+    samples: dict[float, list[FusionSample]] = {ratio: [] for ratio in prune_ratios}
     for setting in settings:
         for i, shape in enumerate(shapes):
             item = make_input(shape, setting, seed + i)
             state = predictor.register(item.shape, seed=seed)
-            samples.append(
-                FusionSample(
-                    shape.name,
-                    shape.group,
-                    setting,
-                    state.faces is not None,
-                    state.n_points,
-                    float(state.ood_score),
-                    surface_roughness(state.canonical_points),
-                    predictor.distances(state, item.source_index).astype(np.float64),
-                    graph_predictor.distances(state, item.source_index).astype(np.float64),
-                    np.asarray(item.gt, np.float64),
+            network = predictor.distances(state, item.source_index).astype(np.float64)
+            roughness = surface_roughness(state.canonical_points)
+            for ratio, graph_predictor in graph_predictors.items():
+                graph = graph_predictor.distances(state, item.source_index).astype(np.float64)
+                samples[ratio].append(
+                    FusionSample(
+                        shape.name,
+                        shape.group,
+                        setting,
+                        state.faces is not None,
+                        state.n_points,
+                        float(state.ood_score),
+                        roughness,
+                        network,
+                        graph,
+                        np.asarray(item.gt, np.float64),
+                    )
                 )
-            )
     return samples
 
 
@@ -225,6 +241,11 @@ def fit_fusion(
     return base
 
 
+def mean_fused_error(samples: Sequence[FusionSample], calibration: FusionCalibration) -> float:
+    """The mean over ``samples`` of their fused error (what :func:`fit_fusion` minimises)."""
+    return float(np.mean([sample_error(s, calibration, "fused") for s in samples]))
+
+
 def fusion_summary(
     samples: Sequence[FusionSample], calibration: FusionCalibration
 ) -> list[dict[str, Any]]:
@@ -275,6 +296,7 @@ __all__ = [
     "fit_fusion",
     "fusion_summary",
     "fusion_table",
+    "mean_fused_error",
     "probe_calibration",
     "sample_error",
 ]

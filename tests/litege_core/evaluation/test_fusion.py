@@ -99,3 +99,41 @@ def test_unreachable_graph_pairs_count_with_the_network_value() -> None:
     # pairs with truth > 0: |10 - 10| and |22 - 20| (the network's value), GT mean 15
     assert sample_error(sample, None, "graph") == pytest.approx(np.mean([0.0, 2.0]) * 100 / 15)
     assert sample_error(sample, None, "network") == pytest.approx(np.mean([1.0, 2.0]) * 100 / 15)
+
+
+def test_samples_share_the_network_rows_across_veto_thresholds(
+    blob, toy_bundle_dir_with_ood
+) -> None:
+    from litege_core.engines import compute_distances
+    from litege_core.evaluation.fusion import collect_samples
+    from litege_core.evaluation.geodesic import EvalShape, unit_area
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.sampling import farthest_point_sampling
+    from litege_core.shape import Shape
+
+    shape = blob(7, subdivisions=3)
+    vertices, _ = unit_area(shape.vertices, shape.faces)
+    sources = farthest_point_sampling(vertices, 4)
+    gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
+    shapes = [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+    predictor = Predictor(load_bundle(toy_bundle_dir_with_ood))
+    by_ratio = collect_samples(
+        predictor,
+        shapes,
+        ("mesh", "cloud_300"),
+        k=8,
+        prune_ratios=(3.0, 1e9),  # untrained: 3 × chord cuts some edges
+    )
+    assert sorted(by_ratio) == [3.0, 1e9]
+    strict, loose = by_ratio[3.0], by_ratio[1e9]
+    assert [(s.setting, s.mesh) for s in strict] == [("mesh", True), ("cloud_300", False)]
+    for a, b in zip(strict, loose, strict=True):
+        np.testing.assert_array_equal(a.network, b.network)
+        np.testing.assert_array_equal(a.truth, b.truth)
+    # a mesh's graph ignores the veto; a cloud's loses edges to it, so its paths only lengthen
+    # (pairs it no longer joins read the network's value)
+    np.testing.assert_array_equal(strict[0].graph, loose[0].graph)
+    joined = strict[1].graph != strict[1].network
+    assert joined.mean() > 0.5
+    assert np.all(strict[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
+    assert np.any(strict[1].graph[joined] > loose[1].graph[joined] + 1e-6)
