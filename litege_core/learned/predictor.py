@@ -635,14 +635,14 @@ class Predictor:
         """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
         assert self.fusion is not None
         fusion = self.fusion
-        points = state.canonical_points
-        mesh = state.faces is not None
-        if mesh:  # the mesh's connectivity: no shortcut between touching parts, nothing to veto
+        points, faces = state.canonical_points, state.faces
+        mesh = faces is not None
+        if faces is not None:  # the mesh's connectivity: no shortcut between touching parts
             graph, roughness = state._lazy.get("fusion.mesh_graph"), 0.0
             if graph is None:
                 from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
 
-                graph = mesh_ring_graph(points, state.faces, MESH_RINGS)
+                graph = mesh_ring_graph(points, faces, MESH_RINGS)
                 state._lazy["fusion.mesh_graph"] = graph
         else:
             graph, roughness = self._cloud_graph(state)
