@@ -125,7 +125,7 @@ def main() -> None:
         f"{time.perf_counter() - start:.0f} s; command `python scripts/calibrate_fusion.py "
         f"--model {args.model} --synthetic {args.synthetic} "
         + " ".join(f"--dataset {d}" for d in args.dataset)
-        + f" --sources {args.sources}`"
+        + f" --sources {args.sources} --prune-ratio {args.prune_ratio}`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
