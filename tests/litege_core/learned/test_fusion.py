@@ -266,15 +266,20 @@ def _graph_only(bundle_hash: str, prune_ratio: float = 1e9) -> FusionCalibration
     )
 
 
+def _graph_only_predictor(bundle_dir) -> tuple[Predictor, FusionCalibration]:
+    """A predictor of the toy bundle whose answers are its graph's rows, and its calibration."""
+    bundle = load_bundle(bundle_dir)
+    calibration = _graph_only(bundle.content_hash)
+    return Predictor(bundle, fusion=calibration), calibration
+
+
 def _cloud(shape: Shape) -> Shape:
     """The vertices of a mesh as a point cloud (its fusion graph is the pruned kNN graph)."""
     return Shape.from_arrays(np.asarray(shape.vertices))
 
 
 def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> None:
-    bundle = load_bundle(bundle_dir)
-    calibration = _graph_only(bundle.content_hash)
-    predictor = Predictor(bundle, fusion=calibration)
+    predictor, calibration = _graph_only_predictor(bundle_dir)
     assert "fusion='graph'" in repr(predictor)
     state = predictor.register(_cloud(blob(3)))
     before = state.nbytes
@@ -342,9 +347,7 @@ def test_the_mesh_ring_graph_equals_a_breadth_first_reference(blob, rings) -> No
 
 
 def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
-    bundle = load_bundle(bundle_dir)
-    calibration = _graph_only(bundle.content_hash)
-    predictor = Predictor(bundle, fusion=calibration)
+    predictor, calibration = _graph_only_predictor(bundle_dir)
     shape = blob(3)
     state = predictor.register(shape)
     sources = np.array([0, 17, 200])
@@ -383,9 +386,7 @@ def test_the_mesh_ring_graph_keeps_touching_parts_apart() -> None:
 def test_free_query_points_join_the_graph_through_their_nearest_points(bundle_dir, blob) -> None:
     from scipy.spatial import cKDTree
 
-    bundle = load_bundle(bundle_dir)
-    calibration = _graph_only(bundle.content_hash)
-    predictor = Predictor(bundle, fusion=calibration)
+    predictor, calibration = _graph_only_predictor(bundle_dir)
     shape = blob(5)
     state = predictor.register(shape)
     centroid = np.asarray(shape.vertices)[np.asarray(shape.faces)[30]].mean(axis=0)
