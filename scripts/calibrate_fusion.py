@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -151,7 +152,8 @@ def main() -> None:
             raise SystemExit("the bundle has no directory to write fusion.json into")
         written = save_fusion(bundle.path, dataclasses.replace(calibration, fitted_on=fitted_on))
         write_sidecar_section(bundle.path)
-        print(f"\nwrote {written} and the sidecar section of the model card")
+        shown = os.path.relpath(written)  # a path of the repository, not of this machine
+        print(f"\nwrote {shown} and the sidecar section of the model card")
 
 
 if __name__ == "__main__":
