@@ -4,9 +4,9 @@ The calibration shapes are ones we generate (held-out procedural shapes, rigged 
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
-the same median over the mesh inputs, whose graph is the mesh's own edges), and the four cloud
-gate constants and the mesh gate minimise the mean per-shape error of the fused rows
-(Nelder–Mead, from ``w = 1/2``).
+the same median over the mesh inputs, whose graph follows the mesh's connectivity), and the
+four cloud gate constants and the mesh gate minimise the mean per-shape error of the fused
+rows (Nelder–Mead, from ``w = 1/2``).
 """
 
 from __future__ import annotations
@@ -213,8 +213,7 @@ def fit_fusion(
 
     def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
         def loss(params: NDArray) -> float:
-            candidate = calibration(params)
-            return float(np.mean([sample_error(s, candidate, "fused") for s in members]))
+            return mean_fused_error(members, calibration(params))
 
         # unit steps from w = 1/2 (scipy's default simplex is 0.00025 wide around zero)
         return minimize(
