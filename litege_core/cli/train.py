@@ -109,6 +109,8 @@ def cmd_train_tnet(args: argparse.Namespace) -> int:
         )
     if args.time_budget is not None:
         config = config.replace(train={"time_budget_minutes": args.time_budget})
+    if args.init is not None:
+        config = config.replace(train={"init": args.init})
     report = run_tnet_training(config, out=args.out)
     alignment = report["alignment"] or {}
     print_json(
@@ -274,6 +276,13 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
         metavar="MINUTES",
         help="fit the run to this many minutes of training (train.time_budget_minutes); "
         "the report comes on top",
+    )
+    tnet.add_argument(
+        "--init",
+        default=None,
+        metavar="TNET",
+        help="start from this T-Net (a weights file, or a matching model name or bundle "
+        "directory; overrides train.init)",
     )
     tnet.set_defaults(handler=cmd_train_tnet)
     matching = commands.add_parser(

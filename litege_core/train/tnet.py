@@ -199,6 +199,10 @@ class TNetOptimConfig:
         device: ``"auto"``, ``"cpu"``, ``"cuda"``…; threads: torch CPU threads (0: default).
         loader_workers: processes sampling the batches ahead of the optimizer (0: the training
             process samples them itself); the batches are the same either way.
+        init: a T-Net to start from instead of random weights: a weights file of
+            :func:`save_tnet`, or a matching bundle (a shipped name such as ``"quadrupeds"``, or
+            a bundle directory) whose T-Net is taken; its widths and pre-alignment must be
+            ``[network]``'s (``""``: random initialization).
         time_budget_minutes: when positive, the run is re-planned after its first
             :data:`PLAN_AFTER_STEPS` steps to the step count that fits this many minutes of
             training at the measured rate (at most ``steps``; the cosine schedule spans the
@@ -217,6 +221,7 @@ class TNetOptimConfig:
     device: str = "cpu"
     threads: int = 1
     loader_workers: int = 0
+    init: str = ""
     time_budget_minutes: float = 0.0
 
     def __post_init__(self) -> None:
@@ -850,6 +855,30 @@ def _read(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     return tensors, info
 
 
+def start_from(net: TNet, init: str | Path) -> None:
+    """Load into ``net`` the weights of ``init`` (see :class:`TNetOptimConfig`'s ``init``).
+
+    Raises:
+        InputError: ``init`` names no weights file or matching bundle, or its T-Net's widths or
+            pre-alignment differ from ``net``'s.
+        ArtifactError: a damaged weights file or bundle.
+    """
+    from litege_core.matching.bundle import load_matching_bundle, resolve_matching_bundle
+
+    path = Path(init)
+    if path.is_file():
+        source = load_tnet(path)
+    else:
+        source = load_matching_bundle(resolve_matching_bundle(str(init))).tnet
+    if source.config() != net.config():
+        raise InputError(
+            f"train.init {str(init)!r} is a T-Net {source.config()}, the config asks for "
+            f"{net.config()}: set [network] to match it"
+        )
+    load_state(net, state_to_tensors(source))
+    LOG.info("started from the T-Net of %s", init)
+
+
 def load_tnet(path: str | Path, device: str | torch.device = "cpu") -> TNet:
     """The T-Net of a weights file, on ``device``, in eval mode (ArtifactError if damaged)."""
     tensors, info = _read(path)
@@ -989,7 +1018,10 @@ def _optimize(
     opt = config.train
     torch.manual_seed(opt.seed)
     network = config.network
-    net = TNet(network.conv_widths, network.fc_widths, network.prealign).to(device)
+    net = TNet(network.conv_widths, network.fc_widths, network.prealign)
+    if opt.init:
+        start_from(net, opt.init)
+    net = net.to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=opt.lr)
     n_params = sum(p.numel() for p in net.parameters())
     LOG.info(
@@ -1154,6 +1186,7 @@ __all__ = [
     "run_tnet_training",
     "sample_batch",
     "save_tnet",
+    "start_from",
     "train_step",
     "train_tnet",
     "validate",

@@ -349,6 +349,47 @@ def test_checkpoint_round_trip(tmp_path) -> None:
         torch.testing.assert_close(loaded.rotation(cloud), net.rotation(cloud), rtol=0, atol=0)
 
 
+def test_init_starts_from_a_weights_file_or_a_matching_bundle(toy_shapes, tmp_path) -> None:
+    train, val = toy_shapes
+    torch.manual_seed(3)
+    source = TNet((8, 16), (8,)).eval()
+    save_tnet(source, tmp_path / "start.safetensors")
+    expected = state_to_tensors(source)
+    net = TNet((8, 16), (8,))
+    tnet_module.start_from(net, tmp_path / "start.safetensors")
+    assert all(torch.equal(state_to_tensors(net)[k], v) for k, v in expected.items())
+
+    # a run with init validates the started network first: with a zero learning rate the
+    # weights (BatchNorm statistics aside) stay the source's
+    config = tiny_config(
+        tmp_path, train={"init": str(tmp_path / "start.safetensors"), "lr": 1e-12, "eta_min": 1e-12}
+    )
+    result = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
+    trained = state_to_tensors(result.net)
+    weights = [k for k in expected if k.endswith("weight") and expected[k].ndim > 1]
+    assert weights and all(torch.allclose(trained[k], expected[k], atol=1e-6) for k in weights)
+    cold = train_tnet(tiny_config(tmp_path), train_shapes=train, val_shapes=val, make_report=False)
+    assert not all(torch.equal(state_to_tensors(cold.net)[k], expected[k]) for k in weights)
+
+    bundle_tnet = TNet((64, 128, 256), (256, 128), prealign="pca")
+    tnet_module.start_from(bundle_tnet, "quadrupeds")  # the shipped matching bundle's T-Net
+    from litege_core.matching import MatchingModel
+
+    shipped = state_to_tensors(MatchingModel.load("quadrupeds").bundle.tnet)
+    got = state_to_tensors(bundle_tnet)
+    assert all(torch.allclose(got[k], shipped[k].to(got[k].dtype)) for k in shipped)
+
+
+def test_init_refuses_other_widths_and_unknown_names(tmp_path) -> None:
+    save_tnet(TNet((8, 16), (8,)), tmp_path / "start.safetensors")
+    with pytest.raises(InputError, match="set \\[network\\] to match"):
+        tnet_module.start_from(TNet((8, 32), (8,)), tmp_path / "start.safetensors")
+    with pytest.raises(InputError, match="set \\[network\\] to match"):
+        tnet_module.start_from(TNet((8, 16), (8,), prealign="pca"), tmp_path / "start.safetensors")
+    with pytest.raises(InputError, match="unknown matching model"):
+        tnet_module.start_from(TNet((8, 16), (8,)), tmp_path / "missing.safetensors")
+
+
 def test_load_tnet_refuses_foreign_files(tmp_path) -> None:
     from safetensors.torch import save_file
 
@@ -534,10 +575,10 @@ def test_cli_overrides_workers_and_time_budget(monkeypatch, tmp_path) -> None:
     parser = argparse.ArgumentParser(prog="litege")
     add_train_parser(parser.add_subparsers(dest="command", required=True))
     config_path = REPO / "configs" / "tnet-quadrupeds.toml"
-    args = parser.parse_args(
-        ["train", "tnet", "--config", str(config_path), "--workers", "3", "--time-budget", "2.5"]
-    )
+    command = ["train", "tnet", "--config", str(config_path), "--workers", "3"]
+    args = parser.parse_args([*command, "--time-budget", "2.5", "--init", "quadrupeds"])
     assert args.handler(args) == 0
     config = captured["config"]
     assert (config.data.workers, config.train.loader_workers) == (3, 3)
     assert config.train.time_budget_minutes == 2.5
+    assert config.train.init == "quadrupeds"
