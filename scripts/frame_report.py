@@ -17,6 +17,10 @@ and the true one; a failure is an angle above 0.66 rad (the reference's T-Net re
   sitting pose has no unambiguous upright frame, so part of these failures is ill-posed;
   **agreement** (convention-free) is the share of same-class pose pairs whose two frames,
   expressed in the file frame, differ by at most 0.66 rad.
+* **rigged animals** (a ``quadruped`` model, ``--rigged N``, default 40): the posed CC0 animals of
+  ``../shared/train-data`` (``litege_core.train.tnet.collection_shape_set``, val seeds: never
+  in a T-Net's training split), randomly rotated; their true frame is the template's. Not a dev
+  set: what frame settings are chosen on besides the procedural shapes;
 * **FAUST** (a ``biped`` model): the 20 ``faust_5k`` humans, which share one file frame too.
   Our biped canonical frame is not tied to that convention, so the reference is the
   **consensus** of the 20 frames (the rotation nearest their mean, in the file frame): a failure
@@ -93,6 +97,8 @@ def main() -> None:
     parser.add_argument("--procedural", type=int, default=60)
     parser.add_argument("--eval-data", default="../shared/eval-data")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rigged", type=int, default=40, help="posed rigged animals (0: none)")
+    parser.add_argument("--cache", default="out/frame-report-shapes", help="rigged shape cache")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = MatchingModel.load(args.model)
@@ -115,6 +121,24 @@ def main() -> None:
         upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
         rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
         switched[f"procedural {mode}"] = sum(name != "tnet" for _, name in found)
+
+    # ------------------------------------------------------------------ rigged animals
+    if args.rigged and model.category == "quadruped":
+        from litege_core.datasets.factories import train_data_root
+        from litege_core.train.tnet import collection_shape_set
+
+        if Path(train_data_root(None)).is_dir():
+            rigged = collection_shape_set("rigged", "val", args.rigged, None, args.cache)
+            shapes, truths = [], []
+            for k, (vertices, faces) in enumerate(zip(rigged.vertices, rigged.faces, strict=True)):
+                rotation = random_rotation(np.random.default_rng([args.seed, 31, k]))
+                shapes.append(Shape.from_arrays(vertices @ rotation.T, faces))
+                truths.append(rotation)
+            for mode in ("tnet", "judged"):
+                found = frames_of(model, shapes, mode)
+                errors = [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
+                rows.append(f"| rigged animals (val seeds) | {mode} | {summary(errors)} |")
+                switched[f"rigged {mode}"] = sum(name != "tnet" for _, name in found)
 
     # ------------------------------------------------------------------ TOSCA
     root = Path(args.eval_data)
@@ -169,7 +193,8 @@ def main() -> None:
     print(f"### Frame failures (> {FAILURE} rad): `{args.model}` matching model\n")
     print(
         f"- date {date}; command `python scripts/frame_report.py {args.model} "
-        f"--procedural {args.procedural}`; frames changed by the judge: {switched}\n"
+        f"--procedural {args.procedural} --rigged {args.rigged}`; frames changed by the judge: "
+        f"{switched}\n"
     )
     print("| shapes | frames | n | median rad | mean rad | failures % |")
     print("|---|---|---:|---:|---:|---:|")

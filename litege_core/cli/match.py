@@ -78,8 +78,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--frames",
         choices=["auto", "tnet", "judged"],
         default="auto",
-        help="canonical frame: the T-Net's, or the best of its half turns judged by the "
-        "matching network against reference animals (auto: the model's default)",
+        help="canonical frame: the T-Net's, or (judged) where the T-Net's turned runs disagree "
+        "the best of it and the principal-axis frames, judged by the matching network against "
+        "reference animals (auto: the model's default)",
     )
     match.add_argument(
         "--refine",

@@ -10,14 +10,17 @@ The T-Net sees at most ``n_tnet_points`` points of the scaled cloud (the authors
 test time but trained on 2000, spec §1.6 🐞); its rotation ``R_pred`` right-multiplies the
 points, so the frame's :class:`~litege_core.canonical.Transform` has rotation ``R_predᵀ``.
 
-**Candidate frames** (issue 15, step 1). On real animals the T-Net's typical failure is a
-discrete one: the frame is right up to a half turn about a canonical axis (a long-tailed cat
-read tail-first, a crouching animal upside down). :func:`candidate_turns` lists the turns ``M``
-tried after the T-Net (``q' = M q`` in the canonical frame: the identity first, then the half
-turns about x, y and z); :func:`turned` applies one to a frame. Which one is kept is decided by
-:class:`~litege_core.matching.judge.FrameJudge` (the matching network itself, against canonical
-reference animals). Rotated copies of the input are *not* candidates: the shipped T-Net works
-in the cloud's PCA frame, which turns with the input, so they would all give one answer.
+**Candidate frames** (issue 15, step 1). On real animals the T-Net fails in ways its own
+inputs reveal: run on the cloud's principal-axis frame turned by each of the 24 cube rotations
+(:func:`tnet_turn_runs`, every axis order and sign it was trained to accept), a T-Net that reads
+the shape gives one frame 24 times; where it hesitates (a curled cat, a rearing horse) the runs
+split. :func:`runs_agree` is that test: on 60 held-out procedural quadrupeds and on posed rigged
+animals every T-Net failure but none of the procedural frames split the runs (TOSCA: 12 of its
+14 failures). Where they split, the T-Net's frame competes with the 24 principal-axis frames
+(:func:`pca_candidates`), and :class:`~litege_core.matching.judge.FrameJudge` (the matching
+network itself, against canonical reference animals) keeps one (BENCHMARKS.md
+``frame-gate``). Candidates are expressed as turns ``M`` of the T-Net's frame (``q' = M q``);
+:func:`turned` applies one.
 """
 
 from __future__ import annotations
@@ -46,13 +49,15 @@ SCALINGS: tuple[str, ...] = ("auto", "unit_area", "broken_mesh", "cloud_8k", "cl
 
 FrameMode = Literal["auto", "tnet", "judged"]
 FRAME_MODES: tuple[str, ...] = ("auto", "tnet", "judged")
-"""``tnet``: the T-Net's frame as is (the reference); ``judged``: the T-Net's frame and its half
-turns about the canonical axes, the one the matching network finds most like the canonical
-reference animals kept (:class:`~litege_core.matching.judge.FrameJudge`); ``auto``: ``judged``
-when the model has reference animals (a procedural category), else ``tnet``."""
+"""``tnet``: the T-Net's frame as is (the reference); ``judged``: the T-Net's frame where its
+turned runs agree (:func:`runs_agree`), else the one of it and the 24 principal-axis frames that
+the matching network finds most like the canonical reference animals
+(:class:`~litege_core.matching.judge.FrameJudge`); ``auto``: ``judged`` for the categories the
+judge is validated on, else ``tnet``."""
 
-TURN_NAMES: tuple[str, ...] = ("identity", "half-turn x", "half-turn y", "half-turn z")
-"""Names of the candidate turns of :func:`candidate_turns`, in order."""
+AGREEMENT_ANGLE = 0.66
+"""rad: turned T-Net runs agree when each is within this angle of the plain run (the failure
+threshold of the frame reports and of spec §1.6)."""
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])
 """Reflection across the canonical sagittal plane (``x → −x``; x is the animal's left-right
@@ -204,19 +209,49 @@ def align_shapes(
     return frames
 
 
-def candidate_turns(mode: str = "judged") -> NDArray:
-    """Turns ``M`` ``(K, 3, 3)`` tried after the T-Net, in the canonical frame (``q' = M q``).
+def cube_rotations() -> NDArray:
+    """The 24 proper signed permutation matrices ``(24, 3, 3)`` float64, the identity first."""
+    from litege_core.nets.tnet import CUBE_ROTATIONS
 
-    ``tnet``: the identity alone; ``judged``: the identity, then the half turns about x, y and
-    z (:data:`TURN_NAMES`). All are proper rotations, so handedness never changes.
-    """
-    if mode not in ("tnet", "judged"):
-        raise InputError(f"candidate turns of 'tnet' or 'judged', got {mode!r}")
-    turns = [np.eye(3)]
-    if mode == "judged":
-        half_turns = ((1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))
-        turns += [np.diag(signs) for signs in half_turns]
-    return np.stack(turns)
+    return CUBE_ROTATIONS.numpy()
+
+
+@torch.no_grad()
+def tnet_turn_runs(tnet: TNet, clouds: list[NDArray]) -> NDArray:
+    """``R_pred`` ``(B, 24, 3, 3)`` float64 of the T-Net run 24 times on each centred, scaled
+    cloud: on its principal-axis frame turned by each cube rotation ``K`` (a pre-aligned T-Net,
+    ``frames = Q K``), or on the cloud turned by ``K`` (``R = K R'``) without pre-alignment.
+    Run 0 is the plain run of :func:`tnet_rotations`. One T-Net call per cloud."""
+    from litege_core.nets.tnet import pca_frames
+
+    device = next(tnet.parameters()).device
+    cube = torch.from_numpy(cube_rotations()).to(device, torch.float32)  # (24, 3, 3)
+    out = np.empty((len(clouds), len(cube), 3, 3))
+    for i, cloud in enumerate(clouds):
+        batch = torch.from_numpy(cloud).to(device, torch.float32)[None].expand(len(cube), -1, -1)
+        if tnet.prealign == "pca":
+            frames = pca_frames(batch[:1]) @ cube
+            rotations = tnet.rotation(batch.contiguous(), frames=frames)
+        else:
+            rotations = cube @ tnet.rotation(batch @ cube)
+        out[i] = rotations.double().cpu().numpy()
+    return out
+
+
+def runs_agree(runs: NDArray, threshold: float = AGREEMENT_ANGLE) -> bool:
+    """Whether every run of ``runs`` ``(K, 3, 3)`` is within ``threshold`` rad of run 0."""
+    cosines = (np.einsum("kij,ij->k", runs, runs[0]) - 1.0) / 2.0
+    return bool(np.all(np.arccos(np.clip(cosines, -1.0, 1.0)) <= threshold))
+
+
+def pca_candidates(cloud: NDArray) -> NDArray:
+    """The 24 principal-axis frames of a centred, scaled cloud as rotations ``R`` ``(24, 3, 3)``
+    float64 (``cloud @ R`` is the cloud in that frame, the convention of ``R_pred``):
+    ``Q K`` for :func:`~litege_core.nets.tnet.pca_frames` ``Q`` and each cube rotation ``K``."""
+    from litege_core.nets.tnet import pca_frames
+
+    frame = pca_frames(torch.from_numpy(np.asarray(cloud, np.float64))[None])[0].numpy()
+    return frame @ cube_rotations()
 
 
 def turned(transform: Transform, turn: NDArray) -> Transform:
@@ -237,19 +272,22 @@ def _orthonormal(matrix: NDArray) -> NDArray:
 
 
 __all__ = [
+    "AGREEMENT_ANGLE",
     "FRAME_MODES",
     "MIRROR",
     "SCALINGS",
-    "TURN_NAMES",
     "FrameMode",
     "MatchingPipeline",
     "Scaling",
     "align_shapes",
     "boundary_edge_fraction",
-    "candidate_turns",
     "choose_scaling",
+    "cube_rotations",
+    "pca_candidates",
+    "runs_agree",
     "scale_frame",
     "subsample",
     "tnet_rotations",
+    "tnet_turn_runs",
     "turned",
 ]

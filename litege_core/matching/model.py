@@ -5,9 +5,10 @@
 * :meth:`MatchingModel.prepare` puts a shape into the aligned unit-area frame (spec §1.3–1.6),
   computes its UDF-PCA descriptor and the multi-tier NN cache of its points (spec §5.2) →
   :class:`MatchingShape` (small, pickle-free ``to_arrays`` for a cache). With
-  ``frames="judged"`` (the default for quadrupeds, opt-in for bipeds) the T-Net's frame competes
-  with its half turns about the canonical axes and the matching network picks the one most
-  like canonical reference animals (:mod:`litege_core.matching.judge`, issue 15 step 1);
+  ``frames="judged"`` (the default for quadrupeds, opt-in for bipeds) a shape whose T-Net runs
+  on turned principal-axis frames disagree gets the frame, of the T-Net's and the 24
+  principal-axis ones, that the matching network finds most like canonical reference animals
+  (:mod:`litege_core.matching.frame`, :mod:`litege_core.matching.judge`, issue 15 step 1);
 * :meth:`MatchingModel.match` finds, for query points of X, the point of Y minimizing the
   predicted cross-shape geodesic, coarse to fine over Y's cache, all queries at once
   (spec §5.3, :func:`~litege_core.matching.search.coarse_to_fine_search`). Options:
@@ -49,10 +50,12 @@ from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import (
     FRAME_MODES,
     MIRROR,
-    TURN_NAMES,
     MatchingPipeline,
     align_shapes,
-    candidate_turns,
+    pca_candidates,
+    runs_agree,
+    subsample,
+    tnet_turn_runs,
     turned,
 )
 from litege_core.matching.judge import DEFAULT_MARGIN, JUDGED_BY_DEFAULT, FrameJudge, choose
@@ -127,8 +130,10 @@ class MatchingShape:
         seed: seed of every random draw of the preparation.
         faces: ``(F, 3)`` int64 triangles of a mesh (read-only; xyz queries are snapped onto
             them), ``None`` for point clouds.
-        frame: how the frame was chosen: ``"tnet"`` (the T-Net's frame), ``"tnet+half-turn y"``
-            (the judge turned it), ``"mirror"`` (an internal mirror-image twin).
+        frame: how the frame was chosen: ``"tnet"`` (the T-Net's frame), ``"pcaK"`` (the
+            judge's choice, principal-axis frame ``K`` of
+            :func:`~litege_core.matching.frame.pca_candidates`), ``"mirror"`` (an internal
+            mirror-image twin).
     """
 
     shape_id: str
@@ -399,11 +404,12 @@ class MatchingModel:
             shapes: meshes or point clouds (validated :class:`Shape` objects).
             seed: seed of the surface samples and Poisson subsets.
             scaling: ``"auto"`` or a fixed scaling (see :mod:`litege_core.matching.frame`).
-            frames: ``"tnet"`` (the T-Net's frame), ``"judged"`` (the T-Net's frame or one of
-                its half turns, chosen by :attr:`frame_judge`) or ``"auto"`` (``judged`` when
-                the model has a judge).
-            frame_margin: a half turn replaces the T-Net's frame only when its judge score
-                is lower by more than this fraction.
+            frames: ``"tnet"`` (the T-Net's frame), ``"judged"`` (the T-Net's frame where its
+                turned runs agree, else the T-Net's or a principal-axis frame, chosen by
+                :attr:`frame_judge`) or ``"auto"`` (``judged`` for the categories of
+                :data:`~litege_core.matching.judge.JUDGED_BY_DEFAULT`).
+            frame_margin: another frame replaces the T-Net's only when its judge score is
+                lower by more than this fraction.
         """
         shapes = list(shapes)
         for i, shape in enumerate(shapes):
@@ -417,7 +423,9 @@ class MatchingModel:
         )
         names = ["tnet"] * len(shapes)
         if mode == "judged":
-            aligned_frames, names = self._judged_frames(shapes, aligned_frames, frame_margin)
+            aligned_frames, names = self._judged_frames(
+                shapes, aligned_frames, frame_margin, int(seed)
+            )
         described = self._engine.describe_with_residual(
             [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
@@ -456,24 +464,42 @@ class MatchingModel:
         return prepared
 
     def _judged_frames(
-        self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]], margin: float
+        self,
+        shapes: list[Shape],
+        frames: list[tuple[Transform, NDArray, str]],
+        margin: float,
+        seed: int,
     ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
-        """The T-Net frames or their half turns, whichever the judge scores best."""
+        """The T-Net frame of each shape whose turned T-Net runs agree; for the others, the
+        T-Net frame or one of the 24 principal-axis frames, whichever the judge scores best
+        (one judge call for all of them)."""
         judge = self.frame_judge
         assert judge is not None
-        turns = candidate_turns("judged")
-        clouds, points = [], []
-        for shape, (transform, cloud, _) in zip(shapes, frames, strict=True):
-            base = judge.target_points(transform.apply(shape.vertices))
-            clouds += [cloud @ turn.T for turn in turns]
-            points += [base @ turn.T for turn in turns]
-        scores = judge.scores(clouds, points).reshape(len(shapes), len(turns))
-        out, names = [], []
-        for (transform, cloud, chosen), row in zip(frames, scores, strict=True):
+        inputs = [  # the T-Net's inputs: the unrotated clouds' subsets of align_shapes
+            subsample(cloud @ transform.rotation, self.pipeline.n_tnet_points, seed)
+            for transform, cloud, _ in frames
+        ]
+        runs = tnet_turn_runs(self.bundle.tnet, inputs)
+        split = [i for i, run in enumerate(runs) if not runs_agree(run)]
+        out, names = list(frames), ["tnet"] * len(frames)
+        if not split:
+            return out, names
+        turns, clouds, points = [], [], []
+        for i in split:
+            transform, cloud, _ = frames[i]
+            tnet_rotation = transform.rotation.T  # R_pred: cloud = unrotated @ R_pred
+            candidates = np.concatenate([tnet_rotation[None], pca_candidates(inputs[i])])
+            shape_turns = np.transpose(candidates, (0, 2, 1)) @ tnet_rotation  # R_cᵀ R_pred
+            base = judge.target_points(transform.apply(shapes[i].vertices))
+            turns.append(shape_turns)
+            clouds += [cloud @ turn.T for turn in shape_turns]
+            points += [base @ turn.T for turn in shape_turns]
+        scores = judge.scores(clouds, points).reshape(len(split), -1)
+        for i, shape_turns, row in zip(split, turns, scores, strict=True):
             best = choose(row, margin)
-            turn = turns[best]
-            out.append((turned(transform, turn), cloud @ turn.T, chosen))
-            names.append("tnet" if best == 0 else f"tnet+{TURN_NAMES[best]}")
+            transform, cloud, chosen = frames[i]
+            out[i] = (turned(transform, shape_turns[best]), cloud @ shape_turns[best].T, chosen)
+            names[i] = "tnet" if best == 0 else f"pca{best - 1}"
         return out, names
 
     # ------------------------------------------------------------------ features

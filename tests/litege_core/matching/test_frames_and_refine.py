@@ -1,4 +1,5 @@
-"""Candidate frames (judged half turns), the mirror-side vote and ZoomOut refinement (issue 15)."""
+"""Candidate frames (turned T-Net runs, principal-axis frames, the judge), the mirror-side vote
+and ZoomOut refinement (issue 15)."""
 
 from __future__ import annotations
 
@@ -10,17 +11,25 @@ import pytest
 import torch
 import trimesh
 
+import litege_core.matching.model as model_module
 from litege_core.canonical import Transform
 from litege_core.errors import InputError, MissingDependencyError
 from litege_core.matching import MatchingModel, MatchingShape
 from litege_core.matching.frame import (
+    AGREEMENT_ANGLE,
     MIRROR,
-    TURN_NAMES,
-    candidate_turns,
+    cube_rotations,
+    pca_candidates,
+    runs_agree,
+    subsample,
+    tnet_rotations,
+    tnet_turn_runs,
     turned,
 )
 from litege_core.matching.judge import FrameJudge, choose, reference_animals
 from litege_core.matching.refine import Spectrum, ZoomOutSettings, spectrum, zoomout_refine
+from litege_core.nets import TNet
+from litege_core.nets.tnet import pca_frames
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 
@@ -28,6 +37,19 @@ from litege_core.synth import families, generate_shape
 @pytest.fixture(scope="module")
 def model() -> MatchingModel:
     return MatchingModel.tiny_random(0)
+
+
+HALF_TURNS = np.stack(
+    [np.diag(s) for s in ((1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))]
+)
+
+
+def _rotation_about(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [k for k in range(3) if k != axis]
+    out = np.eye(3)
+    out[i, i], out[i, j], out[j, i], out[j, j] = c, -s, s, c
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -41,18 +63,52 @@ def shapes() -> tuple[Shape, Shape]:
 # ----------------------------------------------------------------------------- turns
 
 
-def test_candidate_turns_are_the_identity_then_the_three_half_turns():
-    turns = candidate_turns("judged")
-    assert turns.shape == (len(TURN_NAMES), 3, 3)
-    np.testing.assert_array_equal(turns[0], np.eye(3))
-    for turn in turns[1:]:
-        np.testing.assert_allclose(turn @ turn.T, np.eye(3))
-        assert np.linalg.det(turn) == pytest.approx(1.0)  # proper: handedness kept
-        assert np.trace(turn) == pytest.approx(-1.0)  # a rotation by π
-    assert len({t.tobytes() for t in turns}) == 4
-    np.testing.assert_array_equal(candidate_turns("tnet"), np.eye(3)[None])
-    with pytest.raises(InputError):
-        candidate_turns("auto")
+def test_pca_candidates_are_the_24_proper_principal_axis_frames():
+    rng = np.random.default_rng(0)
+    cloud = rng.normal(size=(500, 3)) * [3.0, 2.0, 1.0] @ _rotation_about(2, 0.7).T
+    cloud -= cloud.mean(axis=0)
+    candidates = pca_candidates(cloud)
+    assert candidates.shape == (24, 3, 3)
+    frame = pca_frames(torch.from_numpy(cloud)[None])[0].numpy()
+    np.testing.assert_allclose(candidates[0], frame)  # the identity turn first
+    assert len({np.round(c, 6).tobytes() for c in candidates}) == 24
+    for rotation in candidates:
+        np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+        assert np.linalg.det(rotation) == pytest.approx(1.0)  # proper: handedness kept
+        covariance = (cloud @ rotation).T @ (cloud @ rotation)
+        off_diagonal = covariance - np.diag(np.diag(covariance))
+        assert np.abs(off_diagonal).max() < 1e-8 * np.abs(covariance).max()  # principal axes
+    np.testing.assert_array_equal(cube_rotations()[0], np.eye(3))
+
+
+def test_runs_agree_within_the_angle_of_the_plain_run():
+    base = _rotation_about(0, 0.3)
+    near = np.stack([base] + [base @ _rotation_about(k % 3, 0.5) for k in range(23)])
+    assert runs_agree(near)
+    far = near.copy()
+    far[7] = base @ _rotation_about(1, AGREEMENT_ANGLE + 0.05)
+    assert not runs_agree(far)
+    assert runs_agree(far, threshold=AGREEMENT_ANGLE + 0.1)
+
+
+@pytest.mark.parametrize("prealign", ["pca", "none"])
+def test_turned_tnet_runs_start_with_the_plain_run(prealign):
+    torch.manual_seed(0)
+    tnet = TNet((8, 16), (8,), prealign=prealign).eval()
+    rng = np.random.default_rng(1)
+    clouds = [rng.normal(size=(300, 3)) * [2.0, 1.0, 0.5] for _ in range(2)]
+    runs = tnet_turn_runs(tnet, clouds)
+    assert runs.shape == (2, 24, 3, 3)
+    np.testing.assert_allclose(runs[:, 0], tnet_rotations(tnet, clouds), atol=1e-5)
+    cube = torch.from_numpy(cube_rotations()).float()
+    x = torch.from_numpy(clouds[1]).float()[None]
+    with torch.no_grad():
+        if prealign == "pca":  # the T-Net fed its PCA frame turned by K
+            expected = tnet.rotation(x.expand(24, -1, -1), frames=pca_frames(x) @ cube)
+        else:  # the T-Net fed the cloud turned by K, its answer turned back
+            expected = cube @ tnet.rotation(x @ cube)
+    np.testing.assert_allclose(runs[1], expected.double().numpy(), atol=1e-5)
+    assert not np.allclose(runs[1, 0], runs[1, 5])  # an untrained T-Net: the runs differ
 
 
 def test_turned_frame_turns_the_canonical_points():
@@ -61,7 +117,7 @@ def test_turned_frame_turns_the_canonical_points():
     rotation *= np.sign(np.linalg.det(rotation))
     base = Transform(rotation, rng.normal(size=3), 1.7)
     points = rng.normal(size=(20, 3))
-    turn = candidate_turns("judged")[2]
+    turn = HALF_TURNS[1]
     np.testing.assert_allclose(turned(base, turn).apply(points), base.apply(points) @ turn.T)
 
 
@@ -114,7 +170,7 @@ def test_tiny_model_without_references_falls_back_to_the_tnet_frame(model, shape
 
 
 class _StubJudge(FrameJudge):
-    """Scores candidate ``best`` lowest (records what it was asked)."""
+    """Scores candidate ``best`` of every shape lowest (records how many it was asked)."""
 
     def __init__(self, model: MatchingModel, best: int) -> None:
         super().__init__(
@@ -131,29 +187,50 @@ class _StubJudge(FrameJudge):
     def scores(self, clouds, points):
         self.calls.append(len(clouds))
         out = np.ones(len(clouds))
-        out[self.best :: 4] = 0.5
+        out[self.best :: 25] = 0.5  # 25 candidates per shape: the T-Net frame, 24 PCA frames
         return out
 
 
-def test_judged_frames_turn_the_tnet_frame_and_keep_everything_consistent(shapes):
+def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(shapes, monkeypatch):
     model = MatchingModel.tiny_random(0)
     plain = model.prepare_many(list(shapes), frames="tnet")
-    stub = _StubJudge(model, best=2)
+    real_runs = tnet_turn_runs
+
+    def runs_split_on_the_first_shape(tnet, clouds):
+        runs = real_runs(tnet, clouds)
+        runs[:, 1:] = runs[:, :1]  # every run agrees with the plain one …
+        runs[0, 3] = runs[0, 0] @ _rotation_about(2, 2.0)  # … but one run of shape 0
+        return runs
+
+    monkeypatch.setattr(model_module, "tnet_turn_runs", runs_split_on_the_first_shape)
+    stub = _StubJudge(model, best=5)
     model.frame_judge = stub
     judged = model.prepare_many(list(shapes), frames="judged")
-    assert stub.calls == [2 * 4]  # one call: both shapes, four candidates each
-    turn = candidate_turns("judged")[2]
-    for before, after, shape in zip(plain, judged, shapes, strict=True):
-        assert after.frame == f"tnet+{TURN_NAMES[2]}" and before.frame == "tnet"
-        np.testing.assert_allclose(after.transform.rotation, turn @ before.transform.rotation)
-        np.testing.assert_allclose(after.aligned, before.aligned @ turn.T, atol=1e-5)
-        np.testing.assert_allclose(after.aligned, after.transform.apply(shape.vertices), atol=1e-5)
-        exact = model.bundle.basis.engine("cpu").describe_batch(after._lazy["cloud"][None])
-        np.testing.assert_allclose(after.descriptor, exact.numpy()[0], atol=1e-5)
-        restored = MatchingShape.from_arrays(after.to_arrays())
-        assert restored.frame == after.frame
-    model.frame_judge = _StubJudge(model, best=0)
+    assert stub.calls == [25]  # one call: the split shape's T-Net frame and 24 PCA frames
+    assert [p.frame for p in judged] == ["pca4", "tnet"]
+    after, before, shape = judged[0], plain[0], shapes[0]
+    unrotated = before._lazy["cloud"] @ before.transform.rotation  # scaled, not rotated
+    seen = subsample(np.asarray(unrotated, np.float64), model.pipeline.n_tnet_points, 0)
+    expected = pca_candidates(seen)[4]  # PCA frame 4 of what the T-Net saw (cloud @ R)
+    np.testing.assert_allclose(after.transform.rotation, expected.T, atol=1e-4)
+    np.testing.assert_allclose(after.aligned, after.transform.apply(shape.vertices), atol=1e-4)
+    np.testing.assert_allclose(after._lazy["cloud"], unrotated @ expected, atol=1e-4)
+    exact = model.bundle.basis.engine("cpu").describe_batch(after._lazy["cloud"][None])
+    np.testing.assert_allclose(after.descriptor, exact.numpy()[0], atol=1e-5)
+    assert MatchingShape.from_arrays(after.to_arrays()).frame == "pca4"
+    np.testing.assert_allclose(judged[1].aligned, plain[1].aligned)
+
+    model.frame_judge = _StubJudge(model, best=0)  # the T-Net frame wins: nothing changes
     assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
+    monkeypatch.setattr(
+        model_module,
+        "tnet_turn_runs",
+        lambda tnet, clouds: np.tile(np.eye(3), (len(clouds), 24, 1, 1)),
+    )
+    agreeing = _StubJudge(model, best=5)
+    model.frame_judge = agreeing
+    assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
+    assert agreeing.calls == []  # runs that agree skip the judge
 
 
 def test_old_cache_entries_without_a_frame_read_as_tnet(model, shapes):
@@ -172,7 +249,7 @@ def test_shipped_judge_prefers_the_true_frame_to_its_half_turns():
     from litege_core.canonical import canonicalize_unit_area
     from litege_core.sampling import sample_surface
 
-    turns = candidate_turns("judged")
+    turns = np.concatenate([np.eye(3)[None], HALF_TURNS])
     wins = 0
     names = families("quadruped")
     for k in range(5):
