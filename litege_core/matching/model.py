@@ -50,6 +50,7 @@ from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import (
     FRAME_MODES,
     MIRROR,
+    TURN_RUN_POINTS,
     MatchingPipeline,
     align_shapes,
     pca_candidates,
@@ -479,7 +480,9 @@ class MatchingModel:
             subsample(cloud @ transform.rotation, self.pipeline.n_tnet_points, seed)
             for transform, cloud, _ in frames
         ]
-        runs = tnet_turn_runs(self.bundle.tnet, inputs)
+        runs = tnet_turn_runs(
+            self.bundle.tnet, [subsample(c, TURN_RUN_POINTS, seed) for c in inputs]
+        )
         split = [i for i, run in enumerate(runs) if not runs_agree(run)]
         out, names = list(frames), ["tnet"] * len(frames)
         if not split:
