@@ -98,11 +98,19 @@ def _tnet_swap_line(swap: dict | None) -> list[str]:
         return []
     run = swap.get("tnet_training", {})
     config = run.get("config", {})
-    shapes = config.get("data", {}).get("n_train")
-    train = config.get("train", {})
+    data, train = config.get("data", {}), config.get("train", {})
+    shapes = f"{data.get('n_train')} procedural shapes"
+    extra = data.get("extra_category")
+    if extra and data.get("n_extra_train"):
+        source = COLLECTION_SOURCES_TEXT.get(extra, extra)
+        credits = COLLECTION_CREDITS.get(extra)
+        shapes += f" and {data['n_extra_train']} {source}" + (
+            f" (credits: {credits})" if credits else ""
+        )
+    start = f", started from the T-Net of `{train['init']}`" if train.get("init") else ""
     return [
         f"- **T-Net**: replaced after the networks were trained (`scripts/swap_tnet.py`): "
-        f"trained on {shapes} procedural shapes, batch {train.get('batch_size')}, best "
+        f"trained on {shapes}{start}, batch {train.get('batch_size')}, best "
         f"validation step {run.get('best_step')} (mean angle "
         f"{run.get('best_val', {}).get('mean', float('nan')):.3f} rad), frame turns "
         f"{config.get('augment', {}).get('frame_turns')}; it replaced the T-Net "

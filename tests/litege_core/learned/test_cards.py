@@ -120,3 +120,12 @@ def test_a_matching_card_says_when_its_t_net_was_replaced() -> None:
     card = model_card(manifest)
     assert "trained on 5000 procedural shapes, batch 144, best validation step 4000" in card
     assert "(mean angle 0.562 rad), frame turns True" in card
+    assert "started from" not in card and "credits" not in card
+
+    config = manifest["training"]["tnet_swap"]["tnet_training"]["config"]
+    config["data"].update(extra_category="rigged", n_extra_train=800)
+    config["train"]["init"] = "quadrupeds"
+    card = model_card(manifest)
+    assert "trained on 5000 procedural shapes and 800 posed rigged animals" in card
+    assert "CC BY 4.0" in card  # the rigged fox's authors are credited
+    assert "started from the T-Net of `quadrupeds`, batch 144" in card
