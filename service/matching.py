@@ -3,8 +3,10 @@ live LRU.
 
 A :class:`~litege_core.matching.model.MatchingShape` (aligned points, descriptor, NN cache) is
 computed once per shape and matching bundle and kept beside the shape's geometry
-(``litege:{<shape_id>}:<matching_bundle_hash>:matching``, pickle-free, through the shape
-repository's :class:`~service.store.ShapeStore`), with a :class:`~service.store.ByteLRU` of
+(``litege:{<shape_id>}:<matching_bundle_hash>:matching-v<N>``, pickle-free, through the
+shape repository's :class:`~service.store.ShapeStore`; ``N`` is the library's
+:data:`~litege_core.matching.model.PREPARATION_VERSION`, so an upgrade that prepares shapes
+differently never reads the old entries), with a :class:`~service.store.ByteLRU` of
 live ones in front, bounded by ``matching_cache_bytes`` (feature tables included). Lookups
 go live → store → prepare from the registered shape's geometry
 (:meth:`ShapeRepository.shape`; :class:`ShapeNotFoundError` when the shape is not
@@ -18,13 +20,14 @@ from collections.abc import Mapping
 from functools import partial
 
 from litege_core.errors import ArtifactError
-from litege_core.matching.model import MatchingModel, MatchingShape
+from litege_core.matching.model import PREPARATION_VERSION, MatchingModel, MatchingShape
 from service.errors import UnknownModelError
 from service.metrics import ServiceMetrics
 from service.repository import ShapeRepository
 from service.store import Artifact, ByteLRU, footprint
 
-MATCHING = "matching"
+MATCHING = f"matching-v{PREPARATION_VERSION}"
+"""Artifact name of a prepared shape (versioned: see the module docstring)."""
 PREPARE_SEED = 0
 """Seed of every random draw of a preparation: the same shape always gets the same state."""
 

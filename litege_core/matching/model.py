@@ -85,6 +85,11 @@ SIDES: tuple[str, ...] = ("frame", "network")
 (proper rotations keep each shape's handedness); ``network`` — match on Y and on its mirror image
 and keep the lower mean predicted distance."""
 
+PREPARATION_VERSION = 2
+"""Version of what :meth:`MatchingModel.prepare` computes from a shape and a bundle (frame,
+descriptor, cache): a stored prepared shape of another version is stale, so caches key on it
+besides the bundle's hash. 2 (2026-11-28): ``judged`` frames consult the judge only where the
+T-Net's turned runs disagree, over the principal-axis frames (1: the T-Net frame's half turns)."""
 MAX_PAIRS_PER_CALL = 16_384
 """(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
 REFINED_MAPS_PER_SHAPE = 8

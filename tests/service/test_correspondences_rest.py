@@ -20,6 +20,7 @@ from litege_core.matching.refine import REFINE_METHODS
 from litege_core.shape import Shape
 from service.client import LiteGEClient, ProblemError
 from service.errors import UnknownModelError
+from service.matching import MATCHING
 from service.problems import PROBLEM_BASE_URI
 from service.runtime import Runtime
 from service.settings import Settings
@@ -293,7 +294,7 @@ def test_prepared_state_is_restored_from_the_store(service, client, pair):
 def test_redis_store_survives_an_api_restart(live_service_factory, shared_redis_url, test_shape):
     model = MatchingModel.tiny_random(SEED)
     a, b = test_shape(7), test_shape(8)
-    keys = [artifact_key(s.content_hash, model.content_hash, "matching") for s in (a, b)]
+    keys = [artifact_key(s.content_hash, model.content_hash, MATCHING) for s in (a, b)]
     redis_client = redis.Redis.from_url(shared_redis_url)
     redis_client.delete(*keys)  # a previous run's copies
 

@@ -13,11 +13,11 @@ import pytest
 import torch
 
 from litege_core.learned import Predictor, load_shipped
-from litege_core.matching.model import MatchingModel
+from litege_core.matching.model import PREPARATION_VERSION, MatchingModel
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
-from service.matching import MatchingRepository
+from service.matching import MATCHING, MatchingRepository
 from service.metrics import ServiceMetrics
 from service.repository import ShapeRepository, record_artifact
 from service.store import InMemoryStore, artifact_key, deep_nbytes, encode_arrays, geometry_key
@@ -255,9 +255,11 @@ def test_prepared_shapes_live_beside_the_geometry(repository, store, matching_mo
     matching = make_matching(repository, matching_model)
     shape = blob(20)
     repository.register_many([shape], "humans")
-    key = artifact_key(shape.content_hash, matching_model.content_hash, "matching")
+    key = artifact_key(shape.content_hash, matching_model.content_hash, MATCHING)
     prepared = matching.get(shape.content_hash, "tiny")
     assert store.get(key) is not None
+    # the key names the preparation's version: an upgrade never reads older preparations
+    assert key.endswith(f":matching-v{PREPARATION_VERSION}")
     assert matching.get(shape.content_hash, "tiny") is prepared  # live
 
     matching.forget_live()
