@@ -12,6 +12,11 @@
    restored from a 1-epoch run — spec §3.5 🐞), keeping the best validation checkpoint;
 5. export ``RUN/bundle`` with :func:`~litege_core.matching.bundle.save_matching_bundle`.
 
+With ``train.init`` (a shipped matching model or a bundle directory) the run continues that
+bundle instead: its T-Net, pipeline and basis are kept (the network's inputs do not move), its
+first network replaces the first passes, and step 4 trains it on the new data (the start is
+kept if no validation beats it).
+
 Validation matching error: for fixed pairs of clean validation views of different shapes,
 every shared source vertex of X is matched on Y by the coarse-to-fine search and the error is
 the unit-area geodesic on Y from the true vertex (the same source) to the match — read from
@@ -37,7 +42,13 @@ from litege_core.canonical import calibrate_poisson_target
 from litege_core.datasets import GeodesicDataset
 from litege_core.descriptor import UdfPcaBasis, VoxelGrid, fit_basis
 from litege_core.errors import InputError
-from litege_core.matching.bundle import SearchSettings, save_matching_bundle
+from litege_core.matching.bundle import (
+    MatchingBundle,
+    SearchSettings,
+    load_matching_bundle,
+    resolve_matching_bundle,
+    save_matching_bundle,
+)
 from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import MatchingPipeline, align_shapes
 from litege_core.matching.model import ensemble_score_fn
@@ -107,6 +118,10 @@ class MatchingOptimConfig:
     seed: int = 0
     threads: int = 1
     device: str = "cpu"
+    init: str = ""
+    """A matching bundle (shipped name or directory) to continue from: its T-Net, pipeline,
+    basis and first network replace ``data.tnet``, the calibrated pipeline, ``[basis]`` and the
+    first passes; ``network.width`` must be its network's (``""``: train from scratch)."""
 
 
 @dataclass(frozen=True)
@@ -332,6 +347,24 @@ def train_pass(
     return best
 
 
+def _initial_bundle(config: MatchingTrainConfig, device: torch.device) -> MatchingBundle | None:
+    """The bundle ``train.init`` names, on ``device`` (``None`` without one).
+
+    Raises:
+        InputError: an unknown bundle, or a network width other than ``network.width``.
+    """
+    if not config.train.init:
+        return None
+    bundle = load_matching_bundle(resolve_matching_bundle(config.train.init), device)
+    width = bundle.networks[0].config().get("width")
+    if width != config.network.width:
+        raise InputError(
+            f"train.init {config.train.init!r} has networks of width {width}, the config asks "
+            f"for {config.network.width}: set network.width to match it"
+        )
+    return bundle
+
+
 def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     """Run the whole training (see the module docstring); returns the bundle manifest."""
     from litege_core.train.tnet import load_tnet
@@ -348,13 +381,20 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     train_arrays = load_split_arrays(dataset, "train", config.data.max_train_shapes)
     val_arrays = load_split_arrays(dataset, "val", config.data.max_val_shapes)
     faces = np.asarray(dataset.faces)
-    tnet = load_tnet(config.data.tnet, device)
-    pipeline = calibrated_pipeline(train_arrays, faces)
+    init = _initial_bundle(config, device)
+    if init is not None:  # continue a bundle: its frame, scale and descriptor stay
+        tnet, pipeline = init.tnet, init.pipeline
+    else:
+        tnet = load_tnet(config.data.tnet, device)
+        pipeline = calibrated_pipeline(train_arrays, faces)
     seconds["load_and_calibrate"] = time.perf_counter() - clock
     LOG.info("pipeline: %s", pipeline)
 
     clock = time.perf_counter()
-    basis = prepare_matching_basis(config, train_arrays, faces, tnet, pipeline)
+    if init is not None:
+        basis = init.basis
+    else:
+        basis = prepare_matching_basis(config, train_arrays, faces, tnet, pipeline)
     seconds["basis"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -405,7 +445,12 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
 
     clock = time.perf_counter()
     passes = []
-    for k in range(t.first_passes):
+    if init is not None:  # the bundle's network is the only "first pass"
+        start = copy.deepcopy(init.networks[0]).to(device)
+        metrics = validation_metrics(start, val_tables, val_set, caches, pipeline.target_scale)
+        LOG.info("start (%s): val match error %.2f", t.init, metrics["match_error_x100"])
+        passes.append(PassResult(start, metrics, []))
+    for k in range(0 if init is not None else t.first_passes):
         net = _new_network(config, basis, tables, t.seed + 1000 * k)
         result = train_pass(
             net,
@@ -441,7 +486,8 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     training = {
         "config": {f.name: asdict(getattr(config, f.name)) for f in fields(config)},
         "dataset": dataset_fingerprint(config.data.dataset),
-        "tnet": str(config.data.tnet),
+        "tnet": str(config.data.tnet) if init is None else f"{t.init} (init)",
+        "init": None if init is None else {"bundle": t.init, "content_hash": init.content_hash},
         "train_views": tables.n_views,
         "rejected_views": rejected,
         "mean_tnet_angle_train": float(tables.angle.mean()),

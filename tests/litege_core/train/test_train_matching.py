@@ -137,6 +137,38 @@ def test_training_is_deterministic(toy_dataset, tnet_path, tmp_path):
     assert a["files"]["matching-0.safetensors"] == b["files"]["matching-0.safetensors"]
 
 
+def test_training_continues_a_bundle(toy_dataset, tnet_path, tmp_path):
+    from litege_core.matching.bundle import load_matching_bundle
+    from litege_core.nets import state_to_tensors
+
+    train_matching(_config(toy_dataset, tnet_path, tmp_path / "a", first_passes=1))
+    start = load_matching_bundle(tmp_path / "a" / "run" / "bundle")
+    # with no steps, the continued bundle is the start: same T-Net, pipeline, basis and network
+    same = train_matching(
+        _config(toy_dataset, "unused", tmp_path / "b", steps=0, init=str(start.path))
+    )
+    continued = load_matching_bundle(tmp_path / "b" / "run" / "bundle")
+    assert continued.basis.content_hash == start.basis.content_hash
+    assert continued.pipeline == start.pipeline
+    for a, b in ((continued.tnet, start.tnet), (continued.networks[0], start.networks[0])):
+        got, want = state_to_tensors(a), state_to_tensors(b)
+        assert all(torch.equal(got[k], want[k]) for k in want)
+    training = same["training"]
+    assert training["init"] == {"bundle": str(start.path), "content_hash": start.content_hash}
+    assert len(training["first_passes"]) == 1 and training["chosen_first_pass"] == 0
+    # with steps, it trains on from there (the basis file of [basis] is neither read nor fitted)
+    moved = train_matching(
+        _config(toy_dataset, "unused", tmp_path / "c", steps=6, lr=1e-3, init=str(start.path))
+    )
+    assert moved["training"]["chosen_first_pass"] == 0
+    assert not (tmp_path / "c" / "basis.safetensors").exists()
+    narrow = _config(toy_dataset, "unused", tmp_path / "d", init=str(start.path))
+    with pytest.raises(InputError, match=r"set network\.width"):
+        train_matching(narrow.replace(network={"width": 8}))
+    with pytest.raises(InputError, match="unknown matching model"):
+        train_matching(_config(toy_dataset, "unused", tmp_path / "e", init="no-such-model"))
+
+
 def test_config_errors_are_input_errors(toy_dataset, tnet_path, tmp_path):
     with pytest.raises(InputError):
         _config(toy_dataset, tnet_path, tmp_path, lr=1e-5, eta_min=1e-3)
