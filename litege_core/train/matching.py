@@ -499,6 +499,8 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         "torch": torch.__version__,
         "litege": litege_core.__version__,
     }
+    if init is not None and "tnet_swap" in init.manifest.get("training", {}):
+        training["tnet_swap"] = init.manifest["training"]["tnet_swap"]  # the kept T-Net's origin
     metrics = {f"val_{k}": v for k, v in final.metrics.items() if isinstance(v, float)}
     dtype = getattr(torch, config.output.weights_dtype)
     return save_matching_bundle(

@@ -162,6 +162,10 @@ def test_training_continues_a_bundle(toy_dataset, tnet_path, tmp_path):
     )
     assert moved["training"]["chosen_first_pass"] == 0
     assert not (tmp_path / "c" / "basis.safetensors").exists()
+    shipped = MatchingModel.load("quadrupeds").bundle  # its T-Net was swapped in: that stays said
+    config = _config(toy_dataset, "unused", tmp_path / "s", steps=0, init="quadrupeds")
+    kept = train_matching(config.replace(network={"width": 200}))
+    assert kept["training"]["tnet_swap"] == shipped.manifest["training"]["tnet_swap"]
     narrow = _config(toy_dataset, "unused", tmp_path / "d", init=str(start.path))
     with pytest.raises(InputError, match=r"set network\.width"):
         train_matching(narrow.replace(network={"width": 8}))
