@@ -35,6 +35,7 @@ import argparse
 import datetime
 import itertools
 import re
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -72,15 +73,28 @@ def consensus(rotations: list[np.ndarray]) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
-def rotated_files(files: list[Path], seed: int, salt: int) -> tuple[list[Shape], list[np.ndarray]]:
-    """The files' shapes, each randomly rotated (seeded), and those rotations."""
+def rotated(
+    meshes: Iterable[tuple[np.ndarray, np.ndarray | None]], seed: int, salt: int
+) -> tuple[list[Shape], list[np.ndarray]]:
+    """Each ``(vertices, faces)`` as a shape randomly rotated (seeded by ``seed``, ``salt`` and
+    its position), and those rotations."""
     shapes, rotations = [], []
-    for k, path in enumerate(files):
-        loaded = load_shape(path)
+    for k, (vertices, faces) in enumerate(meshes):
         rotation = random_rotation(np.random.default_rng([seed, salt, k]))
-        shapes.append(Shape.from_arrays(loaded.vertices @ rotation.T, loaded.faces))
+        shapes.append(Shape.from_arrays(np.asarray(vertices) @ rotation.T, faces))
         rotations.append(rotation)
     return shapes, rotations
+
+
+def rotated_files(files: list[Path], seed: int, salt: int) -> tuple[list[Shape], list[np.ndarray]]:
+    """The files' shapes, each randomly rotated (seeded), and those rotations."""
+    loaded = (load_shape(path) for path in files)
+    return rotated(((shape.vertices, shape.faces) for shape in loaded), seed, salt)
+
+
+def errors_to_truth(found: list[tuple[np.ndarray, str]], truths: list[np.ndarray]) -> list[float]:
+    """Angle (rad) of each found frame from the true one (the inverse of the input rotation)."""
+    return [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
 
 
 def summary(errors: list[float]) -> str:
@@ -107,16 +121,15 @@ def main() -> None:
     switched: dict[str, int] = {}
 
     # ------------------------------------------------------------------ procedural
-    shapes, truths, poses = [], [], []
-    for k in range(args.procedural):
-        generated = generate_shape(model.category, names[k % len(names)], 2_000_100 + k)
-        rotation = random_rotation(np.random.default_rng([args.seed, 17, k]))
-        shapes.append(Shape.from_arrays(generated.vertices @ rotation.T, generated.faces))
-        truths.append(rotation)
-        poses.append(generated.pose)
+    generated = [
+        generate_shape(model.category, names[k % len(names)], 2_000_100 + k)
+        for k in range(args.procedural)
+    ]
+    shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 17)
+    poses = [g.pose for g in generated]
     results = {mode: frames_of(model, shapes, mode) for mode in ("tnet", "judged")}
     for mode, found in results.items():
-        errors = [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
+        errors = errors_to_truth(found, truths)
         rows.append(f"| procedural (test seeds), all poses | {mode} | {summary(errors)} |")
         upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
         rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
@@ -129,14 +142,11 @@ def main() -> None:
 
         if Path(train_data_root(None)).is_dir():
             rigged = collection_shape_set("rigged", "val", args.rigged, None, args.cache)
-            shapes, truths = [], []
-            for k, (vertices, faces) in enumerate(zip(rigged.vertices, rigged.faces, strict=True)):
-                rotation = random_rotation(np.random.default_rng([args.seed, 31, k]))
-                shapes.append(Shape.from_arrays(vertices @ rotation.T, faces))
-                truths.append(rotation)
+            meshes = zip(rigged.vertices, rigged.faces, strict=True)
+            shapes, truths = rotated(meshes, args.seed, 31)
             for mode in ("tnet", "judged"):
                 found = frames_of(model, shapes, mode)
-                errors = [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
+                errors = errors_to_truth(found, truths)
                 rows.append(f"| rigged animals (val seeds) | {mode} | {summary(errors)} |")
                 switched[f"rigged {mode}"] = sum(name != "tnet" for _, name in found)
 
