@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from scipy.spatial.transform import Rotation
 
 import litege_core.matching.model as model_module
 from litege_core.canonical import Transform
@@ -45,11 +46,7 @@ HALF_TURNS = np.stack(
 
 
 def _rotation_about(axis: int, angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    i, j = [k for k in range(3) if k != axis]
-    out = np.eye(3)
-    out[i, i], out[i, j], out[j, i], out[j, j] = c, -s, s, c
-    return out
+    return Rotation.from_rotvec(angle * np.eye(3)[axis]).as_matrix()
 
 
 @pytest.fixture(scope="module")
