@@ -180,9 +180,13 @@ def stage_functions(predictor: Predictor, work: Workload) -> list[tuple[str, Cal
         c["states"] = predictor.restore_many(work.shapes, records)
 
     def features(c: dict) -> None:
-        sources = predictor._resolve_many(c["states"], work.sources, "source")
-        targets = predictor._resolve_many(c["states"], work.targets, "target")
-        c["blocks"] = list(zip(sources, targets, strict=True))
+        count = len(c["states"])
+        resolved = predictor._resolve_many(
+            c["states"] * 2,
+            list(work.sources) + list(work.targets),
+            ["source"] * count + ["target"] * count,
+        )
+        c["blocks"] = list(zip(resolved[:count], resolved[count:], strict=True))
 
     def head(c: dict) -> None:
         c["out"] = evaluate_blocks(predictor, c["blocks"])

@@ -341,8 +341,12 @@ class Predictor:
         )
         with torch.no_grad():
             shape_emb = self._shape_mlp(descriptors)  # (B, n)
-            biases = self.folded.shape_bias(shape_emb)  # (B, n)
-        # Each state owns its rows (a view would keep, and be charged for, the whole batch).
+            rows = torch.cat([shape_emb, self.folded.shape_bias(shape_emb)], dim=1)  # (B, 2n)
+        # Each state's embedding and bias are views of its batch's rows: no kernel per shape
+        # (a copy per state cost 2B device kernels, half the launches of 64 clouds × 1 query
+        # on a GPU). A state keeps its batch's B × 2n floats alive and ShapeState.nbytes
+        # charges it for them (a few hundred kB at most; its feature table is N × F).
+        n = shape_emb.shape[1]
         return [
             ShapeState(
                 shape_id=record.shape_id,
@@ -357,12 +361,12 @@ class Predictor:
                 vertices=shape.vertices,
                 faces=shape.faces,
                 device=self.device,
-                shape_embedding=embedding.clone(),
-                shape_bias=bias.clone(),
+                shape_embedding=embedding,
+                shape_bias=bias,
                 record=record,
             )
             for shape, record, embedding, bias in zip(
-                shapes, records, shape_emb.unbind(), biases.unbind(), strict=True
+                shapes, records, rows[:, :n].unbind(), rows[:, n:].unbind(), strict=True
             )
         ]
 
@@ -438,15 +442,20 @@ class Predictor:
         return self._resolve_many([state], [query], what)[0]
 
     def _resolve_many(
-        self, states: Sequence[ShapeState], queries: Sequence[QueryLike], what: str
+        self,
+        states: Sequence[ShapeState],
+        queries: Sequence[QueryLike],
+        what: str | Sequence[str],
     ) -> list[ResolvedPoints]:
         """:meth:`resolve` of ``(state, query)`` pairs; the index queries that embed their
         points on the fly (:meth:`_embeds_on_the_fly`, xyz points snapped to vertices included)
         share one point-MLP call, each row with its own shape's bias, instead of one call per
-        shape (64 shapes × 1 query: one call)."""
+        shape (64 shapes × 1 query, sources and targets: one call). ``what`` names the queries
+        in error messages: one word for all, or one per query."""
+        whats = [what] * len(states) if isinstance(what, str) else list(what)
         resolved: list[ResolvedPoints | None] = []
         pending: list[tuple[int, ShapeState, NDArray]] = []
-        for b, (state, query) in enumerate(zip(states, queries, strict=True)):
+        for b, (state, query, what) in enumerate(zip(states, queries, whats, strict=True)):
             parsed = parse_query(query, what).check(state.n_points, what)
             indices = parsed.indices
             if parsed.points is not None:  # xyz: onto the surface, a vertex where it lands on one
@@ -596,13 +605,11 @@ class Predictor:
             )
         for state in states:
             self.check_state(state)
-        blocks = list(
-            zip(
-                self._resolve_many(states, sources_list, "source"),
-                self._resolve_many(states, targets_list, "target"),
-                strict=True,
-            )
+        count = len(states)
+        resolved = self._resolve_many(  # one point-MLP call for the sources and the targets
+            states + states, sources_list + targets_list, ["source"] * count + ["target"] * count
         )
+        blocks = list(zip(resolved[:count], resolved[count:], strict=True))
         outputs: list[NDArray | None] = [None] * len(blocks)
         with torch.no_grad():
             group: list[int] = []

@@ -184,12 +184,16 @@ class ShapeState:
     def nbytes(self) -> int:
         """Bytes held by the cached arrays and tensors, for cache accounting: including, once
         built, the canonical vertices, the feature tables (the full head's and a small head's)
-        and graph-fusion graphs (sparse)."""
-        tensors = [self.shape_embedding, self.shape_bias]
-        tensors += [
+        and graph-fusion graphs (sparse). The embedding and bias count as the storage they
+        keep alive: a state registered in a batch holds views of the batch's rows."""
+        storages = {
+            t.untyped_storage().data_ptr(): t.untyped_storage().nbytes()
+            for t in (self.shape_embedding, self.shape_bias)
+        }
+        tensors = [
             v for k, v in self._lazy.items() if k.startswith(("features", "canonical_vertices"))
         ]
-        total = sum(t.numel() * t.element_size() for t in tensors)
+        total = sum(storages.values()) + sum(t.numel() * t.element_size() for t in tensors)
         for key, graph in self._lazy.items():
             if key.startswith("fusion.graph"):
                 total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes

@@ -24,7 +24,7 @@ stamp() { echo "[$(( $(date +%s) - started )) s] $*" >&2; }
 torch.cuda.is_available(), 'numpy', numpy.__version__, 'triton', triton.__version__)" 2>&1
   echo
   timeout 240 "$PY" scripts/bench_batch_table.py --runs "$RUNS" --threads 1 \
-    --cuda-udf auto,torch 2>&1 | grep -v '^USDT'
+    --cuda-udf "${CUDA_UDF:-auto,torch}" 2>&1 | grep -v '^USDT'
 } > "$OUT/gpu.md" 2>&1
 stamp "batch tables done"
 

@@ -273,8 +273,15 @@ def test_register_many_equals_register(predictor, mesh, cloud):
         torch.testing.assert_close(predictor.point_table(state), predictor.point_table(single))
         table = state.feature_table
         assert table is not None and table.untyped_storage().size() == table.nbytes
-        for tensor in (state.shape_embedding, state.shape_bias, state.canonical_vertices):
-            assert tensor.untyped_storage().size() == tensor.nbytes  # not a view of the batch
+        vertices = state.canonical_vertices
+        assert vertices.untyped_storage().size() == vertices.nbytes  # not a view of the batch
+        # embedding and bias are views of the batch's (3, 2n) rows, and charged for them
+        rows = state.shape_embedding.untyped_storage()
+        assert state.shape_bias.untyped_storage().data_ptr() == rows.data_ptr()
+        assert rows.nbytes() == len(shapes) * (
+            state.shape_embedding.nbytes + state.shape_bias.nbytes
+        )
+        assert state.nbytes >= rows.nbytes() + vertices.nbytes + table.nbytes
     assert predictor.register_many([]) == []
 
 
