@@ -345,26 +345,31 @@ def canonicalize_bbox_many(
         raise InputError("canonicalize_bbox_many needs at least one cloud")
     dev = torch.device(device)
     width = max(p.shape[0] for p in points)
-    padded = torch.empty((len(points), width, 3), dtype=torch.float32, device=dev)
     transforms: list[Transform] = [Transform.identity()] * len(points)
     by_size: dict[int, list[int]] = {}
     for b, cloud in enumerate(points):
         by_size.setdefault(cloud.shape[0], []).append(b)
+    padded: torch.Tensor | None = None
     for size, members in by_size.items():
         if len(members) < BATCHED_MIN_CLOUDS:  # the one-cloud reference, then one upload
             group = [_named_bbox(points[b], b) for b in members]
             canonical = [t.apply(points[b]) for t, b in zip(group, members, strict=True)]
-            result = torch.from_numpy(np.stack(canonical))
+            result = torch.from_numpy(np.stack(canonical).astype(np.float32))
         else:
             stacked = np.stack([points[b] for b in members])  # (G, P, 3), a fresh copy
             group, result = _bbox_frames(torch.from_numpy(stacked).to(dev), members)
             del stacked
+        if len(by_size) == 1:  # one size (the usual batch): the result is the batch
+            return CanonicalBatch(group, result.to(dev, torch.float32))
+        if padded is None:
+            padded = torch.empty((len(points), width, 3), dtype=torch.float32, device=dev)
         index = torch.tensor(members, device=dev)
         padded[index, :size] = result.to(dev, torch.float32)
         if size < width:
             padded[index, size:] = padded[index, :1]
         for g, b in enumerate(members):
             transforms[b] = group[g]
+    assert padded is not None
     return CanonicalBatch(transforms, padded)
 
 

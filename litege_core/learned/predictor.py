@@ -283,8 +283,9 @@ class Predictor:
         canonical = canonicalize_bbox_many(samples, self.device)  # frames on the device
         transforms = canonical.transforms
         described = self.engine.describe_with_residual(canonical.clouds)
-        descriptors = described.descriptors.detach().cpu().numpy().astype(np.float32)
-        residuals = described.residual.detach().cpu().numpy().astype(np.float64)
+        codes = described.descriptors.detach().to(torch.float32)  # (B, k), on the device
+        host = torch.cat([codes, described.residual.detach()[:, None]], 1).cpu().numpy()
+        descriptors, residuals = host[:, :-1], host[:, -1].astype(np.float64)  # one transfer
         records = [
             ShapeRecord(
                 shape_id=shape.content_hash,
@@ -296,7 +297,7 @@ class Predictor:
             )
             for b, shape in enumerate(shapes)
         ]
-        return self.restore_many(shapes, records)
+        return self._states(shapes, records, codes)
 
     def restore(self, shape: Shape, record: ShapeRecord) -> ShapeState:
         """Rebuild a state from its :class:`ShapeRecord` without recomputing the descriptor."""
@@ -339,6 +340,13 @@ class Predictor:
         descriptors = torch.from_numpy(np.stack([r.descriptor for r in records])).to(
             self.device, torch.float32
         )
+        return self._states(shapes, records, descriptors)
+
+    def _states(
+        self, shapes: list[Shape], records: list[ShapeRecord], descriptors: torch.Tensor
+    ) -> list[ShapeState]:
+        """The states of checked ``records`` whose ``(B, k)`` descriptors are on the device
+        (registration passes the ones it computed: no round trip through the host)."""
         with torch.no_grad():
             shape_emb = self._shape_mlp(descriptors)  # (B, n)
             rows = torch.cat([shape_emb, self.folded.shape_bias(shape_emb)], dim=1)  # (B, 2n)
@@ -485,11 +493,13 @@ class Predictor:
             positions = torch.from_numpy(np.concatenate(canonical)).to(self.device, torch.float32)
             if len(pending) == 1:
                 rows = pending[0][1].shape_bias  # (n,), broadcast over the rows
-            else:  # each row its shape's bias; the row → shape index built on the host
-                shape_of_row = np.repeat(np.arange(len(pending)), counts)
-                rows = torch.stack([state.shape_bias for _, state, _ in pending]).index_select(
-                    0, torch.from_numpy(shape_of_row).to(self.device)
-                )
+            else:  # each row its shape's bias
+                biases = torch.stack([state.shape_bias for _, state, _ in pending])
+                if min(counts) == max(counts):  # e.g. one query per shape: no index upload
+                    rows = biases.repeat_interleave(counts[0], dim=0)
+                else:  # the row → shape index built on the host
+                    shape_of_row = np.repeat(np.arange(len(pending)), counts)
+                    rows = biases.index_select(0, torch.from_numpy(shape_of_row).to(self.device))
             with torch.no_grad():
                 features = self._features_of(positions, rows).split(counts)
             for (b, state, indices), feature, where, points in zip(
@@ -749,21 +759,24 @@ class Predictor:
     ) -> None:
         """Several small blocks in one head evaluation (pairs concatenated, no padding)."""
         sizes = [(src.count, dst.count) for src, dst in group]
-        src_rows, dst_rows = [], []  # pair → row of the concatenated sources / targets
-        src_off = dst_off = 0
-        for s, t in sizes:
-            src_rows.append(np.repeat(np.arange(src_off, src_off + s), t))
-            dst_rows.append(np.tile(np.arange(dst_off, dst_off + t), s))
-            src_off += s
-            dst_off += t
-        i = torch.from_numpy(np.concatenate(src_rows)).to(self.device)
-        j = torch.from_numpy(np.concatenate(dst_rows)).to(self.device)
         f_src = torch.cat([src.features for src, _ in group])
         f_dst = torch.cat([dst.features for _, dst in group])
         x_src = torch.cat([src.positions for src, _ in group])
         x_dst = torch.cat([dst.positions for _, dst in group])
-        head = self._net.head(f_src[i] - f_dst[j], inplace=True)
-        eu = torch.linalg.vector_norm(x_src[i] - x_dst[j], dim=-1)
+        if any(size != (1, 1) for size in sizes):  # pair → row of the sources / targets
+            src_rows, dst_rows = [], []
+            src_off = dst_off = 0
+            for s, t in sizes:
+                src_rows.append(np.repeat(np.arange(src_off, src_off + s), t))
+                dst_rows.append(np.tile(np.arange(dst_off, dst_off + t), s))
+                src_off += s
+                dst_off += t
+            i = torch.from_numpy(np.concatenate(src_rows)).to(self.device)
+            j = torch.from_numpy(np.concatenate(dst_rows)).to(self.device)
+            f_src, f_dst, x_src, x_dst = f_src[i], f_dst[j], x_src[i], x_dst[j]
+        # else one pair per shape: the rows are the pairs (no index upload, no gather)
+        head = self._net.head(f_src - f_dst, inplace=True)
+        eu = torch.linalg.vector_norm(x_src - x_dst, dim=-1)
         flat = self._finish(head, eu).cpu().numpy()
         start = 0
         for b, (s, t) in zip(positions, sizes, strict=True):
