@@ -8,6 +8,8 @@
     BUNDLE/basis.safetensors     UDF-PCA basis of the aligned unit-area frame
     BUNDLE/tnet.safetensors      T-Net weights
     BUNDLE/matching-K.safetensors   matching network K (several = an ensemble, outputs averaged)
+    BUNDLE/judge-K.safetensors      optional: the frame judge's network K (without them the
+                                    judge scores frames with the matching networks)
 
 Loading verifies every file hash and that the networks fit the basis, as for geodesic bundles:
 both formats are a :class:`~litege_core.learned.bundle.Bundle`, written and opened by the same
@@ -52,6 +54,10 @@ def network_file(index: int) -> str:
     return f"matching-{index}.safetensors"
 
 
+def judge_file(index: int) -> str:
+    return f"judge-{index}.safetensors"
+
+
 @dataclass(frozen=True)
 class SearchSettings:
     """Coarse-to-fine search defaults of a bundle (spec §5.2–5.3, FPS tiers)."""
@@ -83,10 +89,17 @@ class MatchingBundle(Bundle):
     search: SearchSettings
     manifest: dict[str, Any] = field(repr=False)
     path: Path | None = None
+    judge_networks: tuple[GeodesicNet, ...] = ()
 
     @property
     def modules(self) -> tuple[torch.nn.Module, ...]:
-        return (*self.networks, self.tnet)
+        return (*self.networks, self.tnet, *self.judge_networks)
+
+    @property
+    def frame_judge_networks(self) -> tuple[GeodesicNet, ...]:
+        """The networks the frame judge scores with: the bundle's own judge networks, else
+        its matching networks."""
+        return self.judge_networks or self.networks
 
 
 def save_matching_bundle(
@@ -103,11 +116,14 @@ def save_matching_bundle(
     training: dict[str, Any] | None = None,
     metrics: dict[str, Any] | None = None,
     weights_dtype: torch.dtype = torch.float32,
+    judge_networks: list[GeodesicNet] | tuple[GeodesicNet, ...] = (),
 ) -> dict[str, Any]:
-    """Write a matching bundle; returns its manifest."""
+    """Write a matching bundle; returns its manifest. ``judge_networks`` (optional) are
+    the frame judge's own networks, e.g. the network a continued bundle started from, whose
+    frame choices were validated."""
     pipeline = pipeline or MatchingPipeline()
     search = search or SearchSettings()
-    check_descriptor_width(networks, basis)
+    check_descriptor_width((*networks, *judge_networks), basis)
     core = {
         "format_version": FORMAT_VERSION,
         "kind": KIND,
@@ -120,6 +136,9 @@ def save_matching_bundle(
         "networks": [net.config() for net in networks],
     }
     weights = {TNET_FILE: tnet, **{network_file(k): net for k, net in enumerate(networks)}}
+    if judge_networks:
+        core["judge_networks"] = [net.config() for net in judge_networks]
+        weights.update({judge_file(k): net for k, net in enumerate(judge_networks)})
     return write_bundle(
         directory,
         core,
@@ -143,14 +162,17 @@ def load_matching_bundle(
     with consistent_manifest("matching bundle"):
         tnet = TNet.from_config(manifest["tnet"])
         networks = tuple(GeodesicNet.from_config(c) for c in manifest["networks"])
+        judges = tuple(GeodesicNet.from_config(c) for c in manifest.get("judge_networks", []))
         pipeline = MatchingPipeline.from_dict(manifest["pipeline"])
         search = SearchSettings.from_dict(manifest["search"])
-    check_descriptor_width(networks, basis, ArtifactError)
+    check_descriptor_width((*networks, *judges), basis, ArtifactError)
     load_weights(tnet, directory / TNET_FILE, device)
     for k, net in enumerate(networks):
         load_weights(net, directory / network_file(k), device)
+    for k, net in enumerate(judges):
+        load_weights(net, directory / judge_file(k), device)
     return MatchingBundle(
-        manifest["name"], basis, tnet, networks, pipeline, search, manifest, directory
+        manifest["name"], basis, tnet, networks, pipeline, search, manifest, directory, judges
     )
 
 

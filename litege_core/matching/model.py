@@ -346,9 +346,15 @@ class MatchingModel:
 
             if self.category not in CATEGORIES:
                 return None
+            networks = self.bundle.frame_judge_networks
+            folded = (
+                self._folded
+                if networks is self.bundle.networks
+                else [FoldedGeodesicNet(net, self.device) for net in networks]
+            )
             self._judge = FrameJudge(
-                self._folded,
-                list(self.bundle.networks),
+                folded,
+                list(networks),
                 self.bundle.basis,
                 self.category,
                 self.device,

@@ -15,7 +15,9 @@
 With ``train.init`` (a shipped matching model or a bundle directory) the run continues that
 bundle instead: its T-Net, pipeline and basis are kept (the network's inputs do not move), its
 first network replaces the first passes, and step 4 trains it on the new data (the start is
-kept if no validation beats it).
+kept if no validation beats it). The continued bundle keeps the initial bundle's frame judge
+(its ``judge-K`` networks, else its matching networks): the judged frames stay the ones that
+were validated, whatever the new network scores.
 
 Validation matching error: for fixed pairs of clean validation views of different shapes,
 every shared source vertex of X is matched on Y by the coarse-to-fine search and the error is
@@ -488,6 +490,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         "dataset": dataset_fingerprint(config.data.dataset),
         "tnet": str(config.data.tnet) if init is None else f"{t.init} (init)",
         "init": None if init is None else {"bundle": t.init, "content_hash": init.content_hash},
+        "judge": "matching networks" if init is None else f"{t.init} (init)'s frame judge",
         "train_views": tables.n_views,
         "rejected_views": rejected,
         "mean_tnet_angle_train": float(tables.angle.mean()),
@@ -515,6 +518,8 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         training=training,
         metrics=metrics,
         weights_dtype=dtype,
+        # a continued bundle keeps the frame judge its frames were validated with
+        judge_networks=() if init is None else [n.cpu() for n in init.frame_judge_networks],
     )
 
 

@@ -184,6 +184,39 @@ def test_bundle_round_trip_keeps_matches_and_detects_tampering(model, prepared, 
         load_matching_bundle(tmp_path / "b")
 
 
+def test_a_bundle_may_carry_its_own_frame_judge(model, tmp_path):
+    from litege_core.nets import GeodesicNet, state_to_tensors
+
+    bundle = model.bundle
+    judge = GeodesicNet.from_config(bundle.networks[0].config())  # other weights
+    with torch.no_grad():
+        for p in judge.parameters():
+            p.add_(0.5)
+    common = dict(
+        name="tiny",
+        category="quadruped",
+        basis=bundle.basis,
+        tnet=bundle.tnet,
+        networks=list(bundle.networks),
+        pipeline=bundle.pipeline,
+        search=bundle.search,
+    )
+    save_matching_bundle(tmp_path / "plain", **common)
+    save_matching_bundle(tmp_path / "judged", **common, judge_networks=[judge])
+    plain, judged = (MatchingModel.load(tmp_path / d) for d in ("plain", "judged"))
+    assert plain.bundle.judge_networks == () and "judge_networks" not in plain.bundle.manifest
+    assert plain.frame_judge.networks == list(plain.bundle.networks)
+    (loaded,) = judged.bundle.judge_networks
+    got, want = state_to_tensors(loaded), state_to_tensors(judge)
+    assert all(torch.equal(got[k], want[k]) for k in want)
+    assert judged.frame_judge.networks == [loaded]  # scores frames with its own network
+    assert judged.content_hash != plain.content_hash
+    weights = tmp_path / "judged" / "judge-0.safetensors"
+    weights.write_bytes(weights.read_bytes()[:-8] + b"\0" * 8)
+    with pytest.raises(ArtifactError, match="hash"):
+        load_matching_bundle(tmp_path / "judged")
+
+
 def test_scaling_is_chosen_from_the_input(model, shapes):
     mesh = shapes[0]
     assert choose_scaling(mesh, model.pipeline) == "unit_area"

@@ -156,11 +156,17 @@ def test_training_continues_a_bundle(toy_dataset, tnet_path, tmp_path):
     training = same["training"]
     assert training["init"] == {"bundle": str(start.path), "content_hash": start.content_hash}
     assert len(training["first_passes"]) == 1 and training["chosen_first_pass"] == 0
+    # the continued bundle judges frames with the network it started from
+    (judge,) = continued.judge_networks
+    got, want = state_to_tensors(judge), state_to_tensors(start.networks[0])
+    assert all(torch.equal(got[k], want[k]) for k in want)
     # with steps, it trains on from there (the basis file of [basis] is neither read nor fitted)
     moved = train_matching(
         _config(toy_dataset, "unused", tmp_path / "c", steps=6, lr=1e-3, init=str(start.path))
     )
     assert moved["training"]["chosen_first_pass"] == 0
+    assert moved["files"]["judge-0.safetensors"] == same["files"]["judge-0.safetensors"]
+    assert moved["files"]["matching-0.safetensors"] != same["files"]["matching-0.safetensors"]
     assert not (tmp_path / "c" / "basis.safetensors").exists()
     shipped = MatchingModel.load("quadrupeds").bundle  # its T-Net was swapped in: that stays said
     config = _config(toy_dataset, "unused", tmp_path / "s", steps=0, init="quadrupeds")
