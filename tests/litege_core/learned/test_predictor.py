@@ -263,6 +263,24 @@ def test_distances_many_equals_per_shape_calls(predictor, mesh, cloud, mesh_stat
     np.testing.assert_allclose(small.distances(mesh_state, np.arange(40)), full, rtol=1e-6)
 
 
+def test_one_pair_per_shape_batches_equal_per_shape_calls(predictor, mesh, cloud, mesh_state):
+    """The paper's Table 1 workload (B shapes × one pair, one query per shape): no row index
+    on the batch path, the same distances as one shape at a time; mixed with a 2-point query
+    the grouped path indexes rows again."""
+    cloud_state = predictor.register(cloud)
+    states = [mesh_state, cloud_state, mesh_state, cloud_state]
+    sources, targets = [[0], [3], [7], [3]], [[5], [8], [7], [0]]
+    batched = predictor.distances_many(states, sources, targets)
+    for state, src, dst, got in zip(states, sources, targets, batched, strict=True):
+        assert got.shape == (1, 1)
+        np.testing.assert_allclose(got, predictor.distances(state, src, dst), rtol=1e-6)
+    assert batched[2][0, 0] == 0.0  # a point to itself
+    mixed = predictor.distances_many([*states, cloud_state], [*sources, [1, 2]], [*targets, [4]])
+    for got, want in zip(mixed[:-1], batched, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+    np.testing.assert_allclose(mixed[-1], predictor.distances(cloud_state, [1, 2], [4]), rtol=1e-6)
+
+
 def test_register_many_equals_register(predictor, mesh, cloud):
     shapes = [mesh, cloud, _blob(102)]
     many = predictor.register_many(shapes, seed=2)
