@@ -58,6 +58,10 @@ def _geodesic_facts(manifest: dict) -> CardFacts:
 
 def _matching_facts(manifest: dict) -> CardFacts:
     training, metrics = manifest["training"], manifest["metrics"]
+    config = training.get("config", {}).get("train", {})
+    counts = training.get("dataset", {}).get("counts", {})
+    seconds = sum(training.get("seconds", {}).values())
+    init = training.get("init")
     return CardFacts(
         title=f"`{manifest['name']}` matching model (LiteGE shape correspondence, "
         f"v{manifest['version']})",
@@ -76,19 +80,45 @@ def _matching_facts(manifest: dict) -> CardFacts:
             f"- **Networks**: {json.dumps(manifest['networks'])}; search "
             f"{json.dumps(manifest['search'])}.",
             *_tnet_swap_line(training.get("tnet_swap")),
+            *_judge_line(manifest),
         ],
         training=f"{training.get('train_views')} views ({training.get('rejected_views')} "
-        f"rejected by the 0.66 rad T-Net filter), {len(training.get('first_passes', []))} first "
-        f"passes (chosen: {training.get('chosen_first_pass')}), then a cosine continuation; "
-        f"{sum(training.get('seconds', {}).values()):.0f} s on {training.get('machine')}, "
-        f"torch {training.get('torch')}.",
+        f"rejected by the 0.66 rad T-Net filter), {_matching_start(training)}, then a cosine "
+        f"continuation of {config.get('steps')} steps at lr {config.get('lr')}; "
+        f"{seconds:.0f} s on {training.get('machine')}, torch {training.get('torch')}.",
         validation="(held-out val seeds, clean meshes, shared-source queries): matching "
         f"error ×100 {metrics.get('val_match_error_x100', float('nan')):.2f}, AUC@0.2 "
         f"{metrics.get('val_match_auc', float('nan')):.1f}.",
-        limitations="Trained on CPU for about half an hour on 160 procedural shapes (heat-method "
-        "targets, ~2 % error) at width 200 and 64 components (the 30 MB shipping budget); see "
+        limitations=f"Trained on {str(config.get('device', 'cpu')).upper()} for "
+        f"{seconds / 60:.0f} min on {counts.get('train')} procedural shapes"
+        + (f" (continuing `{init['bundle']}`)" if init else "")
+        + " (heat-method targets, ~2 % error) at width "
+        f"{manifest['networks'][0].get('width')} and "
+        f"{manifest['descriptor']['n_components']} components (the 30 MB shipping budget); see "
         "BENCHMARKS.md for where the design targets are met and missed.",
     )
+
+
+def _matching_start(training: dict) -> str:
+    """How a matching training started: a bundle it continued, or its first passes."""
+    init = training.get("init")
+    if init:
+        return f"continued from the bundle `{init['bundle']}` (`{init['content_hash'][:16]}`)"
+    return (
+        f"{len(training.get('first_passes', []))} first passes (chosen: "
+        f"{training.get('chosen_first_pass')})"
+    )
+
+
+def _judge_line(manifest: dict) -> list[str]:
+    """The card line of a bundle whose frame judge has its own networks."""
+    if not manifest.get("judge_networks"):
+        return []
+    return [
+        f"- **Frame judge**: its own networks {json.dumps(manifest['judge_networks'])} "
+        f"({manifest['training'].get('judge', 'kept from an earlier bundle')}): the judged "
+        "frames stay the ones validated with it (BENCHMARKS.md `frame-gate`)."
+    ]
 
 
 def _tnet_swap_line(swap: dict | None) -> list[str]:
