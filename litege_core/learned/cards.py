@@ -79,7 +79,7 @@ def _matching_facts(manifest: dict) -> CardFacts:
             f"{json.dumps(manifest['pipeline'])}.",
             f"- **Networks**: {json.dumps(manifest['networks'])}; search "
             f"{json.dumps(manifest['search'])}.",
-            *_tnet_swap_line(training.get("tnet_swap")),
+            *_tnet_swap_line(training.get("tnet_swap"), continued=bool(init)),
             *_judge_line(manifest),
         ],
         training=f"{training.get('train_views')} views ({training.get('rejected_views')} "
@@ -121,11 +121,18 @@ def _judge_line(manifest: dict) -> list[str]:
     ]
 
 
-def _tnet_swap_line(swap: dict | None) -> list[str]:
+def _tnet_swap_line(swap: dict | None, continued: bool = False) -> list[str]:
     """The card line of a T-Net replaced after the networks were trained
-    (``scripts/swap_tnet.py``): its training run and what it replaced."""
+    (``scripts/swap_tnet.py``): its training run and what it replaced (in the bundle a
+    ``continued`` run started from, whose continuation then trained with it)."""
     if not swap:
         return []
+    where = (
+        "swapped into the bundle this one continues (`scripts/swap_tnet.py`; the continuation "
+        "trained with it)"
+        if continued
+        else "replaced after the networks were trained (`scripts/swap_tnet.py`)"
+    )
     run = swap.get("tnet_training", {})
     config = run.get("config", {})
     data, train = config.get("data", {}), config.get("train", {})
@@ -139,12 +146,12 @@ def _tnet_swap_line(swap: dict | None) -> list[str]:
         )
     start = f", started from the T-Net of `{train['init']}`" if train.get("init") else ""
     return [
-        f"- **T-Net**: replaced after the networks were trained (`scripts/swap_tnet.py`): "
-        f"trained on {shapes}{start}, batch {train.get('batch_size')}, best "
+        f"- **T-Net**: {where}: trained on {shapes}{start}, batch {train.get('batch_size')}, best "
         f"validation step {run.get('best_step')} (mean angle "
         f"{run.get('best_val', {}).get('mean', float('nan')):.3f} rad), frame turns "
         f"{config.get('augment', {}).get('frame_turns')}; it replaced the T-Net "
-        f"{json.dumps(swap.get('replaced'))} the networks were trained with."
+        f"{json.dumps(swap.get('replaced'))} the {'first ' if continued else ''}networks were "
+        "trained with."
     ]
 
 

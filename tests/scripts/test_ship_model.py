@@ -53,17 +53,19 @@ def test_cards_differ_by_kind(ship_model):
 
 
 def test_a_continued_matching_card_names_its_start_and_its_judge(ship_model):
-    manifest = json.loads((SHIPPED_DIR / "quadrupeds-matching" / MANIFEST).read_text())
+    manifest = json.loads((SHIPPED_DIR / "humans-matching" / MANIFEST).read_text())
     card = ship_model.model_card(manifest)
-    assert "3 first passes (chosen: 2)" in card and "Frame judge" not in card
-    assert "on 160 procedural shapes" in card
+    assert "3 first passes (chosen: 0)" in card and "Frame judge" not in card
+    assert "on 480 procedural shapes (heat" in card
     training = manifest["training"]
-    training["init"] = {"bundle": "quadrupeds", "content_hash": "0123456789abcdef0123"}
-    training["judge"] = "quadrupeds (init)'s frame judge"
+    training["init"] = {"bundle": "humans", "content_hash": "0123456789abcdef0123"}
+    training["judge"] = "humans (init)'s frame judge"
     training["dataset"]["counts"]["train"] = 1440
     manifest["judge_networks"] = manifest["networks"]
     card = ship_model.model_card(manifest)
-    assert "continued from the bundle `quadrupeds` (`0123456789abcdef`)" in card
+    assert "continued from the bundle `humans` (`0123456789abcdef`)" in card
     assert "first passes" not in card
-    assert "**Frame judge**: its own networks" in card and "quadrupeds (init)'s frame" in card
-    assert "on 1440 procedural shapes (continuing `quadrupeds`)" in card
+    assert "**Frame judge**: its own networks" in card and "humans (init)'s frame" in card
+    assert "on 1440 procedural shapes (continuing `humans`)" in card
+    shipped = (SHIPPED_DIR / "quadrupeds-matching" / "MODEL_CARD.md").read_text()
+    assert "continued from the bundle `quadrupeds`" in shipped and "**Frame judge**" in shipped
