@@ -156,18 +156,24 @@ def test_shapes_prepared_by_another_model_are_refused(prepared):
         other.match(prepared[0], prepared[1], [0])
 
 
-def test_bundle_round_trip_keeps_matches_and_detects_tampering(model, prepared, tmp_path):
+def _save_copy(model, directory, category="test", **extra) -> None:
+    """Write ``model``'s bundle again under ``directory`` (``extra``: more bundle parts)."""
     bundle = model.bundle
     save_matching_bundle(
-        tmp_path / "b",
+        directory,
         name="tiny",
-        category="test",
+        category=category,
         basis=bundle.basis,
         tnet=bundle.tnet,
         networks=list(bundle.networks),
         pipeline=bundle.pipeline,
         search=bundle.search,
+        **extra,
     )
+
+
+def test_bundle_round_trip_keeps_matches_and_detects_tampering(model, prepared, tmp_path):
+    _save_copy(model, tmp_path / "b")
     loaded = MatchingModel.load(tmp_path / "b")
     x, y = loaded.prepare_many(
         [Shape.from_arrays(p.aligned.astype(np.float64), None) for p in prepared]
@@ -187,22 +193,12 @@ def test_bundle_round_trip_keeps_matches_and_detects_tampering(model, prepared, 
 def test_a_bundle_may_carry_its_own_frame_judge(model, tmp_path):
     from litege_core.nets import GeodesicNet, state_to_tensors
 
-    bundle = model.bundle
-    judge = GeodesicNet.from_config(bundle.networks[0].config())  # other weights
+    judge = GeodesicNet.from_config(model.bundle.networks[0].config())  # other weights
     with torch.no_grad():
         for p in judge.parameters():
             p.add_(0.5)
-    common = dict(
-        name="tiny",
-        category="quadruped",
-        basis=bundle.basis,
-        tnet=bundle.tnet,
-        networks=list(bundle.networks),
-        pipeline=bundle.pipeline,
-        search=bundle.search,
-    )
-    save_matching_bundle(tmp_path / "plain", **common)
-    save_matching_bundle(tmp_path / "judged", **common, judge_networks=[judge])
+    _save_copy(model, tmp_path / "plain", "quadruped")
+    _save_copy(model, tmp_path / "judged", "quadruped", judge_networks=[judge])
     plain, judged = (MatchingModel.load(tmp_path / d) for d in ("plain", "judged"))
     assert plain.bundle.judge_networks == () and "judge_networks" not in plain.bundle.manifest
     assert plain.frame_judge.networks == list(plain.bundle.networks)
