@@ -347,10 +347,10 @@ class MatchingModel:
             if self.category not in CATEGORIES:
                 return None
             networks = self.bundle.frame_judge_networks
-            folded = (
-                self._folded
-                if networks is self.bundle.networks
-                else [FoldedGeodesicNet(net, self.device) for net in networks]
+            folded = (  # the matching networks' folded forms unless the judge has its own
+                [FoldedGeodesicNet(net, self.device) for net in networks]
+                if self.bundle.judge_networks
+                else self._folded
             )
             self._judge = FrameJudge(
                 folded,
