@@ -71,10 +71,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--queries", type=int, default=1000)
+    parser.add_argument("--precision", default="float32", help="the search head's arithmetic")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    model = MatchingModel.load(args.model, args.device)
+    model = MatchingModel.load(args.model, args.device, args.precision)
     names = {"quadruped": ("dog", "cat")}.get(model.category, families(model.category)[:2])
     x_shape = _remeshed(model.category, names[0], 2_000_000)
     y_shape = _remeshed(model.category, names[1], 2_000_001)
@@ -131,13 +132,14 @@ def main() -> None:
     widths = [net.width for net in model.bundle.networks]
     print(
         f"- model: {len(widths)} network(s) of width {widths}, "
-        f"{model.bundle.basis.n_components} components, {model.bundle.basis.n_voxels} voxels; "
+        f"{model.bundle.basis.n_components} components, {model.bundle.basis.n_voxels} voxels, "
+        f"search head in {model.precision}; "
         f"X = procedural {names[0]}, Y = procedural {names[1]} (test seeds), isotropic remesh to "
         f"{x_shape.n_points} / {y_shape.n_points} vertices; median of {args.runs} runs"
     )
     print(
         f"- command `python scripts/bench_matching.py {args.model} --runs {args.runs} "
-        f"--threads {args.threads} --queries {args.queries}`"
+        f"--threads {args.threads} --queries {args.queries} --precision {args.precision}`"
     )
     print()
     print("| step | ms |")

@@ -107,6 +107,16 @@ def add_device_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
 
 
+def add_precision_argument(parser: argparse.ArgumentParser) -> None:
+    """``--precision`` of a matching search's head (checked where the model is built)."""
+    parser.add_argument(
+        "--precision",
+        default="float32",
+        help="arithmetic of the search's head: float32, bfloat16, int8 or auto "
+        "(bfloat16 where the CPU or GPU runs it fast)",
+    )
+
+
 def add_kind_argument(parser: argparse.ArgumentParser, flag: str = "--kind") -> None:
     parser.add_argument(flag, choices=SHAPE_KINDS, default=None)
 

@@ -12,6 +12,7 @@ from litege_core.cli.common import (
     add_device_argument,
     add_fusion_argument,
     add_head_argument,
+    add_precision_argument,
     predictor,
     split_list,
     write_json,
@@ -82,7 +83,7 @@ def evaluate_matching(
     settings = split_list(args.settings, SYNTHETIC_SETTINGS, "settings")
     real = split_list(args.real, REAL_SETS, "real")
     baselines = split_list(args.baselines, ("nn", "zoomout"), "baselines")
-    model = load_matching_model(args.model, args.device)
+    model = load_matching_model(args.model, args.device, args.precision)
 
     def log(message: str) -> None:
         print(f"litege: {message}", file=sys.stderr, flush=True)
@@ -105,6 +106,7 @@ def evaluate_matching(
     meta = {
         "model": f"{model.name} ({model.content_hash[:12]})",
         "device": str(model.device),
+        "precision": model.precision,
         "pairs/set": str(args.pairs),
         "queries/pair": str(args.queries),
         "seed": str(args.seed),
@@ -130,6 +132,7 @@ def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
         "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
     )
     add_device_argument(parser)
+    add_precision_argument(parser)
     parser.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
     parser.add_argument("--queries", type=int, default=100, help="query points per pair")
     parser.add_argument(

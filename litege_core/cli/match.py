@@ -7,6 +7,7 @@ import argparse
 from litege_core.cli.common import (
     add_device_argument,
     add_kind_argument,
+    add_precision_argument,
     parse_indices,
     print_json,
     save_npy,
@@ -26,7 +27,9 @@ def cmd_match(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     source = load_shape(args.x_file, kind=args.x_kind)
     target = load_shape(args.y_file, kind=args.y_kind)
-    model = MatchingModel.load(args.bundle or args.model, resolve_device(args.device))
+    model = MatchingModel.load(
+        args.bundle or args.model, resolve_device(args.device), args.precision
+    )
     x, y = model.prepare_many(
         [source, target], seed=args.seed, scaling=args.scaling, frames=args.frames
     )
@@ -65,6 +68,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     which.add_argument("--model", default="quadrupeds", help="shipped matching model name")
     which.add_argument("--bundle", default=None, help="matching bundle directory")
     add_device_argument(match)
+    add_precision_argument(match)
     add_kind_argument(match, "--x-kind")
     add_kind_argument(match, "--y-kind")
     match.add_argument(

@@ -480,11 +480,11 @@ SHIPPED_FOR_CATEGORY = {"quadruped": "quadrupeds", "biped": "humans"}
 CATEGORY_NOUN = {"quadruped": "quadrupeds", "biped": "humans"}
 
 
-def load_matching_model(name_or_path: str, device: str = "cpu"):
+def load_matching_model(name_or_path: str, device: str = "cpu", precision: str = "float32"):
     """:meth:`MatchingModel.load` (a seam for tests)."""
     from litege_core.matching import MatchingModel
 
-    return MatchingModel.load(name_or_path, device)
+    return MatchingModel.load(name_or_path, device, precision)
 
 
 class ModelChooser:
@@ -512,8 +512,10 @@ class ModelChooser:
             return self.model, None
         if category not in self._other:
             try:
-                self._other[category] = load_matching_model(
-                    SHIPPED_FOR_CATEGORY[category], self.device
+                self._other[category] = load_matching_model(  # the given model's arithmetic
+                    SHIPPED_FOR_CATEGORY[category],
+                    self.device,
+                    getattr(self.model, "precision", "float32"),
                 )
             except LiteGEError:
                 self._other[category] = None

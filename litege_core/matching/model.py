@@ -76,6 +76,7 @@ from litege_core.matching.search import (
     max_evaluations,
 )
 from litege_core.nets import FoldedGeodesicNet
+from litege_core.nets.folded import resolve_precision
 from litege_core.projection import CloudProjector, MeshProjector, Projector, snap
 from litege_core.query import QueryLike, check_points, parse_indices, parse_query
 from litege_core.shape import Shape
@@ -283,25 +284,42 @@ class MatchingModel:
     Args:
         bundle: a :class:`MatchingBundle` (see :meth:`load`).
         device: where the networks run (default: the bundle's device).
+        precision: arithmetic of the search's per-pair head product
+            (:func:`~litege_core.nets.folded.resolve_precision`): ``"float32"`` (default),
+            ``"bfloat16"``, ``"int8"`` or ``"auto"`` (bfloat16 where it is fast). The frame
+            judge always scores in float32, so frames do not depend on it.
     """
 
-    def __init__(self, bundle: MatchingBundle, device: str | torch.device | None = None) -> None:
+    def __init__(
+        self,
+        bundle: MatchingBundle,
+        device: str | torch.device | None = None,
+        precision: str = "float32",
+    ) -> None:
         self.bundle = bundle
         self.device = torch.device(device) if device is not None else bundle.device
+        self.precision = resolve_precision(precision, self.device)
         for net in bundle.networks:
             net.to(self.device).eval()
         bundle.tnet.to(self.device).eval()
-        self._folded = [FoldedGeodesicNet(net, self.device) for net in bundle.networks]
+        self._folded = [
+            FoldedGeodesicNet(net, self.device, precision=self.precision) for net in bundle.networks
+        ]
         self._engine = bundle.basis.engine(self.device)
         self._judge: FrameJudge | None = None
 
     @classmethod
     def load(
-        cls, name_or_path: str | os.PathLike = "quadrupeds", device: str | torch.device = "cpu"
+        cls,
+        name_or_path: str | os.PathLike = "quadrupeds",
+        device: str | torch.device = "cpu",
+        precision: str = "float32",
     ) -> MatchingModel:
-        """Load a shipped matching model by name, or a bundle directory."""
+        """Load a shipped matching model by name, or a bundle directory (``precision``: as
+        the class's argument)."""
         resolved = resolve_device(device)
-        return cls(load_matching_bundle(resolve_matching_bundle(name_or_path), resolved))
+        bundle = load_matching_bundle(resolve_matching_bundle(name_or_path), resolved)
+        return cls(bundle, precision=precision)
 
     @classmethod
     def tiny_random(cls, seed: int = 0) -> MatchingModel:
@@ -349,7 +367,7 @@ class MatchingModel:
             networks = self.bundle.frame_judge_networks
             folded = (  # the matching networks' folded forms unless the judge has its own
                 [FoldedGeodesicNet(net, self.device) for net in networks]
-                if self.bundle.judge_networks
+                if self.bundle.judge_networks or self.precision != "float32"
                 else self._folded
             )
             self._judge = FrameJudge(

@@ -59,6 +59,15 @@ def test_match_writes_int64_indices_equal_to_the_library(bundle_dir, files, tmp_
     np.testing.assert_array_equal(matches, model.match(x, y, [0, 5, 17]).indices)
 
 
+def test_match_precision_runs_the_search_head_in_bfloat16(bundle_dir, files, tmp_path):
+    out = tmp_path / "bf16.npy"
+    args = ["match", str(files[0]), str(files[1]), "--bundle", str(bundle_dir)]
+    assert main([*args, "--queries", "0,5,17", "--precision", "bfloat16", "-o", str(out)]) == 0
+    model = MatchingModel.load(bundle_dir, precision="bfloat16")
+    x, y = model.prepare_many([load_shape(files[0]), load_shape(files[1])])
+    np.testing.assert_array_equal(np.load(out), model.match(x, y, [0, 5, 17]).indices)
+
+
 def test_match_all_queries_covers_every_point_of_x(bundle_dir, files, tmp_path):
     out = tmp_path / "all.npy"
     assert (
@@ -73,6 +82,7 @@ def test_match_all_queries_covers_every_point_of_x(bundle_dir, files, tmp_path):
     [
         (["--queries", "0,999999"], "outside"),
         (["--queries", "a,b"], "integer"),
+        (["--precision", "float16"], "precision"),
     ],
 )
 def test_match_reports_bad_input_with_exit_code_2(

@@ -209,7 +209,7 @@ def test_missing_category_model_is_reported(monkeypatch):
     class Quadrupeds:
         category = "quadruped"
 
-    def no_model(name, device="cpu"):
+    def no_model(name, device="cpu", precision="float32"):
         raise InputError(f"unknown matching model {name!r}")
 
     monkeypatch.setattr(evaluation, "load_matching_model", no_model)

@@ -268,3 +268,33 @@ def test_an_ensemble_averages_the_distances_of_its_networks(model, shapes):
         x, y = m.prepare_many(list(shapes))
         tables.append(m.cross_distances(x, y, queries, candidates))
     np.testing.assert_allclose(tables[2], (tables[0] + tables[1]) / 2, rtol=1e-5, atol=1e-7)
+
+
+def test_a_bfloat16_search_head_scores_like_float32_and_keeps_float32_frames(
+    model, prepared, tmp_path
+):
+    x, y = prepared
+    fast = MatchingModel(model.bundle, precision="bfloat16")
+    assert fast.precision == "bfloat16"
+    assert [f.precision for f in fast._folded] == ["bfloat16"] * len(model.bundle.networks)
+    _save_copy(model, tmp_path / "q", "quadruped")  # a category with a frame judge
+    judged = MatchingModel.load(tmp_path / "q", precision="bfloat16")
+    assert [f.precision for f in judged.frame_judge.folded] == ["float32"]
+    queries = np.arange(0, x.n_points, 97)
+    candidates = np.arange(y.n_points)
+    reference = model.cross_distances(x, y, queries, candidates)
+    table = fast.cross_distances(x, y, queries, candidates)
+    scale = float(np.abs(reference).max())
+    assert np.abs(table - reference).max() <= 0.02 * scale  # bfloat16: 8 mantissa bits
+    assert not np.array_equal(table, reference)  # the product really ran in bfloat16
+    result = fast.match(x, y, queries, exhaustive=True)
+    np.testing.assert_array_equal(result.indices, table.argmin(axis=1))
+
+
+def test_precision_auto_resolves_and_an_unknown_precision_is_refused(model):
+    from litege_core.nets.folded import fast_bfloat16
+
+    auto = MatchingModel(model.bundle, precision="auto")
+    assert auto.precision == ("bfloat16" if fast_bfloat16("cpu") else "float32")
+    with pytest.raises(InputError, match="precision"):
+        MatchingModel(model.bundle, precision="float16")
