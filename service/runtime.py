@@ -506,7 +506,7 @@ class Runtime:
             for name in settings.matching_model:
                 started = time.perf_counter()
                 try:
-                    model = MatchingModel.load(name, device)
+                    model = MatchingModel.load(name, device, settings.matching_precision)
                 except LiteGEError as exc:
                     if "matching_model" in settings.model_fields_set:
                         raise UnknownModelError(f"matching model {name!r}: {exc}") from exc
@@ -575,7 +575,11 @@ class Runtime:
                     for name, p in self.repository.predictors.items()
                 },
                 "matching_models": {
-                    name: {"bundle_hash": m.content_hash, "category": m.category}
+                    name: {
+                        "bundle_hash": m.content_hash,
+                        "category": m.category,
+                        "precision": m.precision,
+                    }
                     for name, m in self.matching.models.items()
                 },
                 "router": None

@@ -427,8 +427,16 @@ def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, t
     with LiteGEClient(service.base_url) as client:
         ready = client.ready()
         assert ready["matching_models"] == {
-            "dir-model": {"bundle_hash": manifest["content_hash"], "category": "test"},
-            "dir-two": {"bundle_hash": second["content_hash"], "category": "test"},
+            "dir-model": {
+                "bundle_hash": manifest["content_hash"],
+                "category": "test",
+                "precision": "float32",
+            },
+            "dir-two": {
+                "bundle_hash": second["content_hash"],
+                "category": "test",
+                "precision": "float32",
+            },
         }
         sid = client.register_arrays(tiny_shape_vertices())["shape_id"]  # a point cloud
         assert client.correspondences(sid, sid, [0, 1])["model"] == "dir-model"
@@ -443,3 +451,27 @@ def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, t
 def tiny_shape_vertices() -> np.ndarray:
     rng = np.random.default_rng(0)
     return rng.normal(size=(300, 3)) * [1.5, 1.0, 0.5]
+
+
+def test_matching_precision_setting_runs_the_search_head_in_bfloat16(
+    live_service_factory, tmp_path, test_shape
+):
+    """``LITEGE_MATCHING_PRECISION=bfloat16``: ``/readyz`` says so and the answers are the
+    library's bfloat16 search; an unknown precision is refused by the settings."""
+    from litege_core.matching.testing import save_tiny_matching_bundle
+
+    save_tiny_matching_bundle(tmp_path / "bundle", SEED, name="bf16-model")
+    service = live_service_factory(
+        matching_model=str(tmp_path / "bundle"), matching_precision="bfloat16"
+    )
+    library = MatchingModel.load(tmp_path / "bundle", precision="bfloat16")
+    source, target = test_shape(1), test_shape(2)
+    with LiteGEClient(service.base_url) as client:
+        assert client.ready()["matching_models"]["bf16-model"]["precision"] == "bfloat16"
+        ids = [client.register_arrays(s.vertices, s.faces)["shape_id"] for s in (source, target)]
+        got = client.correspondences(*ids, [0, 7, 19], return_distance=True)
+    x, y = (library.prepare(s, seed=0) for s in (source, target))
+    expected = library.match(x, y, [0, 7, 19])
+    np.testing.assert_array_equal(got["matches"], expected.indices)
+    with pytest.raises(ValueError):
+        Settings(matching_precision="float16")
