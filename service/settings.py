@@ -55,11 +55,11 @@ class Settings(BaseSettings):
     """Matching bundles of ``POST /correspondences`` and the ``Correspond`` RPC, comma-separated
     (shipped names or bundle directories); the first is the default of a request that names
     none. Empty: correspondence is switched off (unknown-model answers)."""
-    matching_precision: Literal["auto", "float32", "bfloat16", "int8"] = "float32"
-    """Arithmetic of the matching search's per-pair head: ``float32`` (as trained), ``bfloat16``
-    (1.5–2.5× faster on a CPU with AVX512-BF16 / AMX at unchanged error, BENCHMARKS.md
-    "matching-bf16"), ``int8`` or ``auto`` (bfloat16 where it is fast). Frames are judged in
-    float32 either way."""
+    matching_precision: Literal["auto", "float32", "bfloat16", "int8"] = "auto"
+    """Arithmetic of the matching search's per-pair head: ``auto`` (bfloat16 where the CPU or
+    GPU runs it fast, else float32), ``float32`` (as trained), ``bfloat16`` (1.5–2.5× faster
+    on a CPU with AVX512-BF16 / AMX at unchanged error over three seeds, BENCHMARKS.md
+    "matching-bf16") or ``int8``. Frames are judged in float32 either way."""
 
     redis_url: str | None = None
     cache_ttl_s: float = Field(7 * 24 * 3600.0, gt=0)

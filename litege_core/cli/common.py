@@ -107,11 +107,11 @@ def add_device_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
 
 
-def add_precision_argument(parser: argparse.ArgumentParser) -> None:
+def add_precision_argument(parser: argparse.ArgumentParser, default: str = "auto") -> None:
     """``--precision`` of a matching search's head (checked where the model is built)."""
     parser.add_argument(
         "--precision",
-        default="float32",
+        default=default,
         help="arithmetic of the search's head: float32, bfloat16, int8 or auto "
         "(bfloat16 where the CPU or GPU runs it fast)",
     )

@@ -132,7 +132,7 @@ def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
         "--model", default="quadrupeds", help="matching model: shipped name or bundle directory"
     )
     add_device_argument(parser)
-    add_precision_argument(parser)
+    add_precision_argument(parser, default="float32")  # comparable with earlier tables
     parser.add_argument("--pairs", type=int, default=20, help="pairs per setting / real set")
     parser.add_argument("--queries", type=int, default=100, help="query points per pair")
     parser.add_argument(

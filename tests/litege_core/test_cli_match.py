@@ -54,7 +54,7 @@ def test_match_writes_int64_indices_equal_to_the_library(bundle_dir, files, tmp_
     assert summary["n_queries"] == 3 and summary["scaling"] == ["unit_area", "unit_area"]
     matches = np.load(out)
     assert matches.dtype == np.int64 and matches.shape == (3,)
-    model = MatchingModel.load(bundle_dir)
+    model = MatchingModel.load(bundle_dir, precision="auto")  # the CLI's default
     x, y = model.prepare_many([load_shape(files[0]), load_shape(files[1])])
     np.testing.assert_array_equal(matches, model.match(x, y, [0, 5, 17]).indices)
 

@@ -17,6 +17,7 @@ import redis
 
 from litege_core.matching.model import MatchingModel
 from litege_core.matching.refine import REFINE_METHODS
+from litege_core.nets.folded import resolve_precision
 from litege_core.shape import Shape
 from service.client import LiteGEClient, ProblemError
 from service.errors import UnknownModelError
@@ -430,12 +431,12 @@ def test_matching_model_setting_loads_a_bundle_directory(live_service_factory, t
             "dir-model": {
                 "bundle_hash": manifest["content_hash"],
                 "category": "test",
-                "precision": "float32",
+                "precision": resolve_precision("auto"),
             },
             "dir-two": {
                 "bundle_hash": second["content_hash"],
                 "category": "test",
-                "precision": "float32",
+                "precision": resolve_precision("auto"),
             },
         }
         sid = client.register_arrays(tiny_shape_vertices())["shape_id"]  # a point cloud
