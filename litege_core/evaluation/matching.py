@@ -513,9 +513,7 @@ class ModelChooser:
         if category not in self._other:
             try:
                 self._other[category] = load_matching_model(  # the given model's arithmetic
-                    SHIPPED_FOR_CATEGORY[category],
-                    self.device,
-                    getattr(self.model, "precision", "float32"),
+                    SHIPPED_FOR_CATEGORY[category], self.device, self.model.precision
                 )
             except LiteGEError:
                 self._other[category] = None

@@ -8,6 +8,7 @@ import asyncio
 import importlib.util
 import json
 import sys
+import typing
 from typing import Any
 
 import httpx
@@ -17,7 +18,7 @@ import redis
 
 from litege_core.matching.model import MatchingModel
 from litege_core.matching.refine import REFINE_METHODS
-from litege_core.nets.folded import resolve_precision
+from litege_core.nets.folded import PRECISIONS, resolve_precision
 from litege_core.shape import Shape
 from service.client import LiteGEClient, ProblemError
 from service.errors import UnknownModelError
@@ -476,3 +477,6 @@ def test_matching_precision_setting_runs_the_search_head_in_bfloat16(
     np.testing.assert_array_equal(got["matches"], expected.indices)
     with pytest.raises(ValueError):
         Settings(matching_precision="float16")
+    # the setting offers exactly what the library resolves
+    choices = typing.get_args(Settings.model_fields["matching_precision"].annotation)
+    assert choices == ("auto", *PRECISIONS)

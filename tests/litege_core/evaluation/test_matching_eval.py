@@ -208,6 +208,7 @@ def test_missing_category_model_is_reported(monkeypatch):
 
     class Quadrupeds:
         category = "quadruped"
+        precision = "float32"
 
     def no_model(name, device="cpu", precision="float32"):
         raise InputError(f"unknown matching model {name!r}")
