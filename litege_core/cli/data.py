@@ -24,6 +24,8 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     from litege_core.datasets.factories import factory_for
     from litege_core.datasets.spec import WorkShare, parse_split_counts
 
+    if args.category == "rigged" and args.preset == "matching":
+        return _build_species_sets(args)
     spec = preset(args.preset, args.category)
     changes: dict = {}
     if args.shapes is not None:
@@ -56,6 +58,47 @@ def cmd_data_build(args: argparse.Namespace) -> int:
         if not missing and not args.no_merge:
             merged = merge_dataset(directory)
             summary.update(merged=True, dataset_counts=merged["counts"])
+    print_json(summary)
+    return 0
+
+
+def _build_species_sets(args: argparse.Namespace) -> int:
+    """``--category rigged --preset matching``: one template-kind matching dataset per rigged
+    species under ``OUT/ANIMAL`` (pairs are drawn within a species: the animals do not share
+    a triangulation)."""
+    from pathlib import Path
+
+    from litege_core.datasets import build_dataset
+    from litege_core.datasets.factories import species_factory
+    from litege_core.datasets.spec import (
+        SPECIES_MATCHING_SHAPES,
+        parse_split_counts,
+        species_matching_spec,
+    )
+    from litege_core.errors import InputError
+    from litege_core.synth.rigged import ANIMALS
+
+    if args.shard is not None:
+        raise InputError("--shard is not supported with --category rigged --preset matching")
+    counts = dict(SPECIES_MATCHING_SHAPES)
+    if args.shapes is not None:
+        counts.update(parse_split_counts(args.shapes))
+    name = args.name or "rigged-matching"
+    directory = Path(args.out or f"data/{name}")
+    summary: dict = {"directory": str(directory), "species": {}}
+    for animal in ANIMALS:
+        spec = species_matching_spec(animal, counts, name=name, first_index=args.first_index)
+        manifest = build_dataset(
+            spec,
+            directory / animal,
+            species_factory(animal, args.train_data),
+            workers=args.workers,
+            solver=args.solver,
+        )
+        summary["species"][animal] = {
+            "counts": manifest["counts"],
+            "compute_seconds": round(manifest["compute_seconds"], 1),
+        }
     print_json(summary)
     return 0
 
@@ -95,7 +138,13 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="procedural quadrupeds / bipeds, posed rigged animals or MakeHuman bodies (the "
         "last two read their assets from --train-data)",
     )
-    build.add_argument("--preset", choices=["small", "large", "full", "matching"], default="small")
+    build.add_argument(
+        "--preset",
+        choices=["small", "large", "full", "matching"],
+        default="small",
+        help="dataset size; --category rigged --preset matching builds one matching dataset "
+        "per rigged species (posed copies on one triangulation) under OUT/ANIMAL",
+    )
     build.add_argument(
         "--shapes",
         default=None,

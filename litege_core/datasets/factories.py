@@ -152,6 +152,26 @@ def factory_for(category: str, root: str | os.PathLike | None = None):
     )
 
 
+def species_factory(animal: str, root: str | os.PathLike | None = None):
+    """The template factory of one rigged species (posed copies on one triangulation:
+    :class:`~litege_core.synth.rigged_template.RiggedTemplateFactory`), assets under the
+    train-data ``root``.
+
+    Raises:
+        InputError: unknown animal, or its model file is missing.
+    """
+    from litege_core.synth.rigged import animal_path
+    from litege_core.synth.rigged_template import RiggedTemplateFactory
+
+    base = train_data_root(root)
+    path = animal_path(base, animal)
+    if not path.is_file():
+        raise InputError(
+            f"{path} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
+        )
+    return RiggedTemplateFactory(str(base), animal)
+
+
 __all__ = [
     "DEFAULT_TRAIN_DATA",
     "FolderFactory",
@@ -159,5 +179,6 @@ __all__ = [
     "RiggedFactory",
     "SynthFactory",
     "factory_for",
+    "species_factory",
     "train_data_root",
 ]

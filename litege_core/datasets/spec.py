@@ -291,11 +291,33 @@ def collection_preset(name: str, source: str) -> DatasetSpec:
     )
 
 
+def species_matching_spec(
+    animal: str, n_shapes: dict[str, int], *, name: str, first_index: int = 0
+) -> DatasetSpec:
+    """The template-kind matching dataset of one rigged species (posed copies of the animal
+    on its fixed triangulation, :mod:`litege_core.synth.rigged_template`): shared sources
+    only, as the ``matching`` preset; ``name`` is the species set's (``NAME/ANIMAL``)."""
+    return DatasetSpec(
+        name=f"{name}/{animal}",
+        category="rigged-template",
+        families=(animal,),
+        n_shapes=n_shapes,
+        n_extra_sources=0,
+        shard_size=16,
+        first_index=first_index,
+    )
+
+
+SPECIES_MATCHING_SHAPES = {"train": 120, "val": 4, "test": 0}
+"""Shapes per species of ``litege data build --category rigged --preset matching``."""
+
+
 __all__ = [
     "COLLECTION_FORMAT_VERSION",
     "COLLECTION_SOURCES",
     "FORMAT_VERSION",
     "KINDS",
+    "SPECIES_MATCHING_SHAPES",
     "SPLITS",
     "SPLIT_SEED_OFFSETS",
     "DatasetSpec",
@@ -303,4 +325,5 @@ __all__ = [
     "collection_preset",
     "parse_split_counts",
     "preset",
+    "species_matching_spec",
 ]

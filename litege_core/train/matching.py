@@ -67,6 +67,7 @@ from litege_core.train.matching_data import (
     MatchingTables,
     ValidationSet,
     build_matching_tables,
+    concatenate_tables,
     sample_batch,
     validation_set,
 )
@@ -88,6 +89,10 @@ class MatchingDataConfig:
     max_train_shapes: int = 0
     max_val_shapes: int = 0
     reject_angle: float = REJECT_ANGLE
+    species: str = ""
+    """A directory of per-species matching datasets (``litege data build --category rigged
+    --preset matching``; ``""``: none). Their training views join ``dataset``'s, each pair drawn
+    within one species (their triangulations differ); validation stays on ``dataset``."""
 
 
 @dataclass(frozen=True)
@@ -230,6 +235,47 @@ def calibrated_pipeline(arrays, faces, n_meshes: int = 16) -> MatchingPipeline:
 
 
 @torch.no_grad()
+def species_datasets(directory: str | Path) -> list[Path]:
+    """The dataset directories (with a ``manifest.json``) directly under ``directory``, sorted.
+
+    Raises:
+        InputError: ``directory`` is missing or holds no dataset.
+    """
+    root = Path(directory)
+    found = sorted(p.parent for p in root.glob("*/manifest.json")) if root.is_dir() else []
+    if not found:
+        raise InputError(
+            f"data.species {str(directory)!r} holds no dataset: build it with "
+            "`litege data build --category rigged --preset matching --out DIR`"
+        )
+    return found
+
+
+def species_tables(
+    config: MatchingTrainConfig, common: dict[str, Any]
+) -> list[tuple[str, MatchingTables, int]]:
+    """``(name, training tables, shapes)`` of every dataset of ``data.species`` (none when
+    unset), each built like the main training set with its own faces and shared sources."""
+    if not config.data.species:
+        return []
+    parts = []
+    for k, directory in enumerate(species_datasets(config.data.species)):
+        dataset = GeodesicDataset(directory)
+        assert dataset.shared_sources is not None, "a species dataset has shared sources"
+        arrays = load_split_arrays(dataset, "train", 0)
+        part = build_matching_tables(
+            arrays,
+            np.asarray(dataset.faces),
+            int(dataset.shared_sources.size),
+            n_views=config.data.views_per_shape,
+            seed=config.train.seed + 104729 * (k + 1),
+            **common,
+        )
+        LOG.info("species %s: %d train views", directory.name, part.n_views)
+        parts.append((directory.name, part, int(arrays["vertices"].shape[0])))
+    return parts
+
+
 def validation_metrics(
     net: GeodesicNet,
     tables: MatchingTables,
@@ -414,7 +460,12 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     val_tables = build_matching_tables(
         val_arrays, faces, n_shared, n_views=1, seed=t.seed + 7919, **common
     )
-    n_train_views = train_arrays["vertices"].shape[0] * config.data.views_per_shape
+    n_train_shapes = train_arrays["vertices"].shape[0]
+    species = species_tables(config, common)
+    if species:
+        tables = concatenate_tables([tables, *(part for _, part, _ in species)])
+        n_train_shapes += sum(n for _, _, n in species)
+    n_train_views = n_train_shapes * config.data.views_per_shape
     rejected = n_train_views - tables.n_views
     val_set = validation_set(
         val_tables,
@@ -488,6 +539,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     training = {
         "config": {f.name: asdict(getattr(config, f.name)) for f in fields(config)},
         "dataset": dataset_fingerprint(config.data.dataset),
+        "species": {name: {"views": part.n_views, "shapes": n} for name, part, n in species},
         "tnet": str(config.data.tnet) if init is None else f"{t.init} (init)",
         "init": None if init is None else {"bundle": t.init, "content_hash": init.content_hash},
         "judge": "matching networks" if init is None else f"{t.init} (init)'s frame judge",
@@ -535,6 +587,8 @@ __all__ = [
     "calibrated_pipeline",
     "load_matching_config",
     "prepare_matching_basis",
+    "species_datasets",
+    "species_tables",
     "train_matching",
     "train_pass",
     "validation_metrics",

@@ -11,6 +11,11 @@ vertex ``t``: the source is vertex ``sources[r]`` on X = view ``a`` and the dest
 ``t`` on Y = view ``b`` (or, with probability ½, source ``t`` on X and destination
 ``sources[r]`` on Y), and the target is ``target_scale × ½ (g_a(r, t) + g_b(r, t))`` with the
 unit-area geodesics ``g`` (the shared template topology makes vertex ``t`` correspond).
+
+Tables of several template datasets (the procedural shapes and one dataset per rigged
+species, whose triangulations differ) are joined by :func:`concatenate_tables`: vertex and
+distance arrays are padded to the largest vertex count, and every view pair is drawn within
+one dataset (``group_start`` / ``group_size``), with ``t`` below that dataset's vertex count.
 """
 
 from __future__ import annotations
@@ -45,6 +50,10 @@ class MatchingTables:
         distances: ``(S, R, V)`` unit-area geodesics from the shape's source rows (float32).
         sources: ``(S, R)`` int64 source vertex of each row.
         angle: ``(W,)`` float32 T-Net misalignment of each view (rad).
+        n_vertices: ``(S,)`` int64 vertices of each shape (``V`` but in joined tables, whose
+            shorter shapes are padded).
+        group_start, group_size: ``(W,)`` int64 first view and number of views of the
+            dataset a view belongs to (pairs are drawn within it).
     """
 
     descriptors: torch.Tensor
@@ -53,6 +62,9 @@ class MatchingTables:
     distances: torch.Tensor
     sources: torch.Tensor
     angle: torch.Tensor
+    n_vertices: torch.Tensor
+    group_start: torch.Tensor
+    group_size: torch.Tensor
 
     def to(self, device: torch.device | str) -> MatchingTables:
         return MatchingTables(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
@@ -147,6 +159,7 @@ def build_matching_tables(
     scale = 1.0 / np.sqrt(np.asarray(arrays["area"], dtype=np.float64))
     distances = np.asarray(arrays["distances"][:, :n_shared], dtype=np.float32)
     distances = distances * scale[:, None, None].astype(np.float32)
+    n_kept = len(shape_of)
     return MatchingTables(
         descriptors=torch.cat(descriptors).to(device),
         vertices=torch.from_numpy(np.stack(vertices)).to(device),
@@ -154,6 +167,55 @@ def build_matching_tables(
         distances=torch.from_numpy(distances).to(device),
         sources=torch.from_numpy(arrays["sources"][:, :n_shared].astype(np.int64)).to(device),
         angle=torch.tensor(angles, dtype=torch.float32, device=device),
+        n_vertices=torch.full((n_shapes,), raw.shape[1], dtype=torch.int64, device=device),
+        group_start=torch.zeros(n_kept, dtype=torch.int64, device=device),
+        group_size=torch.full((n_kept,), n_kept, dtype=torch.int64, device=device),
+    )
+
+
+def _zero_pad(tensor: torch.Tensor, length: int, dim: int) -> torch.Tensor:
+    """``tensor`` zero-padded along ``dim`` to ``length``."""
+    missing = length - tensor.shape[dim]
+    if missing == 0:
+        return tensor
+    pad_shape = list(tensor.shape)
+    pad_shape[dim] = missing
+    return torch.cat([tensor, tensor.new_zeros(pad_shape)], dim=dim)
+
+
+def concatenate_tables(parts: list[MatchingTables]) -> MatchingTables:
+    """Join the tables of several template datasets (see the module docstring): views and
+    shapes are renumbered, vertices ``(W, V, 3)`` and distances ``(S, R, V)`` zero-padded to
+    the largest ``V``, rows cut to the smallest ``R``; pairs stay within each part.
+
+    Raises:
+        InputError: no parts, or parts with different descriptor sizes.
+    """
+    if not parts:
+        raise InputError("no matching tables to join")
+    if len({int(p.descriptors.shape[1]) for p in parts}) != 1:
+        raise InputError("matching tables with different descriptor sizes cannot be joined")
+    n_rows = min(int(p.sources.shape[1]) for p in parts)
+    n_max = max(int(p.vertices.shape[1]) for p in parts)
+    shapes_before = 0
+    views_before = 0
+    shape, starts, sizes = [], [], []
+    for part in parts:
+        shape.append(part.shape + shapes_before)
+        starts.append(part.group_start + views_before)
+        sizes.append(part.group_size)
+        shapes_before += int(part.sources.shape[0])
+        views_before += part.n_views
+    return MatchingTables(
+        descriptors=torch.cat([p.descriptors for p in parts]),
+        vertices=torch.cat([_zero_pad(p.vertices, n_max, 1) for p in parts]),
+        shape=torch.cat(shape),
+        distances=torch.cat([_zero_pad(p.distances[:, :n_rows], n_max, 2) for p in parts]),
+        sources=torch.cat([p.sources[:, :n_rows] for p in parts]),
+        angle=torch.cat([p.angle for p in parts]),
+        n_vertices=torch.cat([p.n_vertices for p in parts]),
+        group_start=torch.cat(starts),
+        group_size=torch.cat(sizes),
     )
 
 
@@ -169,18 +231,23 @@ class MatchingBatch:
 
 
 def view_pairs(tables: MatchingTables, n_pairs: int, generator: torch.Generator) -> torch.Tensor:
-    """``(n_pairs, 2)`` random ordered pairs of views of different shapes."""
+    """``(n_pairs, 2)`` random ordered pairs of views of different shapes of one dataset
+    (``a`` uniform over all views, ``b`` uniform over the views of ``a``'s dataset)."""
     w = tables.n_views
     device = tables.shape.device
     a = torch.randint(0, w, (n_pairs,), generator=generator, device=device)
-    b = torch.randint(0, w, (n_pairs,), generator=generator, device=device)
+    start, size = tables.group_start[a], tables.group_size[a]
+
+    def partner() -> torch.Tensor:
+        u = torch.rand(n_pairs, generator=generator, device=device)
+        return start + torch.minimum((u * size).long(), size - 1)
+
+    b = partner()
     same = tables.shape[a] == tables.shape[b]
     for _ in range(8):  # redraw the (rare) same-shape pairs
         if not same.any():
             break
-        b = torch.where(
-            same, torch.randint(0, w, (n_pairs,), generator=generator, device=device), b
-        )
+        b = torch.where(same, partner(), b)
         same = tables.shape[a] == tables.shape[b]
     if same.any():
         raise InputError("need views of at least two different shapes")
@@ -199,14 +266,15 @@ def sample_batch(
     device = tables.shape.device
     pairs = view_pairs(tables, n_view_pairs, generator)
     n_rows = tables.sources.shape[1]
-    n_vertices = tables.vertices.shape[1]
     per = rows_per_pair * targets_per_pair
     a = pairs[:, 0].repeat_interleave(per)
     b = pairs[:, 1].repeat_interleave(per)
     total = a.shape[0]
-    row = torch.randint(0, n_rows, (total,), generator=generator, device=device)
-    t = torch.randint(0, n_vertices, (total,), generator=generator, device=device)
     sa, sb = tables.shape[a], tables.shape[b]
+    row = torch.randint(0, n_rows, (total,), generator=generator, device=device)
+    n_vertices = tables.n_vertices[sa]
+    u = torch.rand(total, generator=generator, device=device)
+    t = torch.minimum((u * n_vertices).long(), n_vertices - 1)
     source_vertex = tables.sources[sa, row]
     target = 0.5 * (tables.distances[sa, row, t] + tables.distances[sb, row, t]) * target_scale
     swap = torch.rand(total, generator=generator, device=device) < 0.5
@@ -256,6 +324,7 @@ __all__ = [
     "MatchingTables",
     "ValidationSet",
     "build_matching_tables",
+    "concatenate_tables",
     "misalignment",
     "sample_batch",
     "validation_set",

@@ -2,18 +2,32 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
+import trimesh
 
-from litege_core.datasets import GeodesicDataset
+from litege_core.datasets import DatasetSpec, GeodesicDataset, build_dataset
+from litege_core.engines import compute_distances
 from litege_core.errors import InputError
 from litege_core.matching import MatchingModel, MatchingPipeline
 from litege_core.nets import TNet
 from litege_core.shape import Shape
 from litege_core.train.config import AugmentConfig
-from litege_core.train.matching import MatchingTrainConfig, train_matching
-from litege_core.train.matching_data import build_matching_tables, sample_batch
+from litege_core.train.matching import (
+    MatchingTrainConfig,
+    species_datasets,
+    species_tables,
+    train_matching,
+)
+from litege_core.train.matching_data import (
+    build_matching_tables,
+    concatenate_tables,
+    sample_batch,
+    view_pairs,
+)
 from litege_core.train.tnet import save_tnet
 
 TINY_TNET = {"conv_widths": (8, 16, 32), "fc_widths": (16, 8)}
@@ -27,11 +41,53 @@ def tnet_path(tmp_path_factory):
     return path
 
 
-def _config(toy_dataset, tnet_path, tmp_path, **train) -> MatchingTrainConfig:
+class CoarseSphereFactory:
+    """A second toy "species": another triangulation (42 vertices), squashed by seed."""
+
+    category = "toy-coarse"
+    version = "toy-coarse-1"
+
+    def template(self):
+        sphere = trimesh.creation.icosphere(subdivisions=1)
+        return np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+    def generate(self, family, seed):
+        rng = np.random.default_rng(seed)
+        return self.template()[0] * [rng.uniform(1.5, 2.0), 1.0, rng.uniform(0.6, 0.9)]
+
+
+def edge_dijkstra(vertices, faces, sources):
+    shape = Shape.from_arrays(vertices, faces)
+    return compute_distances(shape, sources, method="edge_dijkstra").distances
+
+
+@pytest.fixture(scope="module")
+def species_root(tmp_path_factory, toy_dataset):
+    """Two species datasets: the toy spheres (162 vertices, 6 shared sources) and coarse
+    spheres (42 vertices, 4 shared sources)."""
+    root = tmp_path_factory.mktemp("species")
+    shutil.copytree(toy_dataset, root / "round")
+    spec = DatasetSpec(
+        name="coarse",
+        category="toy-coarse",
+        families=("coarse",),
+        n_shapes={"train": 4, "val": 0, "test": 0},
+        n_shared_sources=4,
+        n_extra_sources=0,
+        shard_size=4,
+    )
+    build_dataset(
+        spec, root / "coarse", CoarseSphereFactory(), distance_fn=edge_dijkstra, progress=False
+    )
+    return root
+
+
+def _config(toy_dataset, tnet_path, tmp_path, species="", **train) -> MatchingTrainConfig:
     return MatchingTrainConfig.from_dict(
         {
             "data": {
                 "dataset": str(toy_dataset),
+                "species": str(species),
                 "tnet": str(tnet_path),
                 "views_per_shape": 2,
                 "val_view_pairs": 3,
@@ -162,11 +218,19 @@ def test_training_continues_a_bundle(toy_dataset, tnet_path, tmp_path):
     assert all(torch.equal(got[k], want[k]) for k in want)
     # with steps, it trains on from there (the basis file of [basis] is neither read nor fitted)
     moved = train_matching(
-        _config(toy_dataset, "unused", tmp_path / "c", steps=6, lr=1e-3, init=str(start.path))
+        _config(toy_dataset, "unused", tmp_path / "c", steps=12, lr=1e-3, init=str(start.path))
     )
     assert moved["training"]["chosen_first_pass"] == 0
     assert moved["files"]["judge-0.safetensors"] == same["files"]["judge-0.safetensors"]
-    assert moved["files"]["matching-0.safetensors"] != same["files"]["matching-0.safetensors"]
+    start_error = moved["training"]["first_passes"][0]["match_error_x100"]
+    history = moved["training"]["history"]
+    assert [h["step"] for h in history] == [3, 6, 9, 12]
+    assert history[0]["match_error_x100"] != start_error  # the network moved from the start
+    # the export is the best network seen: the start itself unless a validation beat it
+    best = min([start_error, *(h["match_error_x100"] for h in history)])
+    assert moved["metrics"]["val_match_error_x100"] == pytest.approx(best)
+    kept_start = moved["files"]["matching-0.safetensors"] == same["files"]["matching-0.safetensors"]
+    assert kept_start == (best == start_error)
     assert not (tmp_path / "c" / "basis.safetensors").exists()
     shipped = MatchingModel.load("quadrupeds").bundle  # its T-Net was swapped in: that stays said
     config = _config(toy_dataset, "unused", tmp_path / "s", steps=0, init="quadrupeds")
@@ -177,6 +241,54 @@ def test_training_continues_a_bundle(toy_dataset, tnet_path, tmp_path):
         train_matching(narrow.replace(network={"width": 8}))
     with pytest.raises(InputError, match="unknown matching model"):
         train_matching(_config(toy_dataset, "unused", tmp_path / "e", init="no-such-model"))
+
+
+def test_joined_tables_pad_and_draw_every_pair_within_one_dataset(
+    toy_dataset, tnet_path, species_root, tmp_path
+):
+    from litege_core.train.tnet import load_tnet
+
+    assert [p.name for p in species_datasets(species_root)] == ["coarse", "round"]
+    config = _config(toy_dataset, tnet_path, tmp_path, species=species_root)
+    common = dict(
+        basis=MatchingModel.tiny_random(0).bundle.basis,
+        tnet=load_tnet(tnet_path),
+        pipeline=MatchingPipeline(),
+        augment=config.augment,
+        reject_angle=3.2,
+        device="cpu",
+    )
+    (coarse_name, coarse, n_coarse), (round_name, sphere, n_round) = species_tables(config, common)
+    assert (coarse_name, n_coarse, round_name, n_round) == ("coarse", 4, "round", 8)
+    joined = concatenate_tables([sphere, coarse])
+    assert joined.n_views == sphere.n_views + coarse.n_views == 24
+    assert joined.vertices.shape == (24, 162, 3) and joined.distances.shape == (12, 4, 162)
+    assert joined.n_vertices.tolist() == [162] * 8 + [42] * 4
+    # the coarse shapes keep their own rows and zero padding beyond their 42 vertices
+    torch.testing.assert_close(joined.distances[8:, :, :42], coarse.distances)
+    assert not joined.distances[8:, :, 42:].any() and not joined.vertices[16:, 42:].any()
+    generator = torch.Generator().manual_seed(0)
+    pairs = view_pairs(joined, 400, generator)
+    in_coarse = pairs >= sphere.n_views
+    assert torch.equal(in_coarse[:, 0], in_coarse[:, 1]) and in_coarse.any() and (~in_coarse).any()
+    assert (joined.shape[pairs[:, 0]] != joined.shape[pairs[:, 1]]).all()
+    # no target or coordinate ever comes from the padding
+    for _ in range(20):
+        batch = sample_batch(joined, 8, 3, 8, 1.0, generator)
+        assert (batch.src.abs().sum(1) > 0).all() and (batch.dst.abs().sum(1) > 0).all()
+        assert (batch.target >= 0).all()
+    with pytest.raises(InputError, match="holds no dataset"):
+        species_datasets(tmp_path / "empty")
+
+
+def test_training_draws_on_species_datasets(toy_dataset, tnet_path, species_root, tmp_path):
+    manifest = train_matching(
+        _config(toy_dataset, tnet_path, tmp_path, species=species_root, first_passes=1)
+    )
+    species = manifest["training"]["species"]
+    assert species == {"coarse": {"views": 8, "shapes": 4}, "round": {"views": 16, "shapes": 8}}
+    assert manifest["training"]["train_views"] == 16 + 24
+    assert np.isfinite(manifest["metrics"]["val_match_error_x100"])
 
 
 def test_config_errors_are_input_errors(toy_dataset, tnet_path, tmp_path):
