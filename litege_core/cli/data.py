@@ -24,7 +24,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     from litege_core.datasets.factories import factory_for
     from litege_core.datasets.spec import WorkShare, parse_split_counts
 
-    if args.category == "rigged" and args.preset == "matching":
+    if args.category in ("rigged", "makehuman") and args.preset == "matching":
         return _build_species_sets(args)
     spec = preset(args.preset, args.category)
     changes: dict = {}
@@ -63,9 +63,9 @@ def cmd_data_build(args: argparse.Namespace) -> int:
 
 
 def _build_species_sets(args: argparse.Namespace) -> int:
-    """``--category rigged --preset matching``: one template-kind matching dataset per rigged
-    species under ``OUT/ANIMAL`` (pairs are drawn within a species: the animals do not share
-    a triangulation)."""
+    """``--category rigged|makehuman --preset matching``: one template-kind matching dataset
+    per source model (each rigged species, or the MakeHuman body) under ``OUT/NAME``; pairs
+    are drawn within one (the species do not share a triangulation)."""
     from pathlib import Path
 
     from litege_core.datasets import build_dataset
@@ -76,26 +76,26 @@ def _build_species_sets(args: argparse.Namespace) -> int:
         species_matching_spec,
     )
     from litege_core.errors import InputError
+    from litege_core.synth.posed_templates import MAKEHUMAN
     from litege_core.synth.rigged import ANIMALS
 
     if args.shard is not None:
-        raise InputError("--shard is not supported with --category rigged --preset matching")
+        raise InputError("--shard is not supported with --preset matching of a collection")
     counts = dict(SPECIES_MATCHING_SHAPES)
     if args.shapes is not None:
         counts.update(parse_split_counts(args.shapes))
-    name = args.name or "rigged-matching"
+    name = args.name or f"{args.category}-matching"
     directory = Path(args.out or f"data/{name}")
     summary: dict = {"directory": str(directory), "species": {}}
-    for animal in ANIMALS:
-        spec = species_matching_spec(animal, counts, name=name, first_index=args.first_index)
-        manifest = build_dataset(
-            spec,
-            directory / animal,
-            species_factory(animal, args.train_data),
-            workers=args.workers,
-            solver=args.solver,
+    for species in ANIMALS if args.category == "rigged" else (MAKEHUMAN,):
+        factory = species_factory(species, args.train_data)
+        spec = species_matching_spec(
+            species, factory.category, counts, name=name, first_index=args.first_index
         )
-        summary["species"][animal] = {
+        manifest = build_dataset(
+            spec, directory / species, factory, workers=args.workers, solver=args.solver
+        )
+        summary["species"][species] = {
             "counts": manifest["counts"],
             "compute_seconds": round(manifest["compute_seconds"], 1),
         }
@@ -142,8 +142,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--preset",
         choices=["small", "large", "full", "matching"],
         default="small",
-        help="dataset size; --category rigged --preset matching builds one matching dataset "
-        "per rigged species (posed copies on one triangulation) under OUT/ANIMAL",
+        help="dataset size; --category rigged|makehuman --preset matching builds one matching "
+        "dataset per rigged species, or of MakeHuman bodies (posed copies on one "
+        "triangulation), under OUT/NAME",
     )
     build.add_argument(
         "--shapes",

@@ -152,24 +152,31 @@ def factory_for(category: str, root: str | os.PathLike | None = None):
     )
 
 
-def species_factory(animal: str, root: str | os.PathLike | None = None):
-    """The template factory of one rigged species (posed copies on one triangulation:
-    :class:`~litege_core.synth.rigged_template.RiggedTemplateFactory`), assets under the
+def species_factory(name: str, root: str | os.PathLike | None = None):
+    """The template factory of one posed source model (posed copies on one triangulation,
+    :mod:`litege_core.synth.posed_templates`): a rigged animal of
+    :data:`~litege_core.synth.rigged.ANIMALS`, or ``"makehuman"``; assets under the
     train-data ``root``.
 
     Raises:
-        InputError: unknown animal, or its model file is missing.
+        InputError: unknown name, or its asset is missing.
     """
+    from litege_core.synth.posed_templates import (
+        MAKEHUMAN,
+        MakeHumanTemplateFactory,
+        RiggedTemplateFactory,
+    )
     from litege_core.synth.rigged import animal_path
-    from litege_core.synth.rigged_template import RiggedTemplateFactory
 
     base = train_data_root(root)
-    path = animal_path(base, animal)
-    if not path.is_file():
+    path = base / "makehuman" if name == MAKEHUMAN else animal_path(base, name)
+    if not path.exists():
         raise InputError(
             f"{path} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
         )
-    return RiggedTemplateFactory(str(base), animal)
+    if name == MAKEHUMAN:
+        return MakeHumanTemplateFactory(str(base))
+    return RiggedTemplateFactory(str(base), name)
 
 
 __all__ = [

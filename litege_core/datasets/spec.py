@@ -292,15 +292,16 @@ def collection_preset(name: str, source: str) -> DatasetSpec:
 
 
 def species_matching_spec(
-    animal: str, n_shapes: dict[str, int], *, name: str, first_index: int = 0
+    species: str, category: str, n_shapes: dict[str, int], *, name: str, first_index: int = 0
 ) -> DatasetSpec:
-    """The template-kind matching dataset of one rigged species (posed copies of the animal
-    on its fixed triangulation, :mod:`litege_core.synth.rigged_template`): shared sources
-    only, as the ``matching`` preset; ``name`` is the species set's (``NAME/ANIMAL``)."""
+    """The template-kind matching dataset of one posed source model (a rigged species or the
+    MakeHuman body: posed copies on its fixed triangulation,
+    :mod:`litege_core.synth.posed_templates`): shared sources only, as the ``matching``
+    preset; ``name`` is the set's (the dataset is ``NAME/SPECIES``)."""
     return DatasetSpec(
-        name=f"{name}/{animal}",
-        category="rigged-template",
-        families=(animal,),
+        name=f"{name}/{species}",
+        category=category,
+        families=(species,),
         n_shapes=n_shapes,
         n_extra_sources=0,
         shard_size=16,
@@ -309,7 +310,8 @@ def species_matching_spec(
 
 
 SPECIES_MATCHING_SHAPES = {"train": 120, "val": 4, "test": 0}
-"""Shapes per species of ``litege data build --category rigged --preset matching``."""
+"""Shapes per source model of ``litege data build --category rigged|makehuman --preset
+matching``."""
 
 
 __all__ = [

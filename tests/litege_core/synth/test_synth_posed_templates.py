@@ -1,4 +1,5 @@
-"""Rigged animals on one fixed triangulation per species (matching training data). They need
+"""Rigged animals and MakeHuman bodies on one fixed triangulation per source model (matching
+training data). They need
 the train-data directory (``$LITEGE_TRAIN_DATA`` or ../shared/train-data): skipped without it."""
 
 import os
@@ -9,7 +10,11 @@ import pytest
 
 from litege_core.errors import ComputationError
 from litege_core.synth import meshops, rigged
-from litege_core.synth.rigged_template import RiggedTemplateFactory
+from litege_core.synth.posed_templates import (
+    MAKEHUMAN,
+    MakeHumanTemplateFactory,
+    RiggedTemplateFactory,
+)
 
 TRAIN_DATA = Path(
     os.environ.get("LITEGE_TRAIN_DATA")
@@ -52,16 +57,28 @@ def test_poses_share_the_template_and_move_every_vertex_with_its_body_part(fox_f
         assert 0.6 < meshops.triangle_area_total(posed, faces) < 1.6
 
 
-def test_an_unperturbed_rest_pose_reproduces_the_template():
-    settings = rigged.PoseSettings(perturb_degrees=0.0, body_range=(1.0, 1.0))
-    factory = RiggedTemplateFactory(str(TRAIN_DATA), "Wolf", 1200, settings)
-    model, template = factory._loaded()
-    rest_clip = rigged.RiggedModel(**{**model.__dict__, "clips": model.clips[:1]})
-    from litege_core.synth.rigged_template import posed_species_shape
+def test_the_rest_pose_read_back_is_the_template(fox_factory):
+    model, template = fox_factory._loaded()
+    rest = model.rest_vertices()
+    again = template.transfer(rest - rest.mean(axis=0), model.mesh.faces)
+    np.testing.assert_allclose(again, template.vertices, atol=1e-12)
+    with pytest.raises(ComputationError, match="connectivity"):
+        template.transfer(rest, model.mesh.faces[:-1])
 
-    posed = posed_species_shape(rest_clip, template, 0, settings)
-    # a clip pose differs from the rest pose, but its vertices stay on the same body parts
-    assert np.linalg.norm(posed - template.vertices, axis=1).mean() < 0.3
+
+def test_makehuman_bodies_share_the_template():
+    factory = MakeHumanTemplateFactory(str(TRAIN_DATA), target_vertices=2000)
+    template, faces = factory.template()
+    assert meshops.manifold_report(template, faces).ok
+    assert 0.85 < meshops.triangle_area_total(template, faces) < 1.05  # chords of a 2K remesh
+    a, b = factory.generate(MAKEHUMAN, 1), factory.generate(MAKEHUMAN, 2)
+    np.testing.assert_array_equal(a, factory.generate(MAKEHUMAN, 1))
+    assert a.shape == b.shape == template.shape and not np.allclose(a, b)
+    for body in (a, b):
+        ratio = _edge_lengths(body, faces) / _edge_lengths(template, faces)
+        assert np.median(ratio) == pytest.approx(1.0, abs=0.15) and ratio.max() < 6.0
+    with pytest.raises(ComputationError, match="family"):
+        factory.generate("Wolf", 0)
 
 
 def test_the_factory_serves_only_its_species(fox_factory):
@@ -91,3 +108,9 @@ def test_cli_builds_one_matching_dataset_per_species(tmp_path, capsys):
     missing = ["--train-data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x")]
     assert cli_main([*argv[:6], *missing]) != 0
     assert "nowhere" in capsys.readouterr().err
+    humans = ["data", "build", "--category", "makehuman", "--preset", "matching", *argv[6:]]
+    humans[7] = str(tmp_path / "mh")
+    assert cli_main([*humans, "--train-data", str(TRAIN_DATA)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert list(summary["species"]) == [MAKEHUMAN]
+    assert [p.name for p in species_datasets(tmp_path / "mh")] == [MAKEHUMAN]
