@@ -35,3 +35,8 @@ def eval_real_ablation() -> ModuleType:
 @pytest.fixture(scope="module")
 def import_graph() -> ModuleType:
     return load_script("import_graph")
+
+
+@pytest.fixture(scope="module")
+def ensemble_matching() -> ModuleType:
+    return load_script("ensemble_matching")

@@ -1,0 +1,36 @@
+"""scripts/ensemble_matching.py: a matching bundle averaging the networks of bundles that share
+their frame and descriptor."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from litege_core.errors import InputError
+from litege_core.matching import MatchingModel
+from litege_core.shape import Shape
+from litege_core.synth import families, generate_shape
+
+
+def test_an_ensemble_of_a_bundle_with_itself_matches_as_the_bundle(ensemble_matching, tmp_path):
+    summary = ensemble_matching.main(["quadrupeds", "quadrupeds", "--out", str(tmp_path / "e")])
+    single, pair = MatchingModel.load("quadrupeds"), MatchingModel.load(summary["out"])
+    assert len(pair.bundle.networks) == 2 and pair.content_hash == summary["content_hash"]
+    assert [m["model"] for m in pair.bundle.manifest["training"]["ensemble"]] == ["quadrupeds"] * 2
+    assert len(pair.bundle.frame_judge_networks) == len(single.bundle.frame_judge_networks)
+    shapes = [generate_shape("quadruped", families("quadruped")[k], 2_000_000 + k) for k in (0, 1)]
+    meshes = [Shape.from_arrays(s.vertices, s.faces) for s in shapes]
+    queries = np.arange(0, len(meshes[0].vertices), 97)
+    for model in (single, pair):
+        x, y = model.prepare_many(meshes, seed=0)
+        found = model.match(x, y, queries).indices
+        if model is single:
+            expected = found
+    np.testing.assert_array_equal(found, expected)  # the mean of two equal networks is one
+
+
+def test_bundles_with_another_frame_or_descriptor_are_refused(ensemble_matching, tmp_path):
+    with pytest.raises(InputError, match="basis"):
+        ensemble_matching.main(["quadrupeds", "humans", "--out", str(tmp_path / "x")])
+    with pytest.raises(InputError, match="two"):
+        ensemble_matching.main(["quadrupeds", "--out", str(tmp_path / "y")])
