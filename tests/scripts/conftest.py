@@ -38,5 +38,5 @@ def import_graph() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def ensemble_matching() -> ModuleType:
-    return load_script("ensemble_matching")
+def compose_matching() -> ModuleType:
+    return load_script("compose_matching")

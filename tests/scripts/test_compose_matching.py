@@ -1,5 +1,5 @@
-"""scripts/ensemble_matching.py: a matching bundle averaging the networks of bundles that share
-their frame and descriptor."""
+"""scripts/compose_matching.py: a matching bundle from the networks of bundles that share their
+frame and descriptor, with a chosen frame judge."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 
 
-def test_an_ensemble_of_a_bundle_with_itself_matches_as_the_bundle(ensemble_matching, tmp_path):
-    summary = ensemble_matching.main(["quadrupeds", "quadrupeds", "--out", str(tmp_path / "e")])
+def test_an_ensemble_of_a_bundle_with_itself_matches_as_the_bundle(compose_matching, tmp_path):
+    summary = compose_matching.main(["quadrupeds", "quadrupeds", "--out", str(tmp_path / "e")])
     single, pair = MatchingModel.load("quadrupeds"), MatchingModel.load(summary["out"])
     assert len(pair.bundle.networks) == 2 and pair.content_hash == summary["content_hash"]
     assert [m["model"] for m in pair.bundle.manifest["training"]["ensemble"]] == ["quadrupeds"] * 2
@@ -29,8 +29,17 @@ def test_an_ensemble_of_a_bundle_with_itself_matches_as_the_bundle(ensemble_matc
     np.testing.assert_array_equal(found, expected)  # the mean of two equal networks is one
 
 
-def test_bundles_with_another_frame_or_descriptor_are_refused(ensemble_matching, tmp_path):
+def test_bundles_with_another_frame_or_descriptor_are_refused(compose_matching, tmp_path):
     with pytest.raises(InputError, match="basis"):
-        ensemble_matching.main(["quadrupeds", "humans", "--out", str(tmp_path / "x")])
+        compose_matching.main(["quadrupeds", "humans", "--out", str(tmp_path / "x")])
     with pytest.raises(InputError, match="two"):
-        ensemble_matching.main(["quadrupeds", "--out", str(tmp_path / "y")])
+        compose_matching.main(["quadrupeds", "--out", str(tmp_path / "y")])
+
+
+def test_own_judge_drops_the_judge_networks(compose_matching, tmp_path):
+    shipped = MatchingModel.load("quadrupeds").bundle
+    assert shipped.judge_networks  # the shipped continuation keeps its start as judge
+    summary = compose_matching.main(["quadrupeds", "--judge", "own", "--out", str(tmp_path / "o")])
+    own = MatchingModel.load(summary["out"]).bundle
+    assert own.judge_networks == () and own.frame_judge_networks == own.networks
+    assert own.manifest["training"]["judge"] == "its matching networks"

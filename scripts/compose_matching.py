@@ -1,16 +1,19 @@
-"""Write a matching bundle whose search averages the networks of several bundles (issue 15,
-step 3: the paper's ensemble of two).
+"""Write a matching bundle from the networks of one or more bundles and a chosen frame judge
+(issue 15: the paper's ensemble of two; a continued network judging its own frames).
 
 Usage:
-    python scripts/ensemble_matching.py quadrupeds out/train/matching-quadrupeds-species/bundle \
-        --out out/matching-ensemble
+    python scripts/compose_matching.py quadrupeds out/train/matching-quadrupeds-species/bundle \
+        --out out/matching-ensemble              # ensemble, the first bundle's judge
+    python scripts/compose_matching.py out/train/matching-quadrupeds-species/bundle \
+        --judge own --out out/matching-self-judged  # the network judges its own frames
 
 The bundles must share their frame and descriptor (a continuation shares its start's: same
-T-Net, basis and pipeline; refused otherwise). The new bundle takes those, the networks of every
-bundle in order (the search averages their outputs, ``ensemble_score_fn``) and the first
-bundle's frame judge, so its frames are the first bundle's. The manifest's training summary
-names the members; ``metrics`` are the first bundle's: re-measure before shipping
-(``litege eval matching``).
+T-Net, basis and pipeline; refused otherwise). The new bundle takes those and the networks of
+every bundle in order (the search averages their outputs, ``ensemble_score_fn``). Its frame
+judge is the first bundle's (``--judge first``, the default: frames stay the first bundle's)
+or the new bundle's own networks (``--judge own``). The manifest's training summary names the
+members and the judge; ``metrics`` are the first bundle's: re-measure before shipping
+(``litege eval matching``, ``scripts/frame_report.py``).
 """
 
 from __future__ import annotations
@@ -36,9 +39,15 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("models", nargs="+", help="matching model names or bundle directories")
     parser.add_argument("--out", required=True, help="directory of the new bundle")
+    parser.add_argument(
+        "--judge",
+        choices=["first", "own"],
+        default="first",
+        help="frame judge: the first bundle's (default) or the new bundle's networks",
+    )
     args = parser.parse_args(argv)
-    if len(args.models) < 2:
-        raise InputError("an ensemble needs at least two bundles")
+    if len(args.models) < 2 and args.judge == "first":
+        raise InputError("one bundle with its own judge is itself: give two bundles or --judge own")
     bundles = [MatchingModel.load(m).bundle for m in args.models]
     first = bundles[0]
     for model, bundle in zip(args.models[1:], bundles[1:], strict=True):
@@ -48,8 +57,12 @@ def main(argv: list[str] | None = None) -> dict:
             raise InputError(f"{model} has another frame (T-Net or pipeline) than {args.models[0]}")
     training = dict(first.manifest.get("training") or {})
     training["ensemble"] = [
-        {"model": str(m), "content_hash": b.content_hash} for m, b in zip(args.models, bundles)
+        {"model": str(m), "content_hash": b.content_hash}
+        for m, b in zip(args.models, bundles, strict=True)
     ]
+    training["judge"] = (
+        f"{args.models[0]}'s frame judge" if args.judge == "first" else "its matching networks"
+    )
     manifest = save_matching_bundle(
         args.out,
         name=first.name,
@@ -63,7 +76,7 @@ def main(argv: list[str] | None = None) -> dict:
         training=training,
         metrics=first.manifest.get("metrics"),
         weights_dtype=torch.float16,
-        judge_networks=list(first.frame_judge_networks),
+        judge_networks=list(first.frame_judge_networks) if args.judge == "first" else [],
     )
     summary = {"out": str(Path(args.out)), "content_hash": manifest["content_hash"]}
     print(json.dumps(summary))
