@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -146,12 +148,35 @@ def cached_human_template(
     return model, surface_template(rest, model.faces, target_vertices, subdivide=False)
 
 
-@dataclass(frozen=True)
-class RiggedTemplateFactory:
-    """The template factory of one rigged species (picklable: build workers reload the model).
+class _PosedTemplateSource:
+    """``template()`` and ``generate(family, seed)`` of a template factory whose shapes are
+    random poses of one source model read off its :class:`SurfaceTemplate`."""
 
-    ``generate(animal, seed)`` is the pose of ``seed`` on the species' template;
-    ``template()`` is its rest pose."""
+    def _family(self) -> str:
+        raise NotImplementedError
+
+    def _loaded(self) -> tuple[Any, SurfaceTemplate]:
+        raise NotImplementedError
+
+    def _posed(self, model: Any, seed: int) -> tuple[NDArray, NDArray]:
+        """The pose of ``seed`` on the source mesh: ``(vertices, faces)``."""
+        raise NotImplementedError
+
+    def template(self) -> tuple[NDArray, NDArray]:
+        _, template = self._loaded()
+        return template.vertices, template.faces
+
+    def generate(self, family: str, seed: int) -> NDArray:
+        if family != self._family():
+            raise ComputationError(f"the {self._family()} template factory got family {family!r}")
+        model, template = self._loaded()
+        return template.transfer(*self._posed(model, seed))
+
+
+@dataclass(frozen=True)
+class RiggedTemplateFactory(_PosedTemplateSource):
+    """The template factory of one rigged species (picklable: build workers reload the model):
+    the family is the animal, a shape the pose of ``seed`` on the species' template."""
 
     root: str
     animal: str
@@ -167,26 +192,22 @@ class RiggedTemplateFactory:
             f"{s.perturb_degrees}-{s.body_range[0]}-{s.body_range[1]}"
         )
 
+    def _family(self) -> str:
+        return self.animal
+
     def _loaded(self) -> tuple[RiggedModel, SurfaceTemplate]:
         path = str(animal_path(self.root, self.animal))
         return cached_species_template(path, self.animal, self.target_vertices)
 
-    def template(self) -> tuple[NDArray, NDArray]:
-        _, template = self._loaded()
-        return template.vertices, template.faces
-
-    def generate(self, family: str, seed: int) -> NDArray:
-        if family != self.animal:
-            raise ComputationError(f"the {self.animal} template factory got family {family!r}")
-        model, template = self._loaded()
+    def _posed(self, model: RiggedModel, seed: int) -> tuple[NDArray, NDArray]:
         posed, _ = pose_model(model, np.random.default_rng([seed, 0]), self.settings)
-        return template.transfer(posed, model.mesh.faces)
+        return posed, model.mesh.faces
 
 
 @dataclass(frozen=True)
-class MakeHumanTemplateFactory:
-    """The template factory of MakeHuman bodies (one family, :data:`MAKEHUMAN`):
-    ``generate(family, seed)`` is the shaped, posed body of ``seed`` on the template."""
+class MakeHumanTemplateFactory(_PosedTemplateSource):
+    """The template factory of MakeHuman bodies (one family, :data:`MAKEHUMAN`): a shape is
+    the shaped, posed body of ``seed`` on the template."""
 
     root: str
     target_vertices: int = DEFAULT_TEMPLATE_VERTICES
@@ -201,21 +222,15 @@ class MakeHumanTemplateFactory:
             f"{s.body_range[0]}-{s.body_range[1]}"
         )
 
-    def _loaded(self) -> tuple[MakeHumanModel, SurfaceTemplate]:
-        from pathlib import Path
+    def _family(self) -> str:
+        return MAKEHUMAN
 
+    def _loaded(self) -> tuple[MakeHumanModel, SurfaceTemplate]:
         return cached_human_template(str(Path(self.root) / "makehuman"), self.target_vertices)
 
-    def template(self) -> tuple[NDArray, NDArray]:
-        _, template = self._loaded()
-        return template.vertices, template.faces
-
-    def generate(self, family: str, seed: int) -> NDArray:
-        if family != MAKEHUMAN:
-            raise ComputationError(f"the MakeHuman template factory got family {family!r}")
-        model, template = self._loaded()
+    def _posed(self, model: MakeHumanModel, seed: int) -> tuple[NDArray, NDArray]:
         posed, _ = pose_human(model, np.random.default_rng([seed, 0]), self.settings)
-        return template.transfer(posed, model.faces)
+        return posed, model.faces
 
 
 __all__ = [
