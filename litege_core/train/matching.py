@@ -276,6 +276,7 @@ def species_tables(
     return parts
 
 
+@torch.no_grad()
 def validation_metrics(
     net: GeodesicNet,
     tables: MatchingTables,
