@@ -204,6 +204,10 @@ COLLECTION_SOURCES_TEXT = {
     "rigged": "posed rigged animals (`litege_core.synth.rigged`: Quaternius UAA and the Khronos "
     "fox, remeshed)",
     "makehuman": "MakeHuman bodies in random shapes and poses (`litege_core.synth.makehuman`)",
+    "rigged-template": "posed rigged animals of one species on one fixed remeshed triangulation "
+    "(`litege_core.synth.posed_templates`: Quaternius UAA and the Khronos fox)",
+    "makehuman-template": "MakeHuman bodies in random shapes and poses on one fixed remeshed "
+    "triangulation (`litege_core.synth.posed_templates`)",
 }
 """What a collection dataset's shapes are, by category."""
 
@@ -217,7 +221,9 @@ COLLECTION_CREDITS = {
     "(odedstein/meshes, same licences); Spot by Keenan Crane (public domain)",
 }
 """Credit lines of the collection categories (the training shapes of a bundle, the shapes of a
-fusion calibration)."""
+fusion calibration); the posed-template datasets credit the models they pose."""
+COLLECTION_CREDITS["rigged-template"] = COLLECTION_CREDITS["rigged"]
+COLLECTION_CREDITS["makehuman-template"] = COLLECTION_CREDITS["makehuman"]
 
 SIDECARS_TITLE = (
     "Optional sidecars (beside the bundle files; the bundle's content hash is unchanged)"

@@ -60,7 +60,7 @@ from litege_core.nets import FoldedGeodesicNet, GeodesicNet, TNet
 from litege_core.nets.geodesic import OutputKind
 from litege_core.shape import Shape
 from litege_core.train.config import AugmentConfig, ConfigRoot
-from litege_core.train.data import dataset_fingerprint, load_split_arrays
+from litege_core.train.data import dataset_fingerprint, datasets_fingerprint, load_split_arrays
 from litege_core.train.matching_data import (
     REJECT_ANGLE,
     MatchingBatch,
@@ -539,7 +539,11 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     out = Path(config.output.dir)
     training = {
         "config": {f.name: asdict(getattr(config, f.name)) for f in fields(config)},
-        "dataset": dataset_fingerprint(config.data.dataset),
+        "dataset": (
+            datasets_fingerprint([config.data.dataset, *species_datasets(config.data.species)])
+            if species
+            else dataset_fingerprint(config.data.dataset)
+        ),
         "species": {name: {"views": part.n_views, "shapes": n} for name, part, n in species},
         "tnet": str(config.data.tnet) if init is None else f"{t.init} (init)",
         "init": None if init is None else {"bundle": t.init, "content_hash": init.content_hash},

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -288,7 +289,21 @@ def test_training_draws_on_species_datasets(toy_dataset, tnet_path, species_root
     species = manifest["training"]["species"]
     assert species == {"coarse": {"views": 8, "shapes": 4}, "round": {"views": 16, "shapes": 8}}
     assert manifest["training"]["train_views"] == 16 + 24
+    provenance = manifest["training"]["dataset"]["datasets"]  # every dataset, for the card
+    assert [Path(d["path"]).name for d in provenance] == [toy_dataset.name, "coarse", "round"]
+    assert [d["category"] for d in provenance] == ["toy", "toy-coarse", "toy"]
     assert np.isfinite(manifest["metrics"]["val_match_error_x100"])
+
+
+def test_the_card_credits_posed_template_data():
+    from litege_core.learned.cards import _training_data
+
+    parts = [
+        {"name": "quadruped-matching-4", "category": "quadruped", "solver": "heat"},
+        {"name": "rigged-matching/Wolf", "category": "rigged-template", "solver": "heat"},
+    ]
+    lines = "\n".join(_training_data({"datasets": parts}, "", None))
+    assert "one fixed remeshed triangulation" in lines and "@tomkranis (CC BY 4.0)" in lines
 
 
 def test_config_errors_are_input_errors(toy_dataset, tnet_path, tmp_path):
