@@ -55,17 +55,21 @@ def test_cards_differ_by_kind(ship_model):
 def test_a_continued_matching_card_names_its_start_and_its_judge(ship_model):
     manifest = json.loads((SHIPPED_DIR / "humans-matching" / MANIFEST).read_text())
     card = ship_model.model_card(manifest)
-    assert "3 first passes (chosen: 0)" in card and "Frame judge" not in card
-    assert "on 480 procedural shapes (heat" in card
-    training = manifest["training"]
-    training["init"] = {"bundle": "humans", "content_hash": "0123456789abcdef0123"}
-    training["judge"] = "humans (init)'s frame judge"
-    training["dataset"]["counts"]["train"] = 1440
-    manifest["judge_networks"] = manifest["networks"]
-    card = ship_model.model_card(manifest)
-    assert "continued from the bundle `humans` (`0123456789abcdef`)" in card
-    assert "first passes" not in card
+    init = manifest["training"]["init"]
+    assert init["bundle"] == "humans" and "first passes" not in card
+    assert f"continued from the bundle `humans` (`{init['content_hash'][:16]}`)" in card
     assert "**Frame judge**: its own networks" in card and "humans (init)'s frame" in card
-    assert "on 1440 procedural shapes (continuing `humans`)" in card
+    # two datasets (procedural bipeds and MakeHuman bodies on one triangulation), both credited
+    assert "on 1440 generated shapes of 2 datasets (continuing `humans`)" in card
+    assert "`makehuman-matching/makehuman`: MakeHuman bodies" in card
+    assert "**Training shapes credit**: MakeHuman base mesh" in card
+    # the same run from scratch on one procedural dataset
+    training = manifest["training"]
+    del training["init"], training["judge"], manifest["judge_networks"]
+    training["first_passes"], training["chosen_first_pass"] = [{}, {}, {}], 0
+    training["dataset"] = training["dataset"]["datasets"][0]
+    card = ship_model.model_card(manifest)
+    assert "3 first passes (chosen: 0)" in card and "Frame judge" not in card
+    assert "on 960 procedural shapes (heat" in card
     shipped = (SHIPPED_DIR / "quadrupeds-matching" / "MODEL_CARD.md").read_text()
     assert "continued from the bundle `quadrupeds`" in shipped and "**Frame judge**" in shipped
