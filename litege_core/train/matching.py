@@ -231,10 +231,6 @@ def calibrated_pipeline(arrays, faces, n_meshes: int = 16) -> MatchingPipeline:
     )
 
 
-# --------------------------------------------------------------------------- evaluation
-
-
-@torch.no_grad()
 def species_datasets(directory: str | Path) -> list[Path]:
     """The dataset directories (with a ``manifest.json``) directly under ``directory``, sorted.
 
@@ -274,6 +270,9 @@ def species_tables(
         LOG.info("species %s: %d train views", directory.name, part.n_views)
         parts.append((directory.name, part, int(arrays["vertices"].shape[0])))
     return parts
+
+
+# --------------------------------------------------------------------------- evaluation
 
 
 @torch.no_grad()
