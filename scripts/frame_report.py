@@ -1,7 +1,8 @@
 """Frame failures of a matching model: T-Net frame against judged frames (issue 15, step 1).
 
 Usage:
-    python scripts/frame_report.py quadrupeds [--procedural 60] [--eval-data ../shared/eval-data]
+    python scripts/frame_report.py quadrupeds [--procedural 60] [--eval-data ../shared/eval-data] \
+        [--per-shape]
 
 Each shape is randomly rotated (seeded) and prepared with ``frames="tnet"`` and
 ``frames="judged"``; the error of a frame is the angle (rad) between the rotation it applies
@@ -113,12 +114,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rigged", type=int, default=40, help="posed rigged animals (0: none)")
     parser.add_argument("--cache", default="out/frame-report-shapes", help="rigged shape cache")
+    parser.add_argument(
+        "--per-shape",
+        action="store_true",
+        help="also list every real shape: the frame each mode kept and its angle (rad)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = MatchingModel.load(args.model)
     names = families(model.category)
     rows: list[str] = []
     switched: dict[str, int] = {}
+    per_shape: dict[str, dict[str, tuple[str, float]]] = {}  # shape → mode → (frame, angle)
 
     # ------------------------------------------------------------------ procedural
     generated = [
@@ -162,6 +169,8 @@ def main() -> None:
             found = frames_of(model, real, mode)
             in_file = [r @ t for (r, _), t in zip(found, rotations, strict=True)]
             errors = [angle(f, TOSCA_TO_CANONICAL) for f in in_file]
+            for label, (_, name), error in zip(labels, found, errors, strict=True):
+                per_shape.setdefault(f"TOSCA {label}", {})[mode] = (name, error)
             rows.append(
                 f"| TOSCA ({len(real)} shapes) vs file convention | {mode} | {summary(errors)} |"
             )
@@ -187,6 +196,8 @@ def main() -> None:
             in_file = [r @ t for (r, _), t in zip(found, rotations, strict=True)]
             reference = consensus(in_file)
             errors = [angle(f, reference) for f in in_file]
+            for path, (_, name), error in zip(files, found, errors, strict=True):
+                per_shape.setdefault(f"FAUST {path.stem}", {})[mode] = (name, error)
             rows.append(
                 f"| FAUST ({len(real)} shapes) vs their consensus frame | {mode} | "
                 f"{summary(errors)} |"
@@ -203,12 +214,21 @@ def main() -> None:
     print(f"### Frame failures (> {FAILURE} rad): `{args.model}` matching model\n")
     print(
         f"- date {date}; command `python scripts/frame_report.py {args.model} "
-        f"--procedural {args.procedural} --rigged {args.rigged}`; frames changed by the judge: "
+        f"--procedural {args.procedural} --rigged {args.rigged}"
+        f"{' --per-shape' if args.per_shape else ''}`; frames changed by the judge: "
         f"{switched}\n"
     )
     print("| shapes | frames | n | median rad | mean rad | failures % |")
     print("|---|---|---:|---:|---:|---:|")
     print("\n".join(rows))
+    if args.per_shape and per_shape:
+        print("\n| real shape | T-Net frame, rad | judged: frame kept, rad |\n|---|---:|---|")
+        for shape, modes in per_shape.items():
+            cells = [
+                f"{modes[m][1]:.2f}" + (" **fail**" if modes[m][1] > FAILURE else "")
+                for m in ("tnet", "judged")
+            ]
+            print(f"| {shape} | {cells[0]} | {modes['judged'][0]}: {cells[1]} |")
 
 
 if __name__ == "__main__":
