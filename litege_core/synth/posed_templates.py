@@ -88,8 +88,14 @@ class SurfaceTemplate:
             vertices, faces = subdivide_loop(vertices, faces)
         if not np.array_equal(faces, self.source_faces):
             raise ComputationError("the posed source mesh has another connectivity")
-        corners = vertices[self.source_faces[self.triangle]]
-        return np.einsum("vk,vkd->vd", self.barycentric, corners)
+        return _interpolate(vertices, self.source_faces, self.triangle, self.barycentric)
+
+
+def _interpolate(
+    vertices: NDArray, faces: NDArray, triangle: NDArray, barycentric: NDArray
+) -> NDArray:
+    """``(V, 3)`` points at barycentric weights ``(V, 3)`` in triangles ``(V,)`` of a mesh."""
+    return np.einsum("vk,vkd->vd", barycentric, vertices[faces[triangle]])
 
 
 def surface_template(
@@ -107,7 +113,8 @@ def surface_template(
     source_vertices, source_faces = (
         subdivide_loop(rest, faces) if subdivide else (np.asarray(rest), np.asarray(faces))
     )
-    vertices, template_faces = finish_mesh(rest, faces, target_vertices, subdivide)
+    # the source surface is already subdivided: remesh it as it is
+    vertices, template_faces = finish_mesh(source_vertices, source_faces, target_vertices, False)
     surface = trimesh.Trimesh(source_vertices, source_faces, process=False)
     _, _, triangle = trimesh.proximity.closest_point(surface, vertices)
     triangle = np.asarray(triangle, dtype=np.int64)
@@ -116,7 +123,7 @@ def surface_template(
     )
     barycentric = np.clip(barycentric, 0.0, None)
     barycentric /= barycentric.sum(axis=1, keepdims=True)
-    on_surface = np.einsum("vk,vkd->vd", barycentric, source_vertices[source_faces[triangle]])
+    on_surface = _interpolate(source_vertices, source_faces, triangle, barycentric)
     return SurfaceTemplate(
         on_surface, template_faces, source_faces, triangle, barycentric, subdivide
     )
