@@ -249,8 +249,8 @@ def species_datasets(directory: str | Path) -> list[Path]:
 
 def species_tables(
     config: MatchingTrainConfig, common: dict[str, Any]
-) -> list[tuple[str, MatchingTables, int]]:
-    """``(name, training tables, shapes)`` of every dataset of ``data.species`` (none when
+) -> list[tuple[Path, MatchingTables, int]]:
+    """``(directory, training tables, shapes)`` of every dataset of ``data.species`` (none when
     unset), each built like the main training set with its own faces and shared sources."""
     if not config.data.species:
         return []
@@ -268,7 +268,7 @@ def species_tables(
             **common,
         )
         LOG.info("species %s: %d train views", directory.name, part.n_views)
-        parts.append((directory.name, part, int(arrays["vertices"].shape[0])))
+        parts.append((directory, part, int(arrays["vertices"].shape[0])))
     return parts
 
 
@@ -539,11 +539,11 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     training = {
         "config": {f.name: asdict(getattr(config, f.name)) for f in fields(config)},
         "dataset": (
-            datasets_fingerprint([config.data.dataset, *species_datasets(config.data.species)])
+            datasets_fingerprint([config.data.dataset, *(path for path, _, _ in species)])
             if species
             else dataset_fingerprint(config.data.dataset)
         ),
-        "species": {name: {"views": part.n_views, "shapes": n} for name, part, n in species},
+        "species": {p.name: {"views": part.n_views, "shapes": n} for p, part, n in species},
         "tnet": str(config.data.tnet) if init is None else f"{t.init} (init)",
         "init": None if init is None else {"bundle": t.init, "content_hash": init.content_hash},
         "judge": "matching networks" if init is None else f"{t.init} (init)'s frame judge",

@@ -259,8 +259,13 @@ def test_joined_tables_pad_and_draw_every_pair_within_one_dataset(
         reject_angle=3.2,
         device="cpu",
     )
-    (coarse_name, coarse, n_coarse), (round_name, sphere, n_round) = species_tables(config, common)
-    assert (coarse_name, n_coarse, round_name, n_round) == ("coarse", 4, "round", 8)
+    (coarse_path, coarse, n_coarse), (round_path, sphere, n_round) = species_tables(config, common)
+    assert (coarse_path, n_coarse, round_path, n_round) == (
+        species_root / "coarse",
+        4,
+        species_root / "round",
+        8,
+    )
     joined = concatenate_tables([sphere, coarse])
     assert joined.n_views == sphere.n_views + coarse.n_views == 24
     assert joined.vertices.shape == (24, 162, 3) and joined.distances.shape == (12, 4, 162)
