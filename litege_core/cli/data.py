@@ -40,7 +40,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     manifest = build_dataset(
         spec,
         directory,
-        factory_for(args.category, args.train_data),
+        factory_for(args.category, args.train_data, _pose_settings(args)),
         workers=args.workers,
         solver=args.solver,
         part=share,
@@ -60,6 +60,16 @@ def cmd_data_build(args: argparse.Namespace) -> int:
             summary.update(merged=True, dataset_counts=merged["counts"])
     print_json(summary)
     return 0
+
+
+def _pose_settings(args: argparse.Namespace):
+    """The rigged animals' pose ranges of ``--bend`` (``None``: the defaults)."""
+    if not args.bend:
+        return None
+    from litege_core.synth.bend import BendSettings
+    from litege_core.synth.rigged import PoseSettings
+
+    return PoseSettings(bend=BendSettings(probability=args.bend))
 
 
 def _build_species_sets(args: argparse.Namespace) -> int:
@@ -88,7 +98,7 @@ def _build_species_sets(args: argparse.Namespace) -> int:
     directory = Path(args.out or f"data/{name}")
     summary: dict = {"directory": str(directory), "species": {}}
     for species in ANIMALS if args.category == "rigged" else (MAKEHUMAN,):
-        factory = species_factory(species, args.train_data)
+        factory = species_factory(species, args.train_data, _pose_settings(args))
         spec = species_matching_spec(
             species, factory.category, counts, name=name, first_index=args.first_index
         )
@@ -165,6 +175,14 @@ def register(commands: argparse._SubParsersAction) -> None:
         "count of an earlier set to add new shapes of the same distribution (default 0)",
     )
     build.add_argument("--out", default=None, help="directory (default data/NAME)")
+    build.add_argument(
+        "--bend",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="--category rigged: share of the posed animals bent along the body (curled, head "
+        "turned back, arched; litege_core.synth.bend), default 0",
+    )
     build.add_argument(
         "--train-data",
         default=None,

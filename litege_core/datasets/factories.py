@@ -25,6 +25,7 @@ from litege_core.errors import InputError
 
 if TYPE_CHECKING:
     from litege_core.synth.folder import FolderSettings
+    from litege_core.synth.rigged import PoseSettings
 
 DEFAULT_TRAIN_DATA = "../shared/train-data"
 
@@ -66,18 +67,22 @@ class RiggedFactory:
 
     root: str
     category: str = "rigged"
+    settings: PoseSettings | None = None
+    """Pose ranges (``None``: the defaults, e.g. no body bends)."""
 
     @property
     def version(self) -> str:
         from litege_core.synth.rigged import RIGGED_VERSION
 
-        return RIGGED_VERSION
+        if self.settings is None:
+            return RIGGED_VERSION
+        return f"{RIGGED_VERSION}:{self.settings.describe()}"
 
     def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
-        from litege_core.synth.rigged import animal_path, cached_model, posed_animal
+        from litege_core.synth.rigged import PoseSettings, animal_path, cached_model, posed_animal
 
         model = cached_model(str(animal_path(self.root, family)), family)
-        vertices, faces, _ = posed_animal(model, seed)
+        vertices, faces, _ = posed_animal(model, seed, self.settings or PoseSettings())
         return vertices, faces
 
 
@@ -128,14 +133,21 @@ class FolderFactory:
         return folder_shape(self.directory, family, seed, self.settings or FolderSettings())
 
 
-def factory_for(category: str, root: str | os.PathLike | None = None):
+def factory_for(
+    category: str, root: str | os.PathLike | None = None, pose: PoseSettings | None = None
+):
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
-    ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``).
+    ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
+    ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults.
 
     Raises:
-        InputError: unknown category, or the train-data assets are missing.
+        InputError: unknown category, the train-data assets are missing, or ``pose`` given
+            for a category other than ``rigged``.
     """
     from litege_core.synth import CATEGORIES
+
+    if pose is not None and category != "rigged":
+        raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
 
     if category in CATEGORIES:
         return SynthFactory(category)
@@ -146,20 +158,24 @@ def factory_for(category: str, root: str | os.PathLike | None = None):
             raise InputError(
                 f"{probe} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
             )
-        return RiggedFactory(str(base)) if category == "rigged" else MakeHumanFactory(str(base))
+        if category == "rigged":
+            return RiggedFactory(str(base), settings=pose)
+        return MakeHumanFactory(str(base))
     raise InputError(
         f"unknown category {category!r}; expected one of {(*CATEGORIES, 'rigged', 'makehuman')}"
     )
 
 
-def species_factory(name: str, root: str | os.PathLike | None = None):
+def species_factory(
+    name: str, root: str | os.PathLike | None = None, pose: PoseSettings | None = None
+):
     """The template factory of one posed source model (posed copies on one triangulation,
     :mod:`litege_core.synth.posed_templates`): a rigged animal of
     :data:`~litege_core.synth.rigged.ANIMALS`, or ``"makehuman"``; assets under the
-    train-data ``root``.
+    train-data ``root``; ``pose``: a rigged animal's pose ranges (``None``: the defaults).
 
     Raises:
-        InputError: unknown name, or its asset is missing.
+        InputError: unknown name, its asset is missing, or ``pose`` given for MakeHuman.
     """
     from litege_core.synth.posed_templates import (
         MAKEHUMAN,
@@ -175,8 +191,12 @@ def species_factory(name: str, root: str | os.PathLike | None = None):
             f"{path} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
         )
     if name == MAKEHUMAN:
+        if pose is not None:
+            raise InputError("pose settings apply to the rigged animals only, not to MakeHuman")
         return MakeHumanTemplateFactory(str(base))
-    return RiggedTemplateFactory(str(base), name)
+    if pose is None:
+        return RiggedTemplateFactory(str(base), name)
+    return RiggedTemplateFactory(str(base), name, settings=pose)
 
 
 __all__ = [

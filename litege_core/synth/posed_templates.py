@@ -194,9 +194,10 @@ class RiggedTemplateFactory(_PosedTemplateSource):
     @property
     def version(self) -> str:
         s = self.settings
+        bend = f"-{s.bend.describe()}" if s.bend.probability > 0 else ""
         return (
             f"{TEMPLATE_VERSION}-{RIGGED_VERSION}-{self.animal}-{self.target_vertices}-"
-            f"{s.perturb_degrees}-{s.body_range[0]}-{s.body_range[1]}"
+            f"{s.perturb_degrees}-{s.body_range[0]}-{s.body_range[1]}{bend}"
         )
 
     def _family(self) -> str:

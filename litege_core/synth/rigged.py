@@ -15,6 +15,10 @@ A *family* is one model file; a shape is a pure function of ``(family, seed)``:
    ancestors keep the clip's pose: the Quaternius feet hang on IK bones parented to the
    armature root, so any rotation of the leg chain or a spine joint above it would tear the
    hooves off the legs;
+   With ``bend.probability > 0`` (:class:`~litege_core.synth.bend.BendSettings`) the posed
+   surface is then bent along the body's forward axis (a curl, a head turned back, an arch;
+   :mod:`litege_core.synth.bend`): poses real animals take that no clip holds, and that a
+   spine rotation cannot make on these rigs;
 3. the posed body is scaled along its three axes by factors in ``body_range`` (longer/taller/
    wider), Loop-subdivided once (smooths the low-poly facets) and remeshed isotropically to
    ``target_vertices`` (drawn in ``vertex_range``); the few slivers left on thin, nearly
@@ -27,7 +31,7 @@ A *family* is one model file; a shape is a pure function of ``(family, seed)``:
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +39,7 @@ from numpy.typing import NDArray
 
 from litege_core.errors import ComputationError, InputError
 from litege_core.synth import gltf
+from litege_core.synth.bend import Bend, BendSettings, body_axes, random_bend
 from litege_core.synth.meshops import (
     collapse_slivers,
     largest_component,
@@ -87,6 +92,15 @@ class PoseSettings:
     vertex_range: tuple[int, int] = (4000, 5000)
     subdivide: bool = True
     attempts: int = 6
+    bend: BendSettings = field(default_factory=BendSettings)
+
+    def describe(self) -> str:
+        """A compact, stable description (part of a dataset factory's version)."""
+        return (
+            f"pose({self.perturb_degrees:g},{self.body_range[0]:g}-{self.body_range[1]:g},"
+            f"{self.vertex_range[0]}-{self.vertex_range[1]},{int(self.subdivide)},"
+            f"{self.attempts},{self.bend.describe()})"
+        )
 
 
 @dataclass
@@ -110,6 +124,11 @@ class RiggedModel:
     scale: float
     leg_joints: NDArray
     free_joints: NDArray
+
+    @functools.cached_property
+    def body_axes(self) -> NDArray:
+        """``(3, 3)`` rows ``(forward, lateral, up)`` of the rest pose (y up)."""
+        return body_axes(self.rest_vertices())
 
     def rest_vertices(self) -> NDArray:
         """``(V, 3)`` skinned positions in the rest pose of the node tree (scaled)."""
@@ -210,6 +229,7 @@ class PoseDraw:
     time: float
     body_scale: tuple[float, float, float]
     target_vertices: int
+    bend: Bend | None = None
 
 
 def pose_model(
@@ -230,8 +250,9 @@ def pose_model(
     posed = gltf.linear_blend_skinning(
         model.mesh.vertices, model.mesh.joints, model.mesh.weights, matrices
     )
+    posed, bend = random_bend(rng, posed, model.body_axes, settings.bend)
     posed = (posed - posed.mean(axis=0)) * model.scale * body
-    draw = PoseDraw(clip.name, t, (float(body[0]), float(body[1]), float(body[2])), n_target)
+    draw = PoseDraw(clip.name, t, (float(body[0]), float(body[1]), float(body[2])), n_target, bend)
     return posed, draw
 
 

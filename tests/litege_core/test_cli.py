@@ -28,3 +28,12 @@ def test_console_script_is_installed():
     script = Path(sys.executable).with_name("litege")
     result = subprocess.run([str(script), "--version"], capture_output=True, text=True, check=True)
     assert result.stdout.startswith("litege ")
+
+
+def test_data_build_refuses_bends_outside_the_rigged_animals(tmp_path, capsys):
+    code = main(
+        ["data", "build", "--category", "quadruped", "--bend", "0.5", "--out", str(tmp_path)]
+    )
+    assert code == 2
+    assert "rigged animals only" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

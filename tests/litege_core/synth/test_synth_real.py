@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from litege_core.synth import makehuman, meshops, rigged
+from litege_core.synth.bend import BendSettings
 
 TRAIN_DATA = Path(
     os.environ.get("LITEGE_TRAIN_DATA")
@@ -177,3 +178,38 @@ def test_rigged_animals_stand_like_the_quadruped_template():
         extent = vertices.max(axis=0) - vertices.min(axis=0)
         assert extent.argmin() == 0  # narrowest across the body
         assert _head_forward(vertices) > 0.0
+
+
+def test_bent_animals_are_seeded_clean_manifolds_and_default_poses_stay_straight(fox):
+    bent_settings = rigged.PoseSettings(
+        vertex_range=(1200, 1400), bend=BendSettings(probability=1.0)
+    )
+    vertices, faces, draw = rigged.posed_animal(fox, 5, bent_settings)
+    again, _, again_draw = rigged.posed_animal(fox, 5, bent_settings)
+    np.testing.assert_array_equal(vertices, again)
+    assert draw.bend is not None and draw.bend == again_draw.bend
+    assert meshops.manifold_report(vertices, faces).ok
+    straight, _, straight_draw = rigged.posed_animal(fox, 5, FAST_ANIMAL)
+    assert straight_draw.bend is None
+    assert straight.shape != vertices.shape or not np.allclose(straight, vertices)
+    # the bend comes after every other draw: same clip, time and body scale
+    assert (straight_draw.clip, straight_draw.time) == (draw.clip, draw.time)
+    assert straight_draw.body_scale == draw.body_scale
+
+
+def test_the_rigged_factory_version_names_its_pose_settings():
+    from litege_core.datasets.factories import RiggedFactory, factory_for, species_factory
+    from litege_core.errors import InputError
+
+    default = factory_for("rigged", TRAIN_DATA)
+    bent = factory_for(
+        "rigged", TRAIN_DATA, rigged.PoseSettings(bend=BendSettings(probability=0.7))
+    )
+    assert isinstance(bent, RiggedFactory) and default.version == rigged.RIGGED_VERSION
+    assert bent.version.startswith(rigged.RIGGED_VERSION + ":") and "p=0.7" in bent.version
+    bent_species = species_factory("Fox", TRAIN_DATA, bent.settings)
+    assert bent_species.version != species_factory("Fox", TRAIN_DATA).version
+    with pytest.raises(InputError, match="rigged animals only"):
+        factory_for("quadruped", None, bent.settings)
+    with pytest.raises(InputError, match="rigged animals only"):
+        species_factory("makehuman", TRAIN_DATA, bent.settings)
