@@ -12,9 +12,12 @@ its offset from that axis in the curve's moving frame::
                       g a Gaussian bump along s normalised to unit integral, so Θ is the total
                       turn: Θ_l about the up axis, a sideways curl; Θ_u about the lateral
                       axis, an arch or a hunch)
-    frame             R'(s) = R(s) · [ω(s)]×,  ω = (0, κ_u, κ_l) in (s, l, u) axes,  R(s₀) = I
-    centre line       c'(s) = R(s) e_s,  c(s₀) = (s₀, 0, 0)
+    frame             R'(s) = R(s) · [ω(s)]×,  ω = (0, κ_u, κ_l) in (s, l, u) axes,  R(0) = I
+    centre line       c'(s) = R(s) e_s,  c(0) = 0
     bent point        p' = c(s) + R(s) · (0, l, u)
+
+The body's centre (``s = 0``, clamped to the forward extent) keeps its place and direction, so
+a bent body keeps its mean heading: the canonical frame of the straight body still fits it.
 
 Legs, head and tail move with the cross-section they hang from, so feet stay on their legs. A
 point at offset ``d`` on the inner side of a bend is compressed by ``1 − κ d``; each bend is
@@ -69,7 +72,8 @@ class BendSettings:
         low, high = self.width_range
         return (
             f"bend(p={self.probability:g},lat={self.lateral_degrees:g},"
-            f"vert={self.vertical_degrees:g},w={low:g}-{high:g},c={self.max_compression:g})"
+            f"vert={self.vertical_degrees:g},w={low:g}-{high:g},c={self.max_compression:g},"
+            "anchor=centre)"
         )
 
 
@@ -121,7 +125,7 @@ def bump(s: NDArray, start: float, length: float, centre: float, width: float) -
 
 def bend_body(points: NDArray, bend: Bend) -> NDArray:
     """Bend ``(V, 3)`` body coordinates ``(s, l, u)`` (see the module docstring); returns the
-    bent points in the same coordinates (the rear end of the forward extent stays put)."""
+    bent points in the same coordinates (the cross-section at ``s = 0`` stays put)."""
     points = np.asarray(points, dtype=np.float64)
     s0, s1 = float(points[:, 0].min()), float(points[:, 0].max())
     length = max(s1 - s0, 1e-12)
@@ -141,6 +145,9 @@ def bend_body(points: NDArray, bend: Bend) -> NDArray:
         half = frames[i] @ _exp_so3(0.5 * omega[i : i + 1])[0]
         centres[i + 1] = centres[i] + half[:, 0] * step[i]
         frames[i + 1] = frames[i] @ increments[i]
+    anchor = int(np.clip(np.rint(-s0 / length * (CURVE_SAMPLES - 1)), 0, CURVE_SAMPLES - 1))
+    centres = (centres - centres[anchor]) @ frames[anchor] + (s[anchor], 0.0, 0.0)
+    frames = np.einsum("ba,sbc->sac", frames[anchor], frames)  # R_anchorᵀ · R(s)
     position = (points[:, 0] - s0) / length * (CURVE_SAMPLES - 1)
     lower = np.clip(np.floor(position).astype(int), 0, CURVE_SAMPLES - 2)
     weight = (position - lower)[:, None]

@@ -48,6 +48,14 @@ def test_the_centre_line_keeps_its_length_and_turns_by_the_total_angle(lateral, 
     assert turn == pytest.approx(np.hypot(lateral, vertical), abs=2e-3)
 
 
+def test_the_body_centre_keeps_its_place_and_heading():
+    points = rod(801, 2.0) - np.array([1.0, 0.0, 0.0])  # s in [-1, 1], centre sample at 0
+    bent = bend_body(points, Bend(1.3, -0.4, 0.35, 0.2, 0.7, 0.25))
+    np.testing.assert_allclose(bent[400], points[400], atol=1e-9)
+    tangent = bent[401] - bent[399]
+    np.testing.assert_allclose(tangent / np.linalg.norm(tangent), [1.0, 0.0, 0.0], atol=1e-3)
+
+
 def test_a_lateral_bend_stays_in_the_horizontal_plane_and_keeps_offsets():
     rng = np.random.default_rng(1)
     s = rng.uniform(0.0, 2.0, 500)
@@ -126,5 +134,5 @@ def test_bad_settings_are_input_errors(kwargs):
 
 def test_describe_names_every_setting():
     text = BendSettings(probability=0.7).describe()
-    assert text == "bend(p=0.7,lat=140,vert=40,w=0.12-0.45,c=0.6)"
+    assert text == "bend(p=0.7,lat=140,vert=40,w=0.12-0.45,c=0.6,anchor=centre)"
     assert BendSettings().describe() != text
