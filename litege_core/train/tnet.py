@@ -115,6 +115,10 @@ class TNetDataConfig:
     share the template orientation (MakeHuman bodies and procedural bipeds: +y up, facing +z)."""
     n_extra_train: int = 0
     n_extra_val: int = 0
+    extra_bend: float = 0.0
+    """Share of the ``rigged`` extra shapes bent along the body (curled, head turned back,
+    arched: :mod:`litege_core.synth.bend`; the body's centre keeps its heading, so the
+    template's frame stays the true one)."""
     train_data: str = ""
     """Root of the collection assets (``""``: ``$LITEGE_TRAIN_DATA``, else
     ``../shared/train-data``)."""
@@ -134,6 +138,11 @@ class TNetDataConfig:
         _check(
             self.extra_category in ("", *COLLECTION_SOURCES),
             f"data.extra_category must be one of {COLLECTION_SOURCES}",
+        )
+        _check(0.0 <= self.extra_bend <= 1.0, "data.extra_bend must be in [0, 1]")
+        _check(
+            self.extra_bend == 0.0 or self.extra_category == "rigged",
+            'data.extra_bend needs data.extra_category = "rigged"',
         )
 
 
@@ -409,12 +418,25 @@ def _write_cache(path: Path, **arrays: NDArray) -> None:
     os.replace(temporary, path)
 
 
-def _collection_canonical(job: tuple[str, str, str, int, int]) -> tuple[NDArray, NDArray]:
-    """``(source, root, family, seed, index)`` → the canonical mesh of that collection shape."""
+def _pose_settings(bend: float):
+    """The rigged animals' pose ranges with a share ``bend`` bent (``None``: the defaults)."""
+    if not bend:
+        return None
+    from litege_core.synth.bend import BendSettings
+    from litege_core.synth.rigged import PoseSettings
+
+    return PoseSettings(bend=BendSettings(probability=bend))
+
+
+def _collection_canonical(
+    job: tuple[str, str, str, int, int, float],
+) -> tuple[NDArray, NDArray]:
+    """``(source, root, family, seed, index, bend)`` → the canonical mesh of that collection
+    shape."""
     from litege_core.datasets.factories import factory_for
 
-    source, root, family, seed, index = job
-    vertices, faces = factory_for(source, root).generate_mesh(family, seed)
+    source, root, family, seed, index, bend = job
+    vertices, faces = factory_for(source, root, _pose_settings(bend)).generate_mesh(family, seed)
     return _canonical_mesh(vertices, faces, index)
 
 
@@ -425,10 +447,12 @@ def collection_shape_set(
     root: str | Path | None = None,
     cache_dir: str | Path | None = None,
     workers: int = 1,
+    bend: float = 0.0,
 ) -> ShapeSet:
     """Posed meshes ``0..n_shapes−1`` of a collection source (``"makehuman"``, ``"rigged"``) in
-    ``split``, canonical: the shapes ``litege data build --category SOURCE`` starts from (same
-    families and seeds), without remeshing for ground truth beyond what the source does.
+    ``split``, canonical: the shapes ``litege data build --category SOURCE [--bend B]`` starts
+    from (same families and seeds), without remeshing for ground truth beyond what the source
+    does; ``bend``: share of the rigged animals bent along the body.
 
     With ``cache_dir`` the set is kept in ``tnet-shapes-<source>-<split>-<n>-<version>.npz``
     (ragged: concatenated vertices and faces with per-shape counts) and the largest cached set
@@ -438,7 +462,7 @@ def collection_shape_set(
     from litege_core.datasets.spec import preset
 
     root = str(train_data_root(root))
-    factory = factory_for(source, root)
+    factory = factory_for(source, root, _pose_settings(bend))
     names = preset("small", source).families_of(split)
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     prefix, suffix = f"tnet-shapes-{source}-{split}-", f"-{factory.version}.npz"
@@ -452,7 +476,7 @@ def collection_shape_set(
             faces = np.split(data["faces"], f_split)
             meshes = list(zip(vertices, faces, strict=True))[:n_shapes]
     jobs = [
-        (source, root, family, seed, index)
+        (source, root, family, seed, index, bend)
         for index, (family, seed) in enumerate(keys)
         if index >= len(meshes)
     ]
@@ -497,6 +521,7 @@ def training_shape_sets(data: TNetDataConfig) -> tuple[ShapeSet, ShapeSet]:
                 data.train_data or None,
                 data.cache_dir,
                 data.workers,
+                data.extra_bend,
             )
             shapes = concatenate_shape_sets(shapes, extra)
         LOG.info("%d %s shapes in %.1f s", len(shapes), split, time.perf_counter() - mark)

@@ -111,6 +111,8 @@ def test_shipped_config_loads_and_round_trips() -> None:
         {"data": {"n_extra_train": 4}},
         {"data": {"extra_category": "folder", "n_extra_train": 4}},
         {"data": {"extra_category": "makehuman", "n_extra_val": -1}},
+        {"data": {"extra_category": "makehuman", "n_extra_train": 4, "extra_bend": 0.5}},
+        {"data": {"extra_category": "rigged", "n_extra_train": 4, "extra_bend": 1.5}},
         {"report": {"broken_fraction": 1.0}},
         {"output": {"dir": ""}},
         {"data": []},
@@ -186,7 +188,9 @@ class _ToyCollection:
 def toy_collection(monkeypatch):
     import litege_core.datasets.factories as factories
 
-    monkeypatch.setattr(factories, "factory_for", lambda source, root=None: _ToyCollection(root))
+    monkeypatch.setattr(
+        factories, "factory_for", lambda source, root=None, pose=None: _ToyCollection(root)
+    )
 
 
 def test_collection_shapes_are_canonical_and_cached_ragged(toy_collection, tmp_path) -> None:
