@@ -4,7 +4,8 @@ Usage:
     python scripts/swap_tnet.py quadrupeds out/tnet-quadrupeds-gpu/tnet.safetensors \
         --out out/matching-tnet-gpu
 
-The networks, basis, pipeline and search settings are copied unchanged; the T-Net comes from a
+The networks, the frame judge's networks, basis, pipeline and search settings are copied
+unchanged (so judged frames differ only by the T-Net); the T-Net comes from a
 ``litege train tnet`` weights file; the manifest's training summary gains a ``tnet_swap`` entry
 (source file and that T-Net's own training summary) and the bundle gets a new content hash;
 its weights are written in float16, as in the shipped bundles.
@@ -25,12 +26,13 @@ from litege_core.matching.bundle import save_matching_bundle
 from litege_core.train.tnet import load_tnet, read_tnet_metadata
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> dict:
+    """Write the bundle; returns ``{"out", "content_hash"}`` (also printed as JSON)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("model", help="shipped matching model name or bundle directory")
     parser.add_argument("tnet", help="T-Net weights file (litege train tnet)")
     parser.add_argument("--out", required=True, help="directory of the new bundle")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     bundle = MatchingModel.load(args.model).bundle
     tnet = load_tnet(args.tnet)
     training = dict(bundle.manifest.get("training") or {})
@@ -46,6 +48,7 @@ def main() -> None:
         basis=bundle.basis,
         tnet=tnet,
         networks=list(bundle.networks),
+        judge_networks=list(bundle.judge_networks),
         pipeline=bundle.pipeline,
         search=bundle.search,
         version=bundle.manifest.get("version", "0.1.0"),
@@ -53,7 +56,9 @@ def main() -> None:
         metrics=bundle.manifest.get("metrics"),
         weights_dtype=torch.float16,
     )
-    print(json.dumps({"out": str(Path(args.out)), "content_hash": manifest["content_hash"]}))
+    summary = {"out": str(Path(args.out)), "content_hash": manifest["content_hash"]}
+    print(json.dumps(summary))
+    return summary
 
 
 if __name__ == "__main__":

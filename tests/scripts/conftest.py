@@ -40,3 +40,8 @@ def import_graph() -> ModuleType:
 @pytest.fixture(scope="module")
 def compose_matching() -> ModuleType:
     return load_script("compose_matching")
+
+
+@pytest.fixture(scope="module")
+def swap_tnet() -> ModuleType:
+    return load_script("swap_tnet")
