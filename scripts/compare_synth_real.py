@@ -7,11 +7,14 @@ For each group of shapes, on unit-area meshes:
   * the PCA-aligned extents (sorted, divided by the longest) — body proportions;
   * triangle quality: mean minimum angle and mean longest/shortest edge ratio.
 
-Groups: procedural quadrupeds (test seeds, one row per family), procedural bipeds, and, when
-``../shared/eval-data`` exists, TOSCA animals (cat, dog, horse, wolf) and FAUST humans. Real
-shapes are read for evaluation only and never copied.
+Groups: procedural quadrupeds (test seeds, one row per family), procedural bipeds, with
+``--rigged N`` the posed rigged train-data animals (val seeds, the 12 animals cycled) straight and
+with ``--bend`` of them bent (``litege data build --bend``), and, when ``../shared/eval-data``
+exists, TOSCA animals (cat, dog, horse, wolf) and FAUST humans. Real shapes are read for
+evaluation only and never copied.
 
-Usage: python scripts/compare_synth_real.py [--per-group 6] [--sources 12]
+Usage: python scripts/compare_synth_real.py [--per-group 6] [--sources 12] [--rigged 0]
+    [--bend 0.7]
 """
 
 from __future__ import annotations
@@ -67,7 +70,24 @@ def shape_stats(shape: Shape, n_sources: int) -> dict[str, np.ndarray | float]:
     }
 
 
-def groups(per_group: int) -> dict[str, list[Shape]]:
+def rigged_shapes(n: int, bend: float) -> list[Shape]:
+    """``n`` posed rigged animals of the val seeds (the animals cycled), ``bend`` of them bent."""
+    from litege_core.datasets.factories import factory_for
+    from litege_core.datasets.spec import SPLIT_SEED_OFFSETS
+    from litege_core.synth.bend import BendSettings
+    from litege_core.synth.rigged import ANIMALS, PoseSettings
+
+    pose = PoseSettings(bend=BendSettings(probability=bend)) if bend else None
+    factory = factory_for("rigged", None, pose)
+    return [
+        Shape.from_arrays(
+            *factory.generate_mesh(ANIMALS[i % len(ANIMALS)], SPLIT_SEED_OFFSETS["val"] + i)
+        )
+        for i in range(n)
+    ]
+
+
+def groups(per_group: int, rigged: int = 0, bend: float = 0.7) -> dict[str, list[Shape]]:
     result: dict[str, list[Shape]] = {}
     for category in ("quadruped", "biped"):
         names = families(category)
@@ -75,6 +95,9 @@ def groups(per_group: int) -> dict[str, list[Shape]]:
             generate_shape(category, names[i % len(names)], 2_000_000 + i).to_shape()
             for i in range(per_group)
         ]
+    if rigged:
+        result["posed rigged animals"] = rigged_shapes(rigged, 0.0)
+        result[f"posed rigged animals, {bend:.0%} bent"] = rigged_shapes(rigged, bend)
     if EVAL.is_dir():
         tosca = sorted((EVAL / "tosca_5k").glob("*.off"))
         by_class: dict[str, list[Path]] = {}
@@ -91,20 +114,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--per-group", type=int, default=6)
     parser.add_argument("--sources", type=int, default=12)
+    parser.add_argument("--rigged", type=int, default=0, help="posed rigged animals per group")
+    parser.add_argument("--bend", type=float, default=0.7, help="share bent in the bent group")
     args = parser.parse_args()
     print("### Procedural families vs real shapes (unit-area meshes)\n")
     print(
         f"- date {date.today()}; machine {platform.processor() or platform.machine()}; "
         f"command `python scripts/compare_synth_real.py --per-group {args.per_group} "
-        f"--sources {args.sources}`; exact MMP geodesics from {args.sources} FPS sources per "
-        "shape to all vertices, pairs with Euclidean distance > 0.05\n"
+        f"--sources {args.sources} --rigged {args.rigged} --bend {args.bend}`; exact MMP "
+        f"geodesics from {args.sources} FPS sources per shape to all vertices, pairs with "
+        "Euclidean distance > 0.05\n"
     )
     print(
         "| group | shapes | vertices | geo/euc median | p90 | p99 | max | extents (2nd, 3rd) "
         "| mean min angle ° | mean edge ratio |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---|---:|---:|")
-    for name, shapes in groups(args.per_group).items():
+    for name, shapes in groups(args.per_group, args.rigged, args.bend).items():
         stats = [shape_stats(s, args.sources) for s in shapes]
         ratio = np.concatenate([s["ratio"] for s in stats])
         extents = np.mean([s["extents"] for s in stats], axis=0)
