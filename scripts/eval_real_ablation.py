@@ -2,7 +2,7 @@
 
 Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL ...]
     [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
-    [--knn K ...]
+    [--knn K ...] [--per-shape]
 
 ``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` / ``fullhead`` (the distilled
 small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / ``bcc`` /
@@ -18,7 +18,8 @@ Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
 Besides the pooled error per setting it reports the per-shape spread of each model (median,
 p90 and the worst shape of the per-shape mean errors, mesh setting) and the real / synthetic
-ratio against held-out procedural shapes of the same category.
+ratio against held-out procedural shapes of the same category; ``--per-shape`` adds each real
+shape's mesh error under every model (sorted by the first model's).
 """
 
 from __future__ import annotations
@@ -98,6 +99,7 @@ def main() -> None:
     parser.add_argument(
         "--knn", type=int, action="append", default=[], help="extra kNN-Dijkstra rows (k)"
     )
+    parser.add_argument("--per-shape", action="store_true", help="each real shape's mesh error")
     args = parser.parse_args()
     torch.set_num_threads(1)
     real = REAL_SETS[args.set]
@@ -139,6 +141,7 @@ def main() -> None:
         + f" --set {args.set} --sources {args.sources} --settings {args.settings}"
         + (" --no-baselines" if args.no_baselines else "")
         + "".join(f" --knn {k}" for k in args.knn)
+        + (" --per-shape" if args.per_shape else "")
         + "`\n"
     )
     print(comparison_table(pooled))
@@ -155,6 +158,24 @@ def main() -> None:
             f"| {label} | {np.median(values):.2f} | {np.quantile(values, 0.9):.2f} | "
             f"{shapes[worst].name} {values[worst]:.2f} | {real_mean / synth:.2f} |"
         )
+
+    if args.per_shape:
+        print(per_shape_table([shape.name for shape in shapes], spread))
+
+
+def per_shape_table(names: list[str], errors: dict[str, list[float]]) -> str:
+    """Markdown: one row per real shape (sorted by the first model's error, worst first), its
+    mesh error under each model."""
+    labels = list(errors)
+    order = np.argsort(errors[labels[0]])[::-1]
+    lines = [
+        "\n| shape (mesh) | " + " | ".join(labels) + " |",
+        "|---|" + "---:|" * len(labels),
+    ]
+    for index in order:
+        cells = " | ".join(f"{errors[label][index]:.2f}" for label in labels)
+        lines.append(f"| {names[index]} | {cells} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -24,3 +24,16 @@ def test_load_predictor_reads_the_other_options_beside_tta(eval_real_ablation):
     assert predictor.head == "full" and predictor.descriptor_lattice == "full"
     with pytest.raises(SystemExit, match="unknown model options"):
         eval_real_ablation.load_predictor("quadrupeds@tta")
+
+
+def test_per_shape_table_sorts_by_the_first_model(eval_real_ablation):
+    table = eval_real_ablation.per_shape_table(
+        ["cat0", "cat1", "dog0"], {"old": [3.0, 9.5, 5.25], "new": [2.0, 4.0, 6.0]}
+    )
+    lines = table.strip().splitlines()
+    assert lines[0] == "| shape (mesh) | old | new |"
+    assert lines[2:] == [
+        "| cat1 | 9.50 | 4.00 |",
+        "| dog0 | 5.25 | 6.00 |",
+        "| cat0 | 3.00 | 2.00 |",
+    ]
