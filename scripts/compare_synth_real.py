@@ -74,11 +74,9 @@ def rigged_shapes(n: int, bend: float) -> list[Shape]:
     """``n`` posed rigged animals of the val seeds (the animals cycled), ``bend`` of them bent."""
     from litege_core.datasets.factories import factory_for
     from litege_core.datasets.spec import SPLIT_SEED_OFFSETS
-    from litege_core.synth.bend import BendSettings
-    from litege_core.synth.rigged import ANIMALS, PoseSettings
+    from litege_core.synth.rigged import ANIMALS, bent_pose_settings
 
-    pose = PoseSettings(bend=BendSettings(probability=bend)) if bend else None
-    factory = factory_for("rigged", None, pose)
+    factory = factory_for("rigged", None, bent_pose_settings(bend))
     return [
         Shape.from_arrays(
             *factory.generate_mesh(ANIMALS[i % len(ANIMALS)], SPLIT_SEED_OFFSETS["val"] + i)

@@ -23,6 +23,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     from litege_core.datasets.build import merge_dataset, missing_shards
     from litege_core.datasets.factories import factory_for
     from litege_core.datasets.spec import WorkShare, parse_split_counts
+    from litege_core.synth.rigged import bent_pose_settings
 
     if args.category in ("rigged", "makehuman") and args.preset == "matching":
         return _build_species_sets(args)
@@ -40,7 +41,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     manifest = build_dataset(
         spec,
         directory,
-        factory_for(args.category, args.train_data, _pose_settings(args)),
+        factory_for(args.category, args.train_data, bent_pose_settings(args.bend)),
         workers=args.workers,
         solver=args.solver,
         part=share,
@@ -62,16 +63,6 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pose_settings(args: argparse.Namespace):
-    """The rigged animals' pose ranges of ``--bend`` (``None``: the defaults)."""
-    if not args.bend:
-        return None
-    from litege_core.synth.bend import BendSettings
-    from litege_core.synth.rigged import PoseSettings
-
-    return PoseSettings(bend=BendSettings(probability=args.bend))
-
-
 def _build_species_sets(args: argparse.Namespace) -> int:
     """``--category rigged|makehuman --preset matching``: one template-kind matching dataset
     per source model (each rigged species, or the MakeHuman body) under ``OUT/NAME``; pairs
@@ -87,7 +78,7 @@ def _build_species_sets(args: argparse.Namespace) -> int:
     )
     from litege_core.errors import InputError
     from litege_core.synth.posed_templates import MAKEHUMAN
-    from litege_core.synth.rigged import ANIMALS
+    from litege_core.synth.rigged import ANIMALS, bent_pose_settings
 
     if args.shard is not None:
         raise InputError("--shard is not supported with --preset matching of a collection")
@@ -98,7 +89,7 @@ def _build_species_sets(args: argparse.Namespace) -> int:
     directory = Path(args.out or f"data/{name}")
     summary: dict = {"directory": str(directory), "species": {}}
     for species in ANIMALS if args.category == "rigged" else (MAKEHUMAN,):
-        factory = species_factory(species, args.train_data, _pose_settings(args))
+        factory = species_factory(species, args.train_data, bent_pose_settings(args.bend))
         spec = species_matching_spec(
             species, factory.category, counts, name=name, first_index=args.first_index
         )

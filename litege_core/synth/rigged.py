@@ -103,6 +103,14 @@ class PoseSettings:
         )
 
 
+def bent_pose_settings(share: float) -> PoseSettings | None:
+    """The default pose ranges with a ``share`` of the animals bent along the body
+    (``litege data build --bend``); ``None`` (the defaults) when ``share`` is 0."""
+    if not share:
+        return None
+    return PoseSettings(bend=BendSettings(probability=share))
+
+
 @dataclass
 class RiggedModel:
     """A loaded rigged model, welded and reduced to its body.
@@ -311,6 +319,7 @@ __all__ = [
     "PoseSettings",
     "RiggedModel",
     "animal_path",
+    "bent_pose_settings",
     "cached_model",
     "finish_mesh",
     "load_rigged",

@@ -418,25 +418,17 @@ def _write_cache(path: Path, **arrays: NDArray) -> None:
     os.replace(temporary, path)
 
 
-def _pose_settings(bend: float):
-    """The rigged animals' pose ranges with a share ``bend`` bent (``None``: the defaults)."""
-    if not bend:
-        return None
-    from litege_core.synth.bend import BendSettings
-    from litege_core.synth.rigged import PoseSettings
-
-    return PoseSettings(bend=BendSettings(probability=bend))
-
-
 def _collection_canonical(
     job: tuple[str, str, str, int, int, float],
 ) -> tuple[NDArray, NDArray]:
     """``(source, root, family, seed, index, bend)`` → the canonical mesh of that collection
     shape."""
     from litege_core.datasets.factories import factory_for
+    from litege_core.synth.rigged import bent_pose_settings
 
     source, root, family, seed, index, bend = job
-    vertices, faces = factory_for(source, root, _pose_settings(bend)).generate_mesh(family, seed)
+    pose = bent_pose_settings(bend)
+    vertices, faces = factory_for(source, root, pose).generate_mesh(family, seed)
     return _canonical_mesh(vertices, faces, index)
 
 
@@ -460,9 +452,10 @@ def collection_shape_set(
     """
     from litege_core.datasets.factories import factory_for, train_data_root
     from litege_core.datasets.spec import preset
+    from litege_core.synth.rigged import bent_pose_settings
 
     root = str(train_data_root(root))
-    factory = factory_for(source, root, _pose_settings(bend))
+    factory = factory_for(source, root, bent_pose_settings(bend))
     names = preset("small", source).families_of(split)
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     prefix, suffix = f"tnet-shapes-{source}-{split}-", f"-{factory.version}.npz"
