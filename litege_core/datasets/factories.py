@@ -182,7 +182,7 @@ def species_factory(
         MakeHumanTemplateFactory,
         RiggedTemplateFactory,
     )
-    from litege_core.synth.rigged import animal_path
+    from litege_core.synth.rigged import PoseSettings, animal_path
 
     base = train_data_root(root)
     path = base / "makehuman" if name == MAKEHUMAN else animal_path(base, name)
@@ -194,9 +194,7 @@ def species_factory(
         if pose is not None:
             raise InputError("pose settings apply to the rigged animals only, not to MakeHuman")
         return MakeHumanTemplateFactory(str(base))
-    if pose is None:
-        return RiggedTemplateFactory(str(base), name)
-    return RiggedTemplateFactory(str(base), name, settings=pose)
+    return RiggedTemplateFactory(str(base), name, settings=pose or PoseSettings())
 
 
 __all__ = [

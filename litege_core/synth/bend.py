@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError
+from litege_core.synth.skinning import axis_angle_to_matrix
 
 CURVE_SAMPLES = 513
 """Samples of the centre line along the forward extent (the frame is integrated on them)."""
@@ -89,30 +90,6 @@ class Bend:
     vertical_width: float
 
 
-def _skew(w: NDArray) -> NDArray:
-    """``(S, 3, 3)`` cross-product matrices of ``(S, 3)`` vectors."""
-    zero = np.zeros(len(w))
-    return np.stack(
-        [
-            np.stack([zero, -w[:, 2], w[:, 1]], axis=1),
-            np.stack([w[:, 2], zero, -w[:, 0]], axis=1),
-            np.stack([-w[:, 1], w[:, 0], zero], axis=1),
-        ],
-        axis=1,
-    )
-
-
-def _exp_so3(w: NDArray) -> NDArray:
-    """``(S, 3, 3)`` rotations ``exp([w]×)`` of ``(S, 3)`` rotation vectors (Rodrigues)."""
-    theta = np.linalg.norm(w, axis=1)[:, None, None]
-    k = _skew(w)
-    small = theta < 1e-12
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
-    return np.eye(3)[None] + a * k + b * (k @ k)
-
-
 def bump(s: NDArray, start: float, length: float, centre: float, width: float) -> NDArray:
     """A Gaussian along ``s`` (centre and width as fractions of ``length``), normalised so
     that its integral over ``[start, start + length]`` is 1 (units: 1 / length)."""
@@ -136,14 +113,14 @@ def bend_body(points: NDArray, bend: Bend) -> NDArray:
     mid_kappa_l = 0.5 * (kappa_l[1:] + kappa_l[:-1])
     mid_kappa_u = 0.5 * (kappa_u[1:] + kappa_u[:-1])
     omega = np.stack([np.zeros_like(step), mid_kappa_u, mid_kappa_l], axis=1) * step[:, None]
-    increments = _exp_so3(omega)
+    increments = axis_angle_to_matrix(omega)
+    halves = axis_angle_to_matrix(0.5 * omega)  # the step's tangent at its midpoint
     frames = np.empty((CURVE_SAMPLES, 3, 3))
     frames[0] = np.eye(3)
     centres = np.empty((CURVE_SAMPLES, 3))
     centres[0] = (s0, 0.0, 0.0)
     for i in range(CURVE_SAMPLES - 1):  # 512 small steps per shape: cheap beside remeshing
-        half = frames[i] @ _exp_so3(0.5 * omega[i : i + 1])[0]
-        centres[i + 1] = centres[i] + half[:, 0] * step[i]
+        centres[i + 1] = centres[i] + (frames[i] @ halves[i])[:, 0] * step[i]
         frames[i + 1] = frames[i] @ increments[i]
     anchor = int(np.clip(np.rint(-s0 / length * (CURVE_SAMPLES - 1)), 0, CURVE_SAMPLES - 1))
     centres = (centres - centres[anchor]) @ frames[anchor] + (s[anchor], 0.0, 0.0)
