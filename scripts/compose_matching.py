@@ -6,14 +6,18 @@ Usage:
         --out out/matching-ensemble              # ensemble, the first bundle's judge
     python scripts/compose_matching.py out/train/matching-quadrupeds-species/bundle \
         --judge own --out out/matching-self-judged  # the network judges its own frames
+    python scripts/compose_matching.py quadrupeds --orientation \
+        out/orientation-quadrupeds/orientation.safetensors --out out/matching-q-orient
 
 The bundles must share their frame and descriptor (a continuation shares its start's: same
 T-Net, basis and pipeline; refused otherwise). The new bundle takes those and the networks of
 every bundle in order (the search averages their outputs, ``ensemble_score_fn``). Its frame
 judge is the first bundle's (``--judge first``, the default: frames stay the first bundle's)
-or the new bundle's own networks (``--judge own``). The manifest's training summary names the
-members and the judge; ``metrics`` are the first bundle's: re-measure before shipping
-(``litege eval matching``, ``scripts/frame_report.py``).
+or the new bundle's own networks (``--judge own``). Its orientation network (which weighs the
+candidate frames instead of the judge where present) is the first bundle's, or the one of
+``--orientation FILE`` (``litege train orientation``; ``none`` drops it). The manifest's
+training summary names the members and the judge; ``metrics`` are the first bundle's: re-measure
+before shipping (``litege eval matching``, ``scripts/frame_report.py``).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from litege_core.errors import InputError
 from litege_core.matching import MatchingModel
 from litege_core.matching.bundle import save_matching_bundle
 from litege_core.nets import state_to_tensors
+from litege_core.train.orientation import load_orientation
 
 
 def _same_weights(a: torch.nn.Module, b: torch.nn.Module) -> bool:
@@ -45,9 +50,19 @@ def main(argv: list[str] | None = None) -> dict:
         default="first",
         help="frame judge: the first bundle's (default) or the new bundle's networks",
     )
+    parser.add_argument(
+        "--orientation",
+        default=None,
+        metavar="FILE",
+        help="orientation network weights (litege train orientation), or 'none' to drop it "
+        "(default: the first bundle's)",
+    )
     args = parser.parse_args(argv)
-    if len(args.models) < 2 and args.judge == "first":
-        raise InputError("one bundle with its own judge is itself: give two bundles or --judge own")
+    if len(args.models) < 2 and args.judge == "first" and args.orientation is None:
+        raise InputError(
+            "one bundle with its own judge is itself: give two bundles, --judge own "
+            "or --orientation"
+        )
     bundles = [MatchingModel.load(m).bundle for m in args.models]
     first = bundles[0]
     for model, bundle in zip(args.models[1:], bundles[1:], strict=True):
@@ -60,6 +75,10 @@ def main(argv: list[str] | None = None) -> dict:
         {"model": str(m), "content_hash": b.content_hash}
         for m, b in zip(args.models, bundles, strict=True)
     ]
+    orientation = first.orientation
+    if args.orientation is not None:
+        orientation = None if args.orientation == "none" else load_orientation(args.orientation)
+        training["orientation"] = str(args.orientation)
     training["judge"] = (
         f"{args.models[0]}'s frame judge" if args.judge == "first" else "its matching networks"
     )
@@ -77,6 +96,7 @@ def main(argv: list[str] | None = None) -> dict:
         metrics=first.manifest.get("metrics"),
         weights_dtype=torch.float16,
         judge_networks=list(first.frame_judge_networks) if args.judge == "first" else [],
+        orientation=orientation,
     )
     summary = {"out": str(Path(args.out)), "content_hash": manifest["content_hash"]}
     print(json.dumps(summary))

@@ -4,8 +4,8 @@ Usage:
     python scripts/swap_tnet.py quadrupeds out/tnet-quadrupeds-gpu/tnet.safetensors \
         --out out/matching-tnet-gpu
 
-The networks, the frame judge's networks, basis, pipeline and search settings are copied
-unchanged (so judged frames differ only by the T-Net); the T-Net comes from a
+The networks, the frame judge's networks, the orientation network, basis, pipeline and search
+settings are copied unchanged (so judged frames differ only by the T-Net); the T-Net comes from a
 ``litege train tnet`` weights file; the manifest's training summary gains a ``tnet_swap`` entry
 (source file and that T-Net's own training summary) and the bundle gets a new content hash;
 its weights are written in float16, as in the shipped bundles.
@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
         tnet=tnet,
         networks=list(bundle.networks),
         judge_networks=list(bundle.judge_networks),
+        orientation=bundle.orientation,
         pipeline=bundle.pipeline,
         search=bundle.search,
         version=bundle.manifest.get("version", "0.1.0"),

@@ -1,6 +1,6 @@
-"""``litege train geodesic|tnet|matching --config FILE``: train a network from a TOML config
-and export it (a bundle, or the T-Net weights); a JSON summary goes to stdout, progress to
-stderr.
+"""``litege train geodesic|tnet|orientation|matching --config FILE``: train a network from a
+TOML config and export it (a bundle, or the T-Net or orientation weights); a JSON summary goes to
+stdout, progress to stderr.
 
 ``litege train geodesic --meshes DIR --out BUNDLE [--init MODEL] [--time-budget MINUTES]
 [--workers N]`` trains on a folder of meshes in one command (ground truth, training,
@@ -95,6 +95,17 @@ def cmd_train_geodesic(args: argparse.Namespace) -> int:
             "steps": manifest["training"]["steps"],
         }
     )
+    return 0
+
+
+def cmd_train_orientation(args: argparse.Namespace) -> int:
+    from litege_core.train.orientation import OrientationTrainConfig, run_orientation_training
+
+    _ensure_console_logging()
+    config = OrientationTrainConfig.load(args.config)
+    if args.time_budget is not None:
+        config = config.replace(train={"time_budget_minutes": args.time_budget})
+    print_json(run_orientation_training(config, out=args.out))
     return 0
 
 
@@ -285,6 +296,23 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
         "directory; overrides train.init)",
     )
     tnet.set_defaults(handler=cmd_train_tnet)
+    orientation = commands.add_parser(
+        "orientation",
+        help="train the orientation network (which cube turn of a frame is canonical) that "
+        "weighs a matching bundle's candidate frames",
+    )
+    orientation.add_argument(
+        "--config", required=True, help="TOML config (configs/orientation-*.toml)"
+    )
+    orientation.add_argument("--out", default=None, help="run directory (overrides output.dir)")
+    orientation.add_argument(
+        "--time-budget",
+        type=float,
+        default=None,
+        metavar="MINUTES",
+        help="stop after this many minutes of training (train.time_budget_minutes)",
+    )
+    orientation.set_defaults(handler=cmd_train_orientation)
     matching = commands.add_parser(
         "matching",
         help="train the matching network (needs a T-Net) and export a matching bundle",
@@ -340,6 +368,7 @@ __all__ = [
     "cmd_train_geodesic_meshes",
     "cmd_train_matching",
     "cmd_train_matching_meshes",
+    "cmd_train_orientation",
     "cmd_train_tnet",
     "register",
 ]

@@ -10,6 +10,8 @@
     BUNDLE/matching-K.safetensors   matching network K (several = an ensemble, outputs averaged)
     BUNDLE/judge-K.safetensors      optional: the frame judge's network K (without them the
                                     judge scores frames with the matching networks)
+    BUNDLE/orientation.safetensors  optional: an OrientationNet; where present it, not the
+                                    judge, weighs the candidate frames of ``judged`` frames
 
 Loading verifies every file hash and that the networks fit the basis, as for geodesic bundles:
 both formats are a :class:`~litege_core.learned.bundle.Bundle`, written and opened by the same
@@ -44,9 +46,11 @@ from litege_core.learned.bundle import (
 from litege_core.matching.cache import DEFAULT_NEIGHBOURS, DEFAULT_TIER_SIZES
 from litege_core.matching.frame import MatchingPipeline
 from litege_core.nets import GeodesicNet, TNet
+from litege_core.nets.orientation import OrientationNet
 
 KIND = "matching"
 TNET_FILE = "tnet.safetensors"
+ORIENTATION_FILE = "orientation.safetensors"
 SUFFIX = "-matching"
 
 
@@ -90,10 +94,12 @@ class MatchingBundle(Bundle):
     manifest: dict[str, Any] = field(repr=False)
     path: Path | None = None
     judge_networks: tuple[GeodesicNet, ...] = ()
+    orientation: OrientationNet | None = None
 
     @property
     def modules(self) -> tuple[torch.nn.Module, ...]:
-        return (*self.networks, self.tnet, *self.judge_networks)
+        extra = (self.orientation,) if self.orientation is not None else ()
+        return (*self.networks, self.tnet, *self.judge_networks, *extra)
 
     @property
     def frame_judge_networks(self) -> tuple[GeodesicNet, ...]:
@@ -117,10 +123,12 @@ def save_matching_bundle(
     metrics: dict[str, Any] | None = None,
     weights_dtype: torch.dtype = torch.float32,
     judge_networks: list[GeodesicNet] | tuple[GeodesicNet, ...] = (),
+    orientation: OrientationNet | None = None,
 ) -> dict[str, Any]:
     """Write a matching bundle; returns its manifest. ``judge_networks`` (optional) are
     the frame judge's own networks, e.g. the network a continued bundle started from, whose
-    frame choices were validated."""
+    frame choices were validated; ``orientation`` (optional) the network that weighs candidate
+    frames instead of the judge (:mod:`litege_core.nets.orientation`)."""
     pipeline = pipeline or MatchingPipeline()
     search = search or SearchSettings()
     check_descriptor_width((*networks, *judge_networks), basis)
@@ -139,6 +147,9 @@ def save_matching_bundle(
     if judge_networks:
         core["judge_networks"] = [net.config() for net in judge_networks]
         weights.update({judge_file(k): net for k, net in enumerate(judge_networks)})
+    if orientation is not None:
+        core["orientation"] = orientation.config()
+        weights[ORIENTATION_FILE] = orientation
     return write_bundle(
         directory,
         core,
@@ -163,6 +174,11 @@ def load_matching_bundle(
         tnet = TNet.from_config(manifest["tnet"])
         networks = tuple(GeodesicNet.from_config(c) for c in manifest["networks"])
         judges = tuple(GeodesicNet.from_config(c) for c in manifest.get("judge_networks", []))
+        orientation = (
+            OrientationNet.from_config(manifest["orientation"])
+            if "orientation" in manifest
+            else None
+        )
         pipeline = MatchingPipeline.from_dict(manifest["pipeline"])
         search = SearchSettings.from_dict(manifest["search"])
     check_descriptor_width((*networks, *judges), basis, ArtifactError)
@@ -171,8 +187,19 @@ def load_matching_bundle(
         load_weights(net, directory / network_file(k), device)
     for k, net in enumerate(judges):
         load_weights(net, directory / judge_file(k), device)
+    if orientation is not None:
+        load_weights(orientation, directory / ORIENTATION_FILE, device)
     return MatchingBundle(
-        manifest["name"], basis, tnet, networks, pipeline, search, manifest, directory, judges
+        manifest["name"],
+        basis,
+        tnet,
+        networks,
+        pipeline,
+        search,
+        manifest,
+        directory,
+        judges,
+        orientation,
     )
 
 

@@ -77,6 +77,7 @@ from litege_core.matching.search import (
 )
 from litege_core.nets import FoldedGeodesicNet
 from litege_core.nets.folded import resolve_precision
+from litege_core.nets.orientation import OrientationNet
 from litege_core.projection import CloudProjector, MeshProjector, Projector, snap
 from litege_core.query import QueryLike, check_points, parse_indices, parse_query
 from litege_core.shape import Shape
@@ -393,7 +394,7 @@ class MatchingModel:
         """
         if frames not in FRAME_MODES:
             raise InputError(f"frames must be one of {list(FRAME_MODES)}, got {frames!r}")
-        has_judge = self.frame_judge is not None
+        has_judge = self.bundle.orientation is not None or self.frame_judge is not None
         if frames == "auto":
             return "judged" if has_judge and self.category in JUDGED_BY_DEFAULT else "tnet"
         if frames == "judged" and not has_judge:
@@ -501,10 +502,9 @@ class MatchingModel:
         seed: int,
     ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
         """The T-Net frame of each shape whose turned T-Net runs agree; for the others, the
-        T-Net frame or one of the 24 principal-axis frames, whichever the judge scores best
-        (one judge call for all of them)."""
-        judge = self.frame_judge
-        assert judge is not None
+        T-Net frame or one of the 24 principal-axis frames, whichever scores best: by the
+        bundle's :class:`~litege_core.nets.orientation.OrientationNet` where it has one (the
+        lowest ``−log p(canonical)``), else by the frame judge (one call for all shapes)."""
         inputs = [  # the T-Net's inputs: the unrotated clouds' subsets of align_shapes
             subsample(cloud @ transform.rotation, self.pipeline.n_tnet_points, seed)
             for transform, cloud, _ in frames
@@ -516,23 +516,51 @@ class MatchingModel:
         out, names = list(frames), ["tnet"] * len(frames)
         if not split:
             return out, names
-        turns, clouds, points = [], [], []
+        turns = []
         for i in split:
-            transform, cloud, _ = frames[i]
-            tnet_rotation = transform.rotation.T  # R_pred: cloud = unrotated @ R_pred
+            tnet_rotation = frames[i][0].rotation.T  # R_pred: cloud = unrotated @ R_pred
             candidates = np.concatenate([tnet_rotation[None], pca_candidates(inputs[i])])
-            shape_turns = np.transpose(candidates, (0, 2, 1)) @ tnet_rotation  # R_cᵀ R_pred
-            base = judge.target_points(transform.apply(shapes[i].vertices))
-            turns.append(shape_turns)
-            clouds += [cloud @ turn.T for turn in shape_turns]
-            points += [base @ turn.T for turn in shape_turns]
-        scores = judge.scores(clouds, points).reshape(len(split), -1)
+            turns.append(np.transpose(candidates, (0, 2, 1)) @ tnet_rotation)  # R_cᵀ R_pred
+        orientation = self.bundle.orientation
+        if orientation is not None:
+            scores = np.stack(
+                [
+                    self._orientation_scores(orientation, frames[i][1], shape_turns, seed)
+                    for i, shape_turns in zip(split, turns, strict=True)
+                ]
+            )
+        else:
+            scores = self._judge_scores([(shapes[i], frames[i]) for i in split], turns)
         for i, shape_turns, row in zip(split, turns, scores, strict=True):
             best = choose(row, margin)
             transform, cloud, chosen = frames[i]
             out[i] = (turned(transform, shape_turns[best]), cloud @ shape_turns[best].T, chosen)
             names[i] = "tnet" if best == 0 else f"pca{best - 1}"
         return out, names
+
+    def _orientation_scores(
+        self, orientation: OrientationNet, cloud: NDArray, shape_turns: NDArray, seed: int
+    ) -> NDArray:
+        """``−log p(canonical)`` ``(C,)`` of a T-Net-aligned cloud ``(P, 3)`` under each of
+        ``C`` turns ``(C, 3, 3)``."""
+        points = subsample(cloud, self.pipeline.n_tnet_points, seed)
+        batch = torch.from_numpy(np.stack([points @ turn.T for turn in shape_turns]))
+        log_p = orientation.canonical_log_probability(batch.to(self.device, torch.float32))
+        return -log_p.double().cpu().numpy()
+
+    def _judge_scores(
+        self, members: list[tuple[Shape, tuple[Transform, NDArray, str]]], turns: list[NDArray]
+    ) -> NDArray:
+        """Frame-judge scores ``(S, C)`` of ``S`` shapes (with their T-Net frames) under
+        their ``C`` turns each (one judge call)."""
+        judge = self.frame_judge
+        assert judge is not None
+        clouds, points = [], []
+        for (shape, (transform, cloud, _)), shape_turns in zip(members, turns, strict=True):
+            base = judge.target_points(transform.apply(shape.vertices))
+            clouds += [cloud @ turn.T for turn in shape_turns]
+            points += [base @ turn.T for turn in shape_turns]
+        return judge.scores(clouds, points).reshape(len(members), -1)
 
     # ------------------------------------------------------------------ features
 

@@ -576,6 +576,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         weights_dtype=dtype,
         # a continued bundle keeps the frame judge its frames were validated with
         judge_networks=() if init is None else [n.cpu() for n in init.frame_judge_networks],
+        orientation=None if init is None or init.orientation is None else init.orientation.cpu(),
     )
 
 

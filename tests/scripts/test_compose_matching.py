@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from litege_core.errors import InputError
 from litege_core.matching import MatchingModel
@@ -43,3 +44,35 @@ def test_own_judge_drops_the_judge_networks(compose_matching, tmp_path):
     own = MatchingModel.load(summary["out"]).bundle
     assert own.judge_networks == () and own.frame_judge_networks == own.networks
     assert own.manifest["training"]["judge"] == "its matching networks"
+
+
+def test_an_orientation_network_is_added_kept_and_dropped(compose_matching, tmp_path):
+    from litege_core.nets import state_to_tensors
+    from litege_core.nets.orientation import OrientationNet
+    from litege_core.train.orientation import save_orientation
+
+    torch.manual_seed(0)
+    net = OrientationNet(grid=8, conv_widths=(4, 8), fc_width=16)
+    save_orientation(net, tmp_path / "o.safetensors")
+    added = compose_matching.main(
+        [
+            "quadrupeds",
+            "--orientation",
+            str(tmp_path / "o.safetensors"),
+            "--out",
+            str(tmp_path / "a"),
+        ]
+    )
+    bundle = MatchingModel.load(added["out"]).bundle
+    assert bundle.orientation is not None and bundle.orientation.config() == net.config()
+    for key, value in state_to_tensors(net).items():  # stored in float16
+        torch.testing.assert_close(
+            state_to_tensors(bundle.orientation)[key], value, atol=2e-3, rtol=0
+        )
+    assert bundle.judge_networks  # the judge stays, for bundles read without the network
+    kept = compose_matching.main([added["out"], added["out"], "--out", str(tmp_path / "k")])
+    assert MatchingModel.load(kept["out"]).bundle.orientation is not None
+    dropped = compose_matching.main(
+        [added["out"], "--orientation", "none", "--out", str(tmp_path / "d")]
+    )
+    assert MatchingModel.load(dropped["out"]).bundle.orientation is None

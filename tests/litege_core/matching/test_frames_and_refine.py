@@ -30,6 +30,7 @@ from litege_core.matching.frame import (
 from litege_core.matching.judge import FrameJudge, choose, reference_animals
 from litege_core.matching.refine import Spectrum, ZoomOutSettings, spectrum, zoomout_refine
 from litege_core.nets import TNet
+from litege_core.nets.orientation import OrientationNet
 from litege_core.nets.tnet import pca_frames
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
@@ -228,6 +229,48 @@ def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(sh
     model.frame_judge = agreeing
     assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
     assert agreeing.calls == []  # runs that agree skip the judge
+
+
+class _StubOrientation(OrientationNet):
+    """Says candidate ``best`` of every shape is the canonical one (records its batches)."""
+
+    def __init__(self, best: int) -> None:
+        super().__init__(grid=8, conv_widths=(2,), fc_width=2)
+        self.best = best
+        self.batches: list[tuple[int, ...]] = []
+
+    def canonical_log_probability(self, points):
+        self.batches.append(tuple(points.shape))
+        out = torch.full((points.shape[0],), -3.0)
+        out[self.best] = -0.1
+        return out
+
+
+def test_an_orientation_network_weighs_the_candidates_instead_of_the_judge(shapes, monkeypatch):
+    tiny = MatchingModel.tiny_random(0)
+    stub = _StubOrientation(best=5)
+    model = MatchingModel(dataclasses.replace(tiny.bundle, orientation=stub))
+    assert model.resolve_frames("judged") == "judged"  # no reference animals needed
+    real_runs = tnet_turn_runs
+
+    def runs_split_on_the_first_shape(tnet, clouds):
+        runs = real_runs(tnet, clouds)
+        runs[:, 1:] = runs[:, :1]
+        runs[0, 3] = runs[0, 0] @ _rotation_about(2, 2.0)
+        return runs
+
+    monkeypatch.setattr(model_module, "tnet_turn_runs", runs_split_on_the_first_shape)
+    plain = model.prepare_many(list(shapes), frames="tnet")
+    judged = model.prepare_many(list(shapes), frames="judged")
+    assert [p.frame for p in judged] == ["pca4", "tnet"] and model._judge is None
+    n_points = min(model.pipeline.n_tnet_points, plain[0]._lazy["cloud"].shape[0])
+    assert stub.batches == [(25, n_points, 3)]  # the split shape's 25 candidates, one call
+    unrotated = plain[0]._lazy["cloud"] @ plain[0].transform.rotation
+    seen = subsample(np.asarray(unrotated, np.float64), model.pipeline.n_tnet_points, 0)
+    np.testing.assert_allclose(judged[0].transform.rotation, pca_candidates(seen)[4].T, atol=1e-4)
+    np.testing.assert_allclose(judged[1].aligned, plain[1].aligned)
+    stub.best = 0  # the T-Net frame is the most canonical: kept
+    assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
 
 
 def test_old_cache_entries_without_a_frame_read_as_tnet(model, shapes):
