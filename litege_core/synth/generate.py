@@ -106,6 +106,19 @@ def apply_pose(
     return blend(vertices, tmpl.weights, world, joints, posed_joints), posed_joints
 
 
+def _draw_mode(category: str, rng: np.random.Generator) -> str:
+    modes = MODES[category]
+    return modes[int(rng.choice(len(modes), p=MODE_WEIGHTS[category]))]
+
+
+def drawn_pose_mode(category: str, family: str, seed: int) -> str:
+    """The pose mode :func:`generate_shape` draws for ``(category, family, seed)`` (without
+    generating the shape: microseconds)."""
+    rng = _rng(category, family, seed)
+    sample_factors(category, family, rng)
+    return _draw_mode(category, rng)
+
+
 def generate_shape(
     category: str,
     family: str,
@@ -141,7 +154,7 @@ def generate_shape(
     if mean_shape:
         factors = mean_factors(category, family)
     modes = MODES[category]
-    drawn_mode = modes[int(rng.choice(len(modes), p=MODE_WEIGHTS[category]))]
+    drawn_mode = _draw_mode(category, rng)
     mode = drawn_mode if pose is None else pose
     if mode not in modes:
         raise InputError(f"unknown {category} pose mode {mode!r}; expected one of {modes}")
@@ -192,6 +205,7 @@ __all__ = [
     "MODE_WEIGHTS",
     "GeneratedShape",
     "apply_pose",
+    "drawn_pose_mode",
     "families",
     "generate_shape",
     "pose_modes",

@@ -79,6 +79,9 @@ class OrientationOptimConfig:
         pca_probability: share of items shown in their principal-axis frame.
         val_items: fixed validation items (the val shapes cycled); val_every: steps between
             validations (the best weights by failure rate, then loss, are kept).
+        skip_lying: leave out the procedural shapes drawn lying on their side: their true
+            frame is the ground's (the body rolled ~83°), while real shapes are framed
+            body-upright, so they would teach that a body on its side can be canonical.
     """
 
     batch_size: int = 64
@@ -93,6 +96,7 @@ class OrientationOptimConfig:
     seed: int = 0
     threads: int = 1
     time_budget_minutes: float = 0.0
+    skip_lying: bool = True
 
     def __post_init__(self) -> None:
         _check(self.batch_size >= 1 and self.steps >= 1, "batch_size and steps ≥ 1")
@@ -125,6 +129,24 @@ class OrientationTrainConfig(ConfigRoot):
     network: OrientationNetworkConfig = field(default_factory=OrientationNetworkConfig)
     train: OrientationOptimConfig = field(default_factory=OrientationOptimConfig)
     output: OrientationOutputConfig = field(default_factory=OrientationOutputConfig)
+
+
+def without_lying(shapes: ShapeSet, category: str) -> ShapeSet:
+    """``shapes`` less the procedural ``category`` shapes whose drawn pose is ``lying``."""
+    from litege_core.synth import families
+    from litege_core.synth.generate import drawn_pose_mode
+
+    procedural = set(families(category))
+    keep = [
+        i
+        for i, (family, seed) in enumerate(shapes.keys)
+        if family not in procedural or drawn_pose_mode(category, family, seed) != "lying"
+    ]
+    return ShapeSet(
+        [shapes.vertices[i] for i in keep],
+        [shapes.faces[i] for i in keep],
+        [shapes.keys[i] for i in keep],
+    )
 
 
 def nearest_turns(bases: NDArray) -> NDArray:
@@ -206,6 +228,9 @@ def train_orientation(
         torch.set_num_threads(opt.threads)
     if train_shapes is None or val_shapes is None:
         train_shapes, val_shapes = training_shape_sets(config.data)
+    if opt.skip_lying:
+        train_shapes = without_lying(train_shapes, config.data.category)
+        val_shapes = without_lying(val_shapes, config.data.category)
     val_clouds, val_bases = sample_items(
         val_shapes, opt.val_items, config, np.random.default_rng([opt.seed, 1])
     )
@@ -323,4 +348,5 @@ __all__ = [
     "sample_items",
     "save_orientation",
     "train_orientation",
+    "without_lying",
 ]

@@ -21,6 +21,7 @@ from litege_core.train.orientation import (
     run_orientation_training,
     sample_items,
     train_orientation,
+    without_lying,
 )
 from litege_core.train.tnet import canonical_shape_set
 from litege_core.variants import small_rotation
@@ -125,3 +126,17 @@ def test_cli_refuses_a_bad_config(tmp_path) -> None:
     )
     assert run.returncode != 0 and "jitter" in run.stderr
     assert "Traceback" not in run.stderr
+
+
+def test_lying_procedural_shapes_are_left_out() -> None:
+    from litege_core.synth import families, generate_shape
+    from litege_core.train.tnet import ShapeSet
+
+    names = families("quadruped")
+    keys = [(names[k % len(names)], 2_000_100 + k) for k in range(6)] + [("Wolf", 3)]
+    poses = [generate_shape("quadruped", f, s).pose for f, s in keys[:6]]
+    assert "lying" in poses and poses.count("lying") < 6
+    dummy = [np.zeros((3, 3))] * len(keys)
+    kept = without_lying(ShapeSet(dummy, dummy, keys), "quadruped")
+    expected = [key for key, pose in zip(keys, [*poses, "rigged"], strict=True) if pose != "lying"]
+    assert kept.keys == expected
