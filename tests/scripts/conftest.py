@@ -45,3 +45,8 @@ def compose_matching() -> ModuleType:
 @pytest.fixture(scope="module")
 def swap_tnet() -> ModuleType:
     return load_script("swap_tnet")
+
+
+@pytest.fixture(scope="module")
+def frame_report() -> ModuleType:
+    return load_script("frame_report")
