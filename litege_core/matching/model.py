@@ -8,7 +8,9 @@
   ``frames="judged"`` (the default for quadrupeds, opt-in for bipeds) a shape whose T-Net runs
   on turned principal-axis frames disagree gets the frame, of the T-Net's and the 24
   principal-axis ones, that the matching network finds most like canonical reference animals
-  (:mod:`litege_core.matching.frame`, :mod:`litege_core.matching.judge`, issue 15 step 1);
+  (:mod:`litege_core.matching.frame`, :mod:`litege_core.matching.judge`, issue 15 step 1), or,
+  in a bundle that carries one, that its :class:`~litege_core.nets.orientation.OrientationNet`
+  finds most likely canonical (an ablation: BENCHMARKS.md ``orientation-net``);
 * :meth:`MatchingModel.match` finds, for query points of X, the point of Y minimizing the
   predicted cross-shape geodesic, coarse to fine over Y's cache, all queries at once
   (spec §5.3, :func:`~litege_core.matching.search.coarse_to_fine_search`). Options:
@@ -303,6 +305,8 @@ class MatchingModel:
         for net in bundle.networks:
             net.to(self.device).eval()
         bundle.tnet.to(self.device).eval()
+        if bundle.orientation is not None:
+            bundle.orientation.to(self.device).eval()
         self._folded = [
             FoldedGeodesicNet(net, self.device, precision=self.precision) for net in bundle.networks
         ]

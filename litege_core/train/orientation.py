@@ -22,6 +22,7 @@ than 0.66 rad from the true frame (the frame reports' threshold).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
@@ -32,8 +33,10 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 from numpy.typing import NDArray
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 
+from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import load_state, state_to_tensors
 from litege_core.nets.orientation import OrientationNet
 from litege_core.nets.tnet import CUBE_ROTATIONS, pca_frames
@@ -289,21 +292,22 @@ def train_orientation(
 
 def save_orientation(net: OrientationNet, path: str | Path) -> None:
     """Write the network's weights (safetensors, its config in the metadata)."""
-    import json
-
     save_file(state_to_tensors(net), str(path), metadata={"config": json.dumps(net.config())})
 
 
 def load_orientation(path: str | Path) -> OrientationNet:
-    """Read a network written by :func:`save_orientation` (eval mode, CPU)."""
-    import json
+    """Read a network written by :func:`save_orientation` (eval mode, CPU).
 
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="pt") as handle:
-        config = json.loads((handle.metadata() or {})["config"])
-        tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118
-    net = OrientationNet.from_config(config)
+    Raises:
+        ArtifactError: a missing or unreadable file, or one that is not such a network.
+    """
+    try:
+        with safe_open(str(path), framework="pt") as handle:
+            config = json.loads((handle.metadata() or {})["config"])
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118
+        net = OrientationNet.from_config(config)
+    except (SafetensorError, OSError, KeyError, ValueError, InputError) as exc:
+        raise ArtifactError(f"{path} is not an orientation network: {exc}") from exc
     load_state(net, tensors)
     return net.eval()
 

@@ -140,3 +140,18 @@ def test_lying_procedural_shapes_are_left_out() -> None:
     kept = without_lying(ShapeSet(dummy, dummy, keys), "quadruped")
     expected = [key for key, pose in zip(keys, [*poses, "rigged"], strict=True) if pose != "lying"]
     assert kept.keys == expected
+
+
+def test_foreign_files_are_artifact_errors(tmp_path) -> None:
+    from safetensors.torch import save_file
+
+    from litege_core.errors import ArtifactError
+    from litege_core.nets import TNet, state_to_tensors
+
+    garbage = tmp_path / "garbage.safetensors"
+    garbage.write_bytes(b"not a safetensors file")
+    tnet = tmp_path / "tnet.safetensors"
+    save_file(state_to_tensors(TNet(conv_widths=(4,), fc_widths=(4,))), str(tnet))
+    for path in (garbage, tnet, tmp_path / "missing.safetensors"):
+        with pytest.raises(ArtifactError):
+            load_orientation(path)
