@@ -24,12 +24,15 @@ learning rates are Adam step sizes; everything else is a count or a probability.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import tomllib
 import typing
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Self
@@ -409,6 +412,22 @@ def load_config(path: str | Path) -> TrainConfig:
     return TrainConfig.load(path)
 
 
+@contextlib.contextmanager
+def run_log(logger: logging.Logger, run_dir: Path) -> Iterator[None]:
+    """Within the block, ``logger`` (at INFO or finer) also writes to ``run_dir/train.log``
+    (overwritten), one timestamped line per record."""
+    handler = logging.FileHandler(run_dir / "train.log", mode="w")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
+    logger.addHandler(handler)
+    if logger.level == logging.NOTSET or logger.level > logging.INFO:
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        handler.close()
+
+
 __all__ = [
     "AugmentConfig",
     "BasisConfig",
@@ -422,4 +441,5 @@ __all__ = [
     "parse_table",
     "parse_tables",
     "read_toml",
+    "run_log",
 ]

@@ -40,7 +40,7 @@ from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import load_state, state_to_tensors
 from litege_core.nets.orientation import OrientationNet
 from litege_core.nets.tnet import CUBE_ROTATIONS, pca_frames
-from litege_core.train.config import ConfigRoot, _check
+from litege_core.train.config import ConfigRoot, _check, run_log
 from litege_core.train.tnet import (
     FAILURE_THRESHOLD,
     ShapeSet,
@@ -319,15 +319,8 @@ def run_orientation_training(config: OrientationTrainConfig, out: str | Path | N
         config = config.replace(output={"dir": str(out)})
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(run_dir / "train.log", mode="w")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
-    LOG.addHandler(handler)
-    LOG.setLevel(logging.INFO)
-    try:
+    with run_log(LOG, run_dir):
         result = train_orientation(config, weights_path=run_dir / WEIGHTS_FILE)
-    finally:
-        LOG.removeHandler(handler)
-        handler.close()
     return {
         "best_step": result.best_step,
         "best_val": result.best,

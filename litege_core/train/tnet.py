@@ -74,7 +74,7 @@ from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, load_state, rotation_angle, state_to_tensors, tnet_loss
 from litege_core.nets.tnet import CUBE_ROTATIONS, POINT_LOSS_WEIGHT, PREALIGN_MODES, pca_frames
 from litege_core.sampling import as_points, poisson_disk_subsample, sample_surface
-from litege_core.train.config import ConfigRoot, _check
+from litege_core.train.config import ConfigRoot, _check, run_log
 from litege_core.variants import broken_mesh
 
 LOG = logging.getLogger("litege.train.tnet")
@@ -1134,12 +1134,7 @@ def run_tnet_training(
         config = config.replace(output={"dir": str(out)})
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(run_dir / "train.log", mode="w")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
-    LOG.addHandler(handler)
-    if LOG.level == logging.NOTSET or LOG.level > logging.INFO:
-        LOG.setLevel(logging.INFO)
-    try:
+    with run_log(LOG, run_dir):
         LOG.info("config %s", json.dumps(config.to_dict(), sort_keys=True))
         weights = run_dir / "tnet.safetensors"
         result = train_tnet(
@@ -1170,9 +1165,6 @@ def run_tnet_training(
                 stats["threshold"], stats["n_failures"], stats["n"],
             )  # fmt: skip
         return report
-    finally:
-        LOG.removeHandler(handler)
-        handler.close()
 
 
 __all__ = [
