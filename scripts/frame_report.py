@@ -75,22 +75,14 @@ def candidate_rotations(model: MatchingModel, shape: Shape) -> list[np.ndarray]:
     """The frames (``Transform.rotation`` of each) judged frames choose from for ``shape``: the
     T-Net's, and where its turned runs split also the 24 principal-axis frames (seed 0, as
     ``MatchingModel.prepare``)."""
-    from litege_core.matching.frame import (
-        TURN_RUN_POINTS,
-        pca_candidates,
-        runs_agree,
-        subsample,
-        tnet_turn_runs,
-    )
+    from litege_core.matching.frame import candidate_turns, turned
 
     prepared = model.prepare(shape, frames="tnet")
-    unrotated = np.asarray(prepared._lazy["cloud"], np.float64) @ prepared.transform.rotation
-    seen = subsample(unrotated, model.pipeline.n_tnet_points, 0)
-    runs = tnet_turn_runs(model.bundle.tnet, [subsample(seen, TURN_RUN_POINTS, 0)])[0]
-    rotations = [np.asarray(prepared.transform.rotation)]
-    if not runs_agree(runs):
-        rotations += [frame.T for frame in pca_candidates(seen)]
-    return rotations
+    frame = (prepared.transform, np.asarray(prepared._lazy["cloud"], np.float64), prepared.scaling)
+    turns = candidate_turns(model.bundle.tnet, [frame], model.pipeline.n_tnet_points, 0)[0]
+    if turns is None:
+        return [np.asarray(prepared.transform.rotation)]
+    return [turned(prepared.transform, turn).rotation for turn in turns]
 
 
 def consensus(rotations: list[np.ndarray]) -> np.ndarray:
@@ -266,7 +258,7 @@ def main() -> None:
             f"\n| real shape | T-Net frame, rad | judged: frame kept, rad |{oracle}\n"
             f"|---|---:|---|{'---:|' if args.oracle else ''}"
         )
-        for shape, modes in per_shape.items():
+        for label, modes in per_shape.items():
             shown = ("tnet", "judged", "oracle") if "oracle" in modes else ("tnet", "judged")
             cells = [
                 f"{modes[m][1]:.2f}" + (" **fail**" if modes[m][1] > FAILURE else "") for m in shown

@@ -258,6 +258,34 @@ def pca_candidates(cloud: NDArray) -> NDArray:
     return frame @ cube_rotations()
 
 
+def candidate_turns(
+    tnet: TNet,
+    frames: list[tuple[Transform, NDArray, str]],
+    n_tnet_points: int,
+    seed: int,
+) -> list[NDArray | None]:
+    """The frames a judged frame chooses from, per shape of :func:`align_shapes`' ``frames``.
+
+    Returns:
+        per shape ``None`` where its turned T-Net runs agree (the T-Net's frame stands), else
+        ``(25, 3, 3)`` float64 turns ``M`` of its T-Net frame (apply with :func:`turned`): the
+        identity (the T-Net's frame), then the 24 principal-axis frames of what the T-Net saw.
+    """
+    inputs = [  # the T-Net's inputs: the unrotated clouds' subsets of align_shapes
+        subsample(cloud @ transform.rotation, n_tnet_points, seed) for transform, cloud, _ in frames
+    ]
+    runs = tnet_turn_runs(tnet, [subsample(c, TURN_RUN_POINTS, seed) for c in inputs])
+    out: list[NDArray | None] = []
+    for (transform, _, _), seen, run in zip(frames, inputs, runs, strict=True):
+        if runs_agree(run):
+            out.append(None)
+            continue
+        tnet_rotation = transform.rotation.T  # R_pred: cloud = unrotated @ R_pred
+        candidates = np.concatenate([tnet_rotation[None], pca_candidates(seen)])
+        out.append(np.transpose(candidates, (0, 2, 1)) @ tnet_rotation)  # R_cᵀ R_pred
+    return out
+
+
 def turned(transform: Transform, turn: NDArray) -> Transform:
     """``transform`` followed by the canonical-frame rotation ``turn`` (``q' = turn · q``)."""
     return Transform(np.asarray(turn) @ transform.rotation, transform.center, transform.scale)
@@ -286,6 +314,7 @@ __all__ = [
     "Scaling",
     "align_shapes",
     "boundary_edge_fraction",
+    "candidate_turns",
     "choose_scaling",
     "cube_rotations",
     "pca_candidates",

@@ -52,13 +52,10 @@ from litege_core.matching.cache import NNCache
 from litege_core.matching.frame import (
     FRAME_MODES,
     MIRROR,
-    TURN_RUN_POINTS,
     MatchingPipeline,
     align_shapes,
-    pca_candidates,
-    runs_agree,
+    candidate_turns,
     subsample,
-    tnet_turn_runs,
     turned,
 )
 from litege_core.matching.judge import DEFAULT_MARGIN, JUDGED_BY_DEFAULT, FrameJudge, choose
@@ -509,22 +506,12 @@ class MatchingModel:
         T-Net frame or one of the 24 principal-axis frames, whichever scores best: by the
         bundle's :class:`~litege_core.nets.orientation.OrientationNet` where it has one (the
         lowest ``−log p(canonical)``), else by the frame judge (one call for all shapes)."""
-        inputs = [  # the T-Net's inputs: the unrotated clouds' subsets of align_shapes
-            subsample(cloud @ transform.rotation, self.pipeline.n_tnet_points, seed)
-            for transform, cloud, _ in frames
-        ]
-        runs = tnet_turn_runs(
-            self.bundle.tnet, [subsample(c, TURN_RUN_POINTS, seed) for c in inputs]
-        )
-        split = [i for i, run in enumerate(runs) if not runs_agree(run)]
+        candidates = candidate_turns(self.bundle.tnet, frames, self.pipeline.n_tnet_points, seed)
+        split = [i for i, turns in enumerate(candidates) if turns is not None]
         out, names = list(frames), ["tnet"] * len(frames)
         if not split:
             return out, names
-        turns = []
-        for i in split:
-            tnet_rotation = frames[i][0].rotation.T  # R_pred: cloud = unrotated @ R_pred
-            candidates = np.concatenate([tnet_rotation[None], pca_candidates(inputs[i])])
-            turns.append(np.transpose(candidates, (0, 2, 1)) @ tnet_rotation)  # R_cᵀ R_pred
+        turns = [t for t in candidates if t is not None]
         orientation = self.bundle.orientation
         if orientation is not None:
             scores = np.stack(

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import torch
 
-import litege_core.matching.model as model_module
+import litege_core.matching.frame as frame_module
 from litege_core.matching import MatchingModel
 from litege_core.nets.orientation import OrientationNet
 from litege_core.shape import Shape
@@ -32,14 +32,13 @@ def test_candidates_are_the_frames_judged_frames_choose_from(frame_report, monke
     shape = Shape.from_arrays(generated.vertices, generated.faces)
     tnet_frame = model.prepare(shape, frames="tnet").transform.rotation
     agreeing = np.tile(np.eye(3), (1, 24, 1, 1))
-    monkeypatch.setattr("litege_core.matching.frame.tnet_turn_runs", lambda tnet, c: agreeing)
+    monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: agreeing)
     only = frame_report.candidate_rotations(model, shape)
     assert len(only) == 1 and np.allclose(only[0], tnet_frame)
 
     split = agreeing.copy()
     split[0, 5] = np.diag([1.0, -1.0, -1.0])
-    monkeypatch.setattr("litege_core.matching.frame.tnet_turn_runs", lambda tnet, c: split)
-    monkeypatch.setattr(model_module, "tnet_turn_runs", lambda tnet, c: split)
+    monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: split)
     many = frame_report.candidate_rotations(model, shape)
     assert len(many) == 25 and np.allclose(many[0], tnet_frame)
     for rotation in many:

@@ -12,7 +12,7 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-import litege_core.matching.model as model_module
+import litege_core.matching.frame as frame_module
 from litege_core.canonical import Transform
 from litege_core.errors import InputError, MissingDependencyError
 from litege_core.matching import MatchingModel, MatchingShape
@@ -200,7 +200,7 @@ def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(sh
         runs[0, 3] = runs[0, 0] @ _rotation_about(2, 2.0)  # … but one run of shape 0
         return runs
 
-    monkeypatch.setattr(model_module, "tnet_turn_runs", runs_split_on_the_first_shape)
+    monkeypatch.setattr(frame_module, "tnet_turn_runs", runs_split_on_the_first_shape)
     stub = _StubJudge(model, best=5)
     model.frame_judge = stub
     judged = model.prepare_many(list(shapes), frames="judged")
@@ -221,7 +221,7 @@ def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(sh
     model.frame_judge = _StubJudge(model, best=0)  # the T-Net frame wins: nothing changes
     assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
     monkeypatch.setattr(
-        model_module,
+        frame_module,
         "tnet_turn_runs",
         lambda tnet, clouds: np.tile(np.eye(3), (len(clouds), 24, 1, 1)),
     )
@@ -259,7 +259,7 @@ def test_an_orientation_network_weighs_the_candidates_instead_of_the_judge(shape
         runs[0, 3] = runs[0, 0] @ _rotation_about(2, 2.0)
         return runs
 
-    monkeypatch.setattr(model_module, "tnet_turn_runs", runs_split_on_the_first_shape)
+    monkeypatch.setattr(frame_module, "tnet_turn_runs", runs_split_on_the_first_shape)
     plain = model.prepare_many(list(shapes), frames="tnet")
     judged = model.prepare_many(list(shapes), frames="judged")
     assert [p.frame for p in judged] == ["pca4", "tnet"] and model._judge is None
