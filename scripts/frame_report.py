@@ -27,9 +27,14 @@ and the true one; a failure is an angle above 0.66 rad (the reference's T-Net re
   **consensus** of the 20 frames (the rotation nearest their mean, in the file frame): a failure
   is a frame more than 0.66 rad from it, and agreement is over all 190 pairs.
 
-With ``--oracle`` the per-shape table gains the best of the candidate frames a judged frame is
-chosen from (the T-Net's and the 24 principal-axis frames, for shapes whose turned T-Net runs
-split; the T-Net's alone where they agree): the floor any score of those candidates could reach.
+With ``--oracle`` the rigged and TOSCA tables (and the per-shape table) gain the best of the
+candidate frames a judged frame is chosen from (the T-Net's and the 24 principal-axis frames, for
+shapes whose turned T-Net runs split; the T-Net's alone where they agree): the floor any score of
+those candidates could reach. ``--sagittal`` adds candidates that owe nothing to the principal
+axes: an animal is mirror-symmetric about its sagittal plane up to its pose, so the normals of
+the shape's best mirror-symmetry planes (:func:`symmetry_normals`) are candidate left-right axes,
+each with 48 frames about it (:func:`sagittal_rotations`); the tables gain their best
+(``sagittal oracle``) and the frame the judge keeps among them (``judged over sagittal``).
 
 Prints a markdown block; every number comes from this script.
 """
@@ -85,6 +90,144 @@ def candidate_rotations(model: MatchingModel, shape: Shape) -> list[np.ndarray]:
     return [turned(prepared.transform, turn).rotation for turn in turns]
 
 
+SAGITTAL_DIRECTIONS = 600
+"""Directions (a Fibonacci sphere, upper half kept) tried as normals of the symmetry plane."""
+SAGITTAL_PLANES = 3
+"""Symmetry planes kept per shape (local minima at least 0.5 rad apart)."""
+SAGITTAL_TURNS = 24
+"""Frames per plane normal and sign: turns of the other two axes about it (15° apart)."""
+SYMMETRY_TRIM = 0.8
+"""Share of the mirrored points (the nearest) whose distances make a plane's residual: a
+pose's lifted leg or turned head should not hide the body's symmetry."""
+
+
+def hemisphere(count: int) -> np.ndarray:
+    """Unit directions ``(≈count/2, 3)`` of a Fibonacci sphere with ``z ≥ 0``."""
+    i = np.arange(count) + 0.5
+    polar, azimuth = np.arccos(1.0 - 2.0 * i / count), np.pi * (1.0 + 5**0.5) * i
+    directions = np.stack(
+        [np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1
+    )
+    return directions[directions[:, 2] >= 0.0]
+
+
+def mirror_residuals(points: np.ndarray, tree, normals: np.ndarray) -> np.ndarray:
+    """Trimmed mean distance ``(N,)`` from each mirror image of ``points`` ``(P, 3)`` (centred)
+    across the plane through the origin with normal ``normals[n]`` to ``points`` (``tree``)."""
+    mirrored = points[None] - 2.0 * (points @ normals.T).T[:, :, None] * normals[:, None, :]
+    distances = tree.query(mirrored.reshape(-1, 3))[0].reshape(len(normals), -1)
+    kept = int(SYMMETRY_TRIM * points.shape[0])
+    return np.sort(distances, axis=1)[:, :kept].mean(axis=1)
+
+
+def symmetry_normals(points: np.ndarray, count: int = SAGITTAL_PLANES) -> np.ndarray:
+    """Normals ``(count, 3)`` of the ``count`` best mirror-symmetry planes of a cloud ``(P, 3)``
+    through its centroid: the lowest :func:`mirror_residuals` over :func:`hemisphere`
+    directions at least 0.5 rad apart, each refined by a shrinking-step descent."""
+    from scipy.spatial import cKDTree
+
+    points = points - points.mean(axis=0)
+    tree = cKDTree(points)
+    directions = hemisphere(SAGITTAL_DIRECTIONS)
+    residuals = mirror_residuals(points, tree, directions)
+    starts: list[np.ndarray] = []
+    for index in np.argsort(residuals):
+        if all(abs(directions[index] @ kept) < np.cos(0.5) for kept in starts):
+            starts.append(directions[index])
+        if len(starts) == count:
+            break
+    normals = []
+    for normal in starts:
+        best, step = mirror_residuals(points, tree, normal[None])[0], 0.1
+        while step > 0.01:
+            helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
+            t1 = np.cross(normal, helper)
+            t1 /= np.linalg.norm(t1)
+            moves = np.array(
+                [normal + step * sign * t for t in (t1, np.cross(normal, t1)) for sign in (1, -1)]
+            )
+            moves /= np.linalg.norm(moves, axis=1, keepdims=True)
+            scores = mirror_residuals(points, tree, moves)
+            if scores.min() < best:
+                normal, best = moves[int(np.argmin(scores))], float(scores.min())
+            else:
+                step /= 2.0
+        normals.append(normal)
+    return np.array(normals)
+
+
+def sagittal_rotations(normal: np.ndarray, turns: int = SAGITTAL_TURNS) -> np.ndarray:
+    """Rotations ``(2·turns, 3, 3)`` whose first row (the canonical left-right axis) is
+    ``±normal``, the other two turned about it in ``turns`` equal steps."""
+    out = []
+    for lateral in (normal, -normal):
+        helper = np.eye(3)[int(np.argmin(np.abs(lateral)))]
+        u = np.cross(lateral, helper)
+        u /= np.linalg.norm(u)
+        v = np.cross(lateral, u)
+        for theta in np.arange(turns) * 2.0 * np.pi / turns:
+            up = np.cos(theta) * u + np.sin(theta) * v
+            out.append(np.stack([lateral, up, np.cross(lateral, up)]))
+    return np.array(out)
+
+
+def sagittal_candidates(model: MatchingModel, shape: Shape) -> tuple[list[np.ndarray], bool]:
+    """The T-Net's frame and the frames of :func:`sagittal_rotations` for each of the
+    shape's :func:`symmetry_normals` (``Transform.rotation`` of each), and whether its turned
+    T-Net runs split (the shapes judged frames judge)."""
+    from litege_core.matching.frame import candidate_turns, subsample
+
+    prepared = model.prepare(shape, frames="tnet")
+    cloud = np.asarray(prepared._lazy["cloud"], np.float64)
+    frame = (prepared.transform, cloud, prepared.scaling)
+    split = candidate_turns(model.bundle.tnet, [frame], model.pipeline.n_tnet_points, 0)[0]
+    unrotated = subsample(cloud @ prepared.transform.rotation, 2000, 0)
+    rotations = [np.asarray(prepared.transform.rotation)]
+    for normal in symmetry_normals(unrotated):
+        rotations += list(sagittal_rotations(normal))
+    return rotations, split is not None
+
+
+def judge_over(model: MatchingModel, shape: Shape, rotations: list[np.ndarray]) -> np.ndarray:
+    """The rotation the frame judge keeps among ``rotations`` (the T-Net's frame first, with the
+    default margin), as judged frames keep one among theirs."""
+    from litege_core.matching.judge import choose
+
+    prepared = model.prepare(shape, frames="tnet")
+    frame = (prepared.transform, np.asarray(prepared._lazy["cloud"], np.float64), prepared.scaling)
+    turns = np.array([r @ prepared.transform.rotation.T for r in rotations])
+    scores = model._judge_scores([(shape, frame)], [turns])[0]
+    return rotations[choose(scores)]
+
+
+def alternative_errors(
+    model: MatchingModel,
+    shapes: list[Shape],
+    rotations: list[np.ndarray],
+    target: np.ndarray,
+    sagittal: bool,
+) -> dict[str, list[float]]:
+    """Per shape, the angle (rad) from its true frame (``r @ rotation`` against ``target``) of:
+    ``oracle``, the best of the judged candidates (:func:`candidate_rotations`); with
+    ``sagittal`` also ``sagittal oracle``, the best of :func:`sagittal_candidates`, and
+    ``judged over sagittal``, the frame the judge keeps among those (both the T-Net's frame
+    alone where its turned runs agree, as judged frames)."""
+    out: dict[str, list[float]] = {"oracle": []}
+    if sagittal:
+        out.update({"sagittal oracle": [], "judged over sagittal": []})
+    for shape, rotation in zip(shapes, rotations, strict=True):
+        judged = candidate_rotations(model, shape)
+        out["oracle"].append(min(angle(r @ rotation, target) for r in judged))
+        if sagittal:
+            candidates, split = sagittal_candidates(model, shape)
+            if not split:
+                candidates = candidates[:1]
+            out["sagittal oracle"].append(min(angle(r @ rotation, target) for r in candidates))
+            kept = judge_over(model, shape, candidates)
+            out["judged over sagittal"].append(angle(kept @ rotation, target))
+    return out
+
+
 def consensus(rotations: list[np.ndarray]) -> np.ndarray:
     """The rotation nearest (Frobenius) the mean of ``rotations``."""
     u, _, vt = np.linalg.svd(np.mean(rotations, axis=0))
@@ -138,6 +281,11 @@ def main() -> None:
         help="with --per-shape: also the best candidate frame of each real shape (rad)",
     )
     parser.add_argument(
+        "--sagittal",
+        action="store_true",
+        help="with --oracle: also frames about symmetry-plane normals (their best, the judge's)",
+    )
+    parser.add_argument(
         "--per-shape",
         action="store_true",
         help="also list every real shape: the frame each mode kept and its angle (rad)",
@@ -179,6 +327,10 @@ def main() -> None:
                 errors = errors_to_truth(found, truths)
                 rows.append(f"| rigged animals (val seeds) | {mode} | {summary(errors)} |")
                 switched[f"rigged {mode}"] = sum(name != "tnet" for _, name in found)
+            if args.oracle:
+                found_errors = alternative_errors(model, shapes, truths, np.eye(3), args.sagittal)
+                for name, errors in found_errors.items():
+                    rows.append(f"| rigged animals (val seeds) | {name} | {summary(errors)} |")
 
     # ------------------------------------------------------------------ TOSCA
     root = Path(args.eval_data)
@@ -210,12 +362,16 @@ def main() -> None:
             )
             switched[f"TOSCA {mode}"] = sum(name != "tnet" for _, name in found)
         if args.oracle:
-            for label, shape, rotation in zip(labels, real, rotations, strict=True):
-                best = min(
-                    angle(r @ rotation, TOSCA_TO_CANONICAL)
-                    for r in candidate_rotations(model, shape)
+            found_errors = alternative_errors(
+                model, real, rotations, TOSCA_TO_CANONICAL, args.sagittal
+            )
+            for name, errors in found_errors.items():
+                rows.append(
+                    f"| TOSCA ({len(real)} shapes) vs file convention | {name} | "
+                    f"{summary(errors)} |"
                 )
-                per_shape[f"TOSCA {label}"]["oracle"] = ("best candidate", best)
+                for label, error in zip(labels, errors, strict=True):
+                    per_shape[f"TOSCA {label}"][name] = (name, error)
 
     # ------------------------------------------------------------------ FAUST
     files = sorted((root / "faust_5k").glob("*.off"))
@@ -245,26 +401,34 @@ def main() -> None:
     print(
         f"- date {date}; command `python scripts/frame_report.py {args.model} "
         f"--procedural {args.procedural} --rigged {args.rigged}"
-        f"{' --per-shape' if args.per_shape else ''}{' --oracle' if args.oracle else ''}`; "
-        "frames changed by the judge: "
-        f"{switched}\n"
+        f"{' --per-shape' if args.per_shape else ''}{' --oracle' if args.oracle else ''}"
+        f"{' --sagittal' if args.sagittal else ''}`; frames changed by the judge: {switched}\n"
     )
     print("| shapes | frames | n | median rad | mean rad | failures % |")
     print("|---|---|---:|---:|---:|---:|")
     print("\n".join(rows))
     if args.per_shape and per_shape:
-        oracle = " best candidate, rad |" if args.oracle else ""
+        extra = [
+            m
+            for m in ("oracle", "sagittal oracle", "judged over sagittal")
+            if m in next(iter(per_shape.values()))
+        ]
+        titles = {"oracle": "best candidate", "sagittal oracle": "best sagittal candidate"}
         print(
-            f"\n| real shape | T-Net frame, rad | judged: frame kept, rad |{oracle}\n"
-            f"|---|---:|---|{'---:|' if args.oracle else ''}"
+            "\n| real shape | T-Net frame, rad | judged: frame kept, rad |"
+            + "".join(f" {titles.get(m, m)}, rad |" for m in extra)
+            + "\n|---|---:|---|"
+            + "---:|" * len(extra)
         )
         for label, modes in per_shape.items():
-            shown = ("tnet", "judged", "oracle") if "oracle" in modes else ("tnet", "judged")
-            cells = [
-                f"{modes[m][1]:.2f}" + (" **fail**" if modes[m][1] > FAILURE else "") for m in shown
-            ]
-            extra = f" {cells[2]} |" if len(cells) > 2 else ""
-            print(f"| {shape} | {cells[0]} | {modes['judged'][0]}: {cells[1]} |{extra}")
+            cells = {
+                m: f"{modes[m][1]:.2f}" + (" **fail**" if modes[m][1] > FAILURE else "")
+                for m in ("tnet", "judged", *extra)
+            }
+            print(
+                f"| {label} | {cells['tnet']} | {modes['judged'][0]}: {cells['judged']} |"
+                + "".join(f" {cells[m]} |" for m in extra)
+            )
 
 
 if __name__ == "__main__":

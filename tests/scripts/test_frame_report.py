@@ -47,3 +47,81 @@ def test_candidates_are_the_frames_judged_frames_choose_from(frame_report, monke
     judged = model.prepare(shape, frames="judged")  # keeps candidate 7: principal-axis frame 6
     assert judged.frame == "pca6"
     np.testing.assert_allclose(judged.transform.rotation, many[7], atol=1e-4)
+
+
+def _random_rotation(seed: int) -> np.ndarray:
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def test_mirror_residuals_match_a_brute_force_reference(frame_report):
+    from scipy.spatial import cKDTree
+
+    points = np.random.default_rng(0).normal(size=(60, 3))
+    normals = frame_report.hemisphere(20)
+    fast = frame_report.mirror_residuals(points, cKDTree(points), normals)
+    for normal, value in zip(normals, fast, strict=True):
+        mirrored = points - 2.0 * np.outer(points @ normal, normal)
+        nearest = np.linalg.norm(mirrored[:, None] - points[None], axis=2).min(axis=1)
+        kept = int(frame_report.SYMMETRY_TRIM * len(points))
+        assert np.isclose(value, np.sort(nearest)[:kept].mean())
+
+
+def test_the_best_symmetry_plane_of_a_mirror_symmetric_cloud_is_found(frame_report):
+    rng = np.random.default_rng(1)
+    half = rng.normal(size=(400, 3)) * [1.0, 0.6, 2.0] + [0.7, 0.0, 0.0]
+    symmetric = np.concatenate([half, half * [-1.0, 1.0, 1.0]])  # mirror plane x = 0
+    rotation = _random_rotation(2)
+    normals = frame_report.symmetry_normals(symmetric @ rotation.T + [0.3, -1.0, 2.0])
+    assert normals.shape == (frame_report.SAGITTAL_PLANES, 3)
+    assert abs(normals[0] @ rotation[:, 0]) > np.cos(0.02)  # the rotated x axis, either sign
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
+
+
+def test_sagittal_rotations_cover_every_frame_with_that_left_right_axis(frame_report):
+    target = _random_rotation(3)
+    rotations = frame_report.sagittal_rotations(target[0])
+    assert rotations.shape == (2 * frame_report.SAGITTAL_TURNS, 3, 3)
+    for rotation in rotations:
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+        assert np.isclose(np.linalg.det(rotation), 1.0)
+        assert np.isclose(abs(rotation[0] @ target[0]), 1.0)
+    half_step = np.pi / frame_report.SAGITTAL_TURNS
+    for wanted in (target, np.diag([-1.0, 1.0, -1.0]) @ target):  # and its head-to-tail turn
+        nearest = min(frame_report.angle(r, wanted) for r in rotations)
+        assert nearest <= half_step + 1e-9
+
+
+def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_report, monkeypatch):
+    model = MatchingModel.tiny_random(0)
+    generated = generate_shape(
+        "quadruped", families("quadruped")[0], 0, mean_shape=True, rest_pose=True
+    )
+    rotation = _random_rotation(4)
+    shape = Shape.from_arrays(np.asarray(generated.vertices) @ rotation.T, generated.faces)
+    split = np.tile(np.eye(3), (1, 24, 1, 1))
+    split[0, 5] = np.diag([1.0, -1.0, -1.0])
+    monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: split)
+    candidates, was_split = frame_report.sagittal_candidates(model, shape)
+    assert was_split and len(candidates) == 1 + 2 * 24 * frame_report.SAGITTAL_PLANES
+    best = min(frame_report.angle(r @ rotation, np.eye(3)) for r in candidates)
+    assert best <= np.pi / frame_report.SAGITTAL_TURNS + 0.05  # a turn step and the plane fit
+    monkeypatch.setattr(model, "frame_judge", _JudgePrefers(17), raising=False)
+    kept = frame_report.judge_over(model, shape, candidates)
+    np.testing.assert_allclose(kept, candidates[17], atol=1e-6)
+
+
+class _JudgePrefers:
+    """A frame judge stub: candidate ``best`` of every call scores lowest."""
+
+    def __init__(self, best: int) -> None:
+        self.best = best
+
+    def target_points(self, points):
+        return points[:8]
+
+    def scores(self, clouds, points):
+        out = np.ones(len(clouds))
+        out[self.best] = 0.1
+        return out
