@@ -223,7 +223,7 @@ def alternative_errors(
             if not split:
                 candidates = candidates[:1]
             out["sagittal oracle"].append(min(angle(r @ rotation, target) for r in candidates))
-            kept = judge_over(model, shape, candidates)
+            kept = judge_over(model, shape, candidates) if split else candidates[0]
             out["judged over sagittal"].append(angle(kept @ rotation, target))
     return out
 
@@ -278,7 +278,7 @@ def main() -> None:
     parser.add_argument(
         "--oracle",
         action="store_true",
-        help="with --per-shape: also the best candidate frame of each real shape (rad)",
+        help="also the best judged candidate frames (rigged and TOSCA rows, per-shape column)",
     )
     parser.add_argument(
         "--sagittal",
