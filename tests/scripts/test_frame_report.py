@@ -107,7 +107,7 @@ def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_rep
     assert was_split and len(candidates) == 1 + 2 * 24 * frame_report.SAGITTAL_PLANES
     best = min(frame_report.angle(r @ rotation, np.eye(3)) for r in candidates)
     assert best <= np.pi / frame_report.SAGITTAL_TURNS + 0.05  # a turn step and the plane fit
-    monkeypatch.setattr(model, "frame_judge", _JudgePrefers(17), raising=False)
+    model.frame_judge = _JudgePrefers(17)
     kept = frame_report.judge_over(model, shape, candidates)
     np.testing.assert_allclose(kept, candidates[17], atol=1e-6)
 
