@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 from litege_core.synth.poses import (
+    EXTRA_MODES,
     MODES,
     NOISE_STD,
     Pose,
@@ -73,8 +74,10 @@ def families(category: str) -> tuple[str, ...]:
 
 
 def pose_modes(category: str) -> tuple[str, ...]:
-    """Pose mode names of ``category``."""
-    return MODES[check_category(category)]
+    """Every pose mode :func:`generate_shape` accepts for ``category``: the modes seeds draw
+    (``poses.MODES``), then those generated only when asked for (``poses.EXTRA_MODES``)."""
+    category = check_category(category)
+    return MODES[category] + EXTRA_MODES[category]
 
 
 def symmetry_map(category: str) -> NDArray:
@@ -153,7 +156,7 @@ def generate_shape(
     factors = sample_factors(category, family, rng)
     if mean_shape:
         factors = mean_factors(category, family)
-    modes = MODES[category]
+    modes = pose_modes(category)
     drawn_mode = _draw_mode(category, rng)
     mode = drawn_mode if pose is None else pose
     if mode not in modes:

@@ -27,6 +27,13 @@ NOISE_STD = 0.2
 QUADRUPED_MODES = ("standing", "walking", "sitting", "lying")
 BIPED_MODES = ("standing", "walking", "arms_raised", "crouching")
 MODES = {"quadruped": QUADRUPED_MODES, "biped": BIPED_MODES}
+"""The modes a seed draws from (``generate.MODE_WEIGHTS``)."""
+QUADRUPED_STEEP_MODES = ("rearing", "leaping")
+"""Quadruped modes whose trunk is steep or fully stretched, as real animals rear on their hind
+legs or leap; generated only when asked for (seeds never draw them, so every
+dataset of the drawn modes stays as it was). The frame selectors of issue 15 fail on exactly
+such real poses (docs/jobs.md, session of 2026-11-29, second)."""
+EXTRA_MODES: dict[str, tuple[str, ...]] = {"quadruped": QUADRUPED_STEEP_MODES, "biped": ()}
 
 Limits = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
 
@@ -121,10 +128,9 @@ def joint_frames(category: str, skeleton: Skeleton) -> NDArray:
 
 def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Generator) -> NDArray:
     """``(J, 3)`` anatomical offsets of a mode; left and right are given separately."""
-    if mode not in MODES[category]:
-        raise InputError(
-            f"unknown {category} pose mode {mode!r}; expected one of {MODES[category]}"
-        )
+    known = MODES[category] + EXTRA_MODES[category]
+    if mode not in known:
+        raise InputError(f"unknown {category} pose mode {mode!r}; expected one of {known}")
     out = np.zeros((skeleton.n_joints, 3))
     phase = float(rng.uniform(0.0, 2.0 * np.pi))  # always drawn: keeps streams aligned
     amount = float(rng.uniform(0.6, 1.0))
@@ -175,6 +181,32 @@ def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Ge
                 put(f"ankle_{side}", -0.3 * amount)
             put("neck1", 0.0, 0.0, -side_sign * 0.35)
             put("tail1", 0.2)
+        elif mode == "rearing":
+            # On the hind legs, trunk 50–70° up (negative pelvis flexion lifts the front),
+            # hind legs swung back to stand vertical, forelegs folded in the air.
+            pitch = -(0.9 + 0.3 * amount)
+            put("pelvis", pitch)
+            for side in ("l", "r"):
+                put(f"hip_{side}", -0.9 * pitch)
+                put(f"knee_{side}", 0.35)
+                put(f"ankle_{side}", -0.35)
+                put(f"shoulder_{side}", -0.2 * pitch - 0.3)
+                put(f"elbow_{side}", 0.9 * amount)
+                put(f"wrist_{side}", 1.1 * amount)
+            put("neck1", -0.3 * pitch)
+            put("head", -0.2 * pitch)
+            put("tail1", 0.3)
+        elif mode == "leaping":
+            # Airborne, legs stretched fore and aft (extended gallop or a jump).
+            put("pelvis", -0.2 * amount)
+            for side in ("l", "r"):
+                put(f"shoulder_{side}", -1.2 * amount)
+                put(f"elbow_{side}", 0.1)
+                put(f"wrist_{side}", 0.3)
+                put(f"hip_{side}", 0.9 * amount)
+                put(f"knee_{side}", 0.2)
+                put(f"ankle_{side}", 0.2)
+            put("tail1", -0.3)
     else:
         arms_down = -0.6
         if mode == "standing":
@@ -264,11 +296,13 @@ def sample_pose(
 __all__ = [
     "BIPED_LIMITS",
     "BIPED_MODES",
+    "EXTRA_MODES",
     "LIMITS",
     "MODES",
     "NOISE_STD",
     "QUADRUPED_LIMITS",
     "QUADRUPED_MODES",
+    "QUADRUPED_STEEP_MODES",
     "Limits",
     "Pose",
     "joint_frames",

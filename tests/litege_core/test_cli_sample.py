@@ -105,6 +105,8 @@ def test_point_clouds_of_vertices_or_surface_samples(tmp_path, capsys, extension
 def test_xyz_defaults_to_a_point_cloud_and_the_pose_is_honoured(tmp_path, capsys):
     report = _run(capsys, "dog", "-o", str(tmp_path / "dog.xyz"), "--pose", "lying")
     assert report["kind"] == "point_cloud" and report["pose"] == "lying"
+    report = _run(capsys, "cat", "-o", str(tmp_path / "cat.xyz"), "--pose", "rearing")
+    assert report["pose"] == "rearing"  # a mode seeds never draw, asked for by name
 
 
 @pytest.mark.parametrize(

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from litege_core import synth
+from litege_core.errors import InputError
 from litege_core.synth import poses, quality
+from litege_core.synth.generate import drawn_pose_mode
 
 
 @pytest.mark.parametrize("category", ["quadruped", "biped"])
@@ -64,3 +66,45 @@ def test_self_intersection_detector() -> None:
     moved[leg, 0] -= 0.26
     assert quality.self_intersects(moved, tmpl.faces)
     assert skel.n_joints > 0
+
+
+def _trunk_pitch(shape) -> float:
+    """Angle (rad) of pelvis → neck above the horizontal (y up, z forward)."""
+    names = synth.template("quadruped").skeleton.names
+    trunk = shape.joints[names.index("neck1")] - shape.joints[names.index("pelvis")]
+    return float(np.arctan2(trunk[1], abs(trunk[2])))
+
+
+def test_steep_modes_are_generated_only_when_asked_for() -> None:
+    modes = synth.pose_modes("quadruped")
+    assert modes == poses.QUADRUPED_MODES + poses.QUADRUPED_STEEP_MODES
+    drawn = {
+        drawn_pose_mode("quadruped", family, seed)
+        for family in synth.families("quadruped")
+        for seed in range(60)
+    }
+    assert drawn == set(poses.QUADRUPED_MODES)
+    with pytest.raises(InputError, match="unknown biped pose mode"):
+        synth.generate_shape("biped", synth.families("biped")[0], 0, pose="rearing")
+
+
+@pytest.mark.parametrize("family", synth.families("quadruped"))
+def test_rearing_raises_the_trunk_and_leaping_stretches_the_legs(family: str) -> None:
+    names = synth.template("quadruped").skeleton.names
+    standing = synth.generate_shape("quadruped", family, 3, pose="standing")
+    rearing = synth.generate_shape("quadruped", family, 3, pose="rearing")
+    leaping = synth.generate_shape("quadruped", family, 3, pose="leaping")
+    again = synth.generate_shape("quadruped", family, 3, pose="rearing")
+    np.testing.assert_array_equal(rearing.vertices, again.vertices)  # seeded
+    assert (rearing.pose, leaping.pose) == ("rearing", "leaping")
+    assert _trunk_pitch(rearing) > _trunk_pitch(standing) + 0.2
+    if rearing.params["pose_attempts"] <= 3:  # the mode at full strength, not backed off
+        assert _trunk_pitch(rearing) > np.radians(40.0)
+
+    def paw_spread(shape) -> float:  # fore paws to hind paws along the body axis (z)
+        z = shape.joints[:, 2]
+        return float(z[names.index("fpaw_l")] - z[names.index("hpaw_l")])
+
+    assert paw_spread(leaping) > paw_spread(standing)
+    if leaping.params["pose_attempts"] <= 3:
+        assert paw_spread(leaping) > 1.2 * paw_spread(standing)
