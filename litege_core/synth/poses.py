@@ -30,9 +30,9 @@ MODES = {"quadruped": QUADRUPED_MODES, "biped": BIPED_MODES}
 """The modes a seed draws from (``generate.MODE_WEIGHTS``)."""
 QUADRUPED_STEEP_MODES = ("rearing", "leaping")
 """Quadruped modes whose trunk is steep or fully stretched, as real animals rear on their hind
-legs or leap; generated only when asked for (seeds never draw them, so every
-dataset of the drawn modes stays as it was). The frame selectors of issue 15 fail on exactly
-such real poses (docs/jobs.md, session of 2026-11-29, second)."""
+legs or leap. Generated only when asked for: seeds never draw them, so every dataset of the
+drawn modes stays as it was. The frame selectors of issue 15 fail on exactly such real poses
+(docs/jobs.md, session of 2026-11-29, second)."""
 EXTRA_MODES: dict[str, tuple[str, ...]] = {"quadruped": QUADRUPED_STEEP_MODES, "biped": ()}
 
 Limits = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
@@ -182,8 +182,9 @@ def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Ge
             put("neck1", 0.0, 0.0, -side_sign * 0.35)
             put("tail1", 0.2)
         elif mode == "rearing":
-            # On the hind legs, trunk 50–70° up (negative pelvis flexion lifts the front),
-            # hind legs swung back to stand vertical, forelegs folded in the air.
+            # On the hind legs, pelvis 52–69° up (negative flexion lifts the front; the
+            # pelvis-to-neck line rises 45–80° with the noise), hind legs swung back to stand
+            # vertical, forelegs folded in the air.
             pitch = -(0.9 + 0.3 * amount)
             put("pelvis", pitch)
             for side in ("l", "r"):
