@@ -21,10 +21,10 @@ from numpy.typing import NDArray
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 from litege_core.synth.poses import (
-    EXTRA_MODES,
     MODES,
     NOISE_STD,
     Pose,
+    known_modes,
     posture_offsets,
     sample_pose,
     to_rotation_vectors,
@@ -76,8 +76,7 @@ def families(category: str) -> tuple[str, ...]:
 def pose_modes(category: str) -> tuple[str, ...]:
     """Every pose mode :func:`generate_shape` accepts for ``category``: the modes seeds draw
     (``poses.MODES``), then those generated only when asked for (``poses.EXTRA_MODES``)."""
-    category = check_category(category)
-    return MODES[category] + EXTRA_MODES[category]
+    return known_modes(check_category(category))
 
 
 def symmetry_map(category: str) -> NDArray:

@@ -35,6 +35,13 @@ drawn modes stays as it was. The frame selectors of issue 15 fail on exactly suc
 (docs/jobs.md, session of 2026-11-29, second)."""
 EXTRA_MODES: dict[str, tuple[str, ...]] = {"quadruped": QUADRUPED_STEEP_MODES, "biped": ()}
 
+
+def known_modes(category: str) -> tuple[str, ...]:
+    """Every mode of ``category`` a pose can be drawn in: :data:`MODES`, then
+    :data:`EXTRA_MODES`."""
+    return MODES[category] + EXTRA_MODES[category]
+
+
 Limits = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
 
 
@@ -128,7 +135,7 @@ def joint_frames(category: str, skeleton: Skeleton) -> NDArray:
 
 def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Generator) -> NDArray:
     """``(J, 3)`` anatomical offsets of a mode; left and right are given separately."""
-    known = MODES[category] + EXTRA_MODES[category]
+    known = known_modes(category)
     if mode not in known:
         raise InputError(f"unknown {category} pose mode {mode!r}; expected one of {known}")
     out = np.zeros((skeleton.n_joints, 3))
@@ -307,6 +314,7 @@ __all__ = [
     "Limits",
     "Pose",
     "joint_frames",
+    "known_modes",
     "mode_offsets",
     "posture_offsets",
     "sample_pose",
