@@ -76,14 +76,19 @@ def frames_of(model: MatchingModel, shapes: list[Shape], mode: str) -> list[tupl
     return out
 
 
-def candidate_rotations(model: MatchingModel, shape: Shape) -> list[np.ndarray]:
-    """The frames (``Transform.rotation`` of each) judged frames choose from for ``shape``: the
-    T-Net's, and where its turned runs split also the 24 principal-axis frames (seed 0, as
-    ``MatchingModel.prepare``)."""
+def tnet_frame(prepared) -> tuple:
+    """``(transform, cloud, scaling)`` of a shape prepared with ``frames="tnet"``: its entry of
+    ``align_shapes``, what :func:`~litege_core.matching.frame.candidate_turns` reads."""
+    return (prepared.transform, np.asarray(prepared._lazy["cloud"], np.float64), prepared.scaling)
+
+
+def candidate_rotations(model: MatchingModel, prepared) -> list[np.ndarray]:
+    """The frames (``Transform.rotation`` of each) judged frames choose from for a shape
+    prepared with ``frames="tnet"``: the T-Net's, and where its turned runs split also the 24
+    principal-axis frames (seed 0, as ``MatchingModel.prepare``)."""
     from litege_core.matching.frame import candidate_turns, turned
 
-    prepared = model.prepare(shape, frames="tnet")
-    frame = (prepared.transform, np.asarray(prepared._lazy["cloud"], np.float64), prepared.scaling)
+    frame = tnet_frame(prepared)
     turns = candidate_turns(model.bundle.tnet, [frame], model.pipeline.n_tnet_points, 0)[0]
     if turns is None:
         return [np.asarray(prepared.transform.rotation)]
@@ -171,32 +176,30 @@ def sagittal_rotations(normal: np.ndarray, turns: int = SAGITTAL_TURNS) -> np.nd
     return np.array(out)
 
 
-def sagittal_candidates(model: MatchingModel, shape: Shape) -> tuple[list[np.ndarray], bool]:
+def sagittal_candidates(prepared) -> list[np.ndarray]:
     """The T-Net's frame and the frames of :func:`sagittal_rotations` for each of the
-    shape's :func:`symmetry_normals` (``Transform.rotation`` of each), and whether its turned
-    T-Net runs split (the shapes judged frames judge)."""
-    from litege_core.matching.frame import candidate_turns, subsample
+    :func:`symmetry_normals` of a shape prepared with ``frames="tnet"`` (``Transform.rotation``
+    of each)."""
+    from litege_core.matching.frame import subsample
 
-    prepared = model.prepare(shape, frames="tnet")
-    cloud = np.asarray(prepared._lazy["cloud"], np.float64)
-    frame = (prepared.transform, cloud, prepared.scaling)
-    split = candidate_turns(model.bundle.tnet, [frame], model.pipeline.n_tnet_points, 0)[0]
-    unrotated = subsample(cloud @ prepared.transform.rotation, 2000, 0)
-    rotations = [np.asarray(prepared.transform.rotation)]
+    transform, cloud, _ = tnet_frame(prepared)
+    unrotated = subsample(cloud @ transform.rotation, 2000, 0)
+    rotations = [np.asarray(transform.rotation)]
     for normal in symmetry_normals(unrotated):
         rotations += list(sagittal_rotations(normal))
-    return rotations, split is not None
+    return rotations
 
 
-def judge_over(model: MatchingModel, shape: Shape, rotations: list[np.ndarray]) -> np.ndarray:
+def judge_over(
+    model: MatchingModel, shape: Shape, prepared, rotations: list[np.ndarray]
+) -> np.ndarray:
     """The rotation the frame judge keeps among ``rotations`` (the T-Net's frame first, with the
-    default margin), as judged frames keep one among theirs."""
+    default margin) for ``shape`` prepared with ``frames="tnet"``, as judged frames keep one
+    among theirs."""
     from litege_core.matching.judge import choose
 
-    prepared = model.prepare(shape, frames="tnet")
-    frame = (prepared.transform, np.asarray(prepared._lazy["cloud"], np.float64), prepared.scaling)
     turns = np.array([r @ prepared.transform.rotation.T for r in rotations])
-    scores = model._judge_scores([(shape, frame)], [turns])[0]
+    scores = model._judge_scores([(shape, tnet_frame(prepared))], [turns])[0]
     return rotations[choose(scores)]
 
 
@@ -216,14 +219,14 @@ def alternative_errors(
     if sagittal:
         out.update({"sagittal oracle": [], "judged over sagittal": []})
     for shape, rotation in zip(shapes, rotations, strict=True):
-        judged = candidate_rotations(model, shape)
+        prepared = model.prepare(shape, frames="tnet")
+        judged = candidate_rotations(model, prepared)
         out["oracle"].append(min(angle(r @ rotation, target) for r in judged))
         if sagittal:
-            candidates, split = sagittal_candidates(model, shape)
-            if not split:
-                candidates = candidates[:1]
+            split = len(judged) > 1  # its turned T-Net runs split: judged frames judge it
+            candidates = sagittal_candidates(prepared) if split else judged
             out["sagittal oracle"].append(min(angle(r @ rotation, target) for r in candidates))
-            kept = judge_over(model, shape, candidates) if split else candidates[0]
+            kept = judge_over(model, shape, prepared, candidates) if split else judged[0]
             out["judged over sagittal"].append(angle(kept @ rotation, target))
     return out
 

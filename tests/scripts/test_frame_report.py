@@ -30,16 +30,17 @@ def test_candidates_are_the_frames_judged_frames_choose_from(frame_report, monke
     model = MatchingModel(dataclasses.replace(tiny.bundle, orientation=_PrefersCandidate(7)))
     generated = generate_shape("quadruped", families("quadruped")[0], 2_000_000)
     shape = Shape.from_arrays(generated.vertices, generated.faces)
-    tnet_frame = model.prepare(shape, frames="tnet").transform.rotation
+    prepared = model.prepare(shape, frames="tnet")
+    tnet_frame = prepared.transform.rotation
     agreeing = np.tile(np.eye(3), (1, 24, 1, 1))
     monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: agreeing)
-    only = frame_report.candidate_rotations(model, shape)
+    only = frame_report.candidate_rotations(model, prepared)
     assert len(only) == 1 and np.allclose(only[0], tnet_frame)
 
     split = agreeing.copy()
     split[0, 5] = np.diag([1.0, -1.0, -1.0])
     monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: split)
-    many = frame_report.candidate_rotations(model, shape)
+    many = frame_report.candidate_rotations(model, prepared)
     assert len(many) == 25 and np.allclose(many[0], tnet_frame)
     for rotation in many:
         np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
@@ -93,22 +94,21 @@ def test_sagittal_rotations_cover_every_frame_with_that_left_right_axis(frame_re
         assert nearest <= half_step + 1e-9
 
 
-def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_report, monkeypatch):
+def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_report):
     model = MatchingModel.tiny_random(0)
     generated = generate_shape(
         "quadruped", families("quadruped")[0], 0, mean_shape=True, rest_pose=True
     )
     rotation = _random_rotation(4)
     shape = Shape.from_arrays(np.asarray(generated.vertices) @ rotation.T, generated.faces)
-    split = np.tile(np.eye(3), (1, 24, 1, 1))
-    split[0, 5] = np.diag([1.0, -1.0, -1.0])
-    monkeypatch.setattr(frame_module, "tnet_turn_runs", lambda tnet, c: split)
-    candidates, was_split = frame_report.sagittal_candidates(model, shape)
-    assert was_split and len(candidates) == 1 + 2 * 24 * frame_report.SAGITTAL_PLANES
+    prepared = model.prepare(shape, frames="tnet")
+    candidates = frame_report.sagittal_candidates(prepared)
+    assert len(candidates) == 1 + 2 * 24 * frame_report.SAGITTAL_PLANES
+    np.testing.assert_allclose(candidates[0], prepared.transform.rotation)  # the T-Net's first
     best = min(frame_report.angle(r @ rotation, np.eye(3)) for r in candidates)
     assert best <= np.pi / frame_report.SAGITTAL_TURNS + 0.05  # a turn step and the plane fit
     model.frame_judge = _JudgePrefers(17)
-    kept = frame_report.judge_over(model, shape, candidates)
+    kept = frame_report.judge_over(model, shape, prepared, candidates)
     np.testing.assert_allclose(kept, candidates[17], atol=1e-6)
 
 
