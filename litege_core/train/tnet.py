@@ -10,7 +10,9 @@
    area (:func:`~litege_core.canonical.canonicalize_unit_area` with the identity rotation).
    With ``data.extra_category`` the posed meshes of a collection source (MakeHuman bodies,
    rigged animals: the shapes of ``litege data build --category SOURCE``, same seeds) follow
-   in both splits, canonical in the same way (:func:`training_shape_sets`).
+   in both splits, canonical in the same way (:func:`training_shape_sets`). With
+   ``data.steep_share`` that share of the procedural shapes rears or leaps instead
+   (:func:`steep_pose`), still in the ground frame of the template.
 2. **Batches.** Every step draws ``batch_size`` shapes, one point count ``n`` per batch
    (log-uniform in ``[min_points, max_points]``: 500-point clouds up to the 2000 points
    :func:`predict_rotation` feeds) and, per item, ``n`` fresh area-weighted samples. Items are
@@ -119,6 +121,10 @@ class TNetDataConfig:
     """Share of the ``rigged`` extra shapes bent along the body (curled, head turned back,
     arched: :mod:`litege_core.synth.bend`; the body's centre keeps its heading, so the
     template's frame stays the true one)."""
+    steep_share: float = 0.0
+    """Share of the procedural shapes posed in a steep mode (rearing or leaping,
+    :data:`~litege_core.synth.poses.QUADRUPED_STEEP_MODES`), as real animals rear on their hind
+    legs or leap; the others keep the pose their seed draws (:func:`steep_pose`)."""
     train_data: str = ""
     """Root of the collection assets (``""``: ``$LITEGE_TRAIN_DATA``, else
     ``../shared/train-data``)."""
@@ -143,6 +149,11 @@ class TNetDataConfig:
         _check(
             self.extra_bend == 0.0 or self.extra_category == "rigged",
             'data.extra_bend needs data.extra_category = "rigged"',
+        )
+        _check(0.0 <= self.steep_share <= 1.0, "data.steep_share must be in [0, 1]")
+        _check(
+            self.steep_share == 0.0 or bool(_steep_modes(self.category)),
+            f"data.steep_share needs a category with steep poses, not {self.category!r}",
         )
 
 
@@ -324,19 +335,45 @@ def canonical_shape_set(
     return ShapeSet([v for v, _ in canonical], [f for _, f in canonical], list(keys))
 
 
-def _generated_canonical(job: tuple[str, str, int, int]) -> tuple[NDArray, NDArray]:
-    """``(category, family, seed, index)`` → the canonical mesh of that procedural shape."""
+def _steep_modes(category: str) -> tuple[str, ...]:
+    """The steep pose modes of ``category`` (none for an unknown one)."""
+    from litege_core.synth.poses import EXTRA_MODES
+
+    return EXTRA_MODES.get(category, ())
+
+
+def steep_pose(category: str, seed: int, share: float) -> str | None:
+    """The steep mode shape ``seed`` of ``category`` is posed in, or ``None`` for its drawn pose.
+
+    A pure function of ``(seed, share)``: the shape is steep with probability ``share``
+    (``default_rng([seed, 7919])``), each steep mode equally likely (a second draw); a seed
+    steep at some share stays steep, in the same mode, at every larger share."""
+    modes = _steep_modes(category)
+    if share <= 0.0 or not modes:
+        return None
+    steep_draw, mode_draw = np.random.default_rng([seed, 7919]).random(2)
+    return modes[int(mode_draw * len(modes))] if steep_draw < share else None
+
+
+def _generated_canonical(job: tuple[str, str, int, int, str | None]) -> tuple[NDArray, NDArray]:
+    """``(category, family, seed, index, pose)`` → the canonical mesh of that procedural shape
+    (``pose`` ``None``: the pose its seed draws)."""
     from litege_core.synth import generate_shape
 
-    category, family, seed, index = job
-    shape = generate_shape(category, family, seed)
+    category, family, seed, index, pose = job
+    shape = generate_shape(category, family, seed, pose)
     return _canonical_mesh(shape.vertices, shape.faces, index)
 
 
-def _generate_canonical(category: str, keys: Sequence[tuple[str, int]], workers: int) -> ShapeSet:
+def _generate_canonical(
+    category: str, keys: Sequence[tuple[str, int]], workers: int, steep_share: float = 0.0
+) -> ShapeSet:
     """The procedural shapes ``keys`` in the canonical frame, on ``workers`` processes (each
     shape is a pure function of its key and position, so the count does not change them)."""
-    jobs = [(category, family, seed, index) for index, (family, seed) in enumerate(keys)]
+    jobs = [
+        (category, family, seed, index, steep_pose(category, seed, steep_share))
+        for index, (family, seed) in enumerate(keys)
+    ]
     meshes = _map_jobs(_generated_canonical, jobs, workers, chunksize=4)
     return ShapeSet([v for v, _ in meshes], [f for _, f in meshes], list(keys))
 
@@ -363,13 +400,15 @@ def generate_shape_set(
     n_shapes: int,
     cache_dir: str | Path | None = None,
     workers: int = 1,
+    steep_share: float = 0.0,
 ) -> ShapeSet:
-    """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical.
+    """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical;
+    a ``steep_share`` of them rear or leap (:func:`steep_pose`).
 
     With ``cache_dir`` the set is kept in
-    ``<cache_dir>/tnet-shapes-<category>-<split>-<n>-<generator version>.npz``: the largest
-    cached set of the split is reused (sliced, or extended by generating the missing shapes).
-    ``workers`` processes generate the missing shapes.
+    ``<cache_dir>/tnet-shapes-<category>-<split>-[steep<share>-]<n>-<generator version>.npz``:
+    the largest cached set of the split is reused (sliced, or extended by generating the missing
+    shapes). ``workers`` processes generate the missing shapes.
     """
     from litege_core.synth import GENERATOR_VERSION, families
 
@@ -377,12 +416,13 @@ def generate_shape_set(
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     cached: list[NDArray] = []
     faces: NDArray | None = None
-    prefix, suffix = f"tnet-shapes-{category}-{split}-", f"-{GENERATOR_VERSION}.npz"
+    steep = f"steep{steep_share:g}-" if steep_share > 0.0 else ""
+    prefix, suffix = f"tnet-shapes-{category}-{split}-{steep}", f"-{GENERATOR_VERSION}.npz"
     largest = _largest_cache(cache_dir, prefix, suffix)
     if largest is not None:
         with np.load(largest) as data:
             cached, faces = list(data["vertices"][:n_shapes]), data["faces"]
-    fresh = _generate_canonical(category, keys[len(cached) :], workers)
+    fresh = _generate_canonical(category, keys[len(cached) :], workers, steep_share)
     if faces is None:
         faces = fresh.faces[0] if fresh.faces else np.zeros((0, 3), dtype=np.int64)
     shared = all(np.array_equal(f, faces) for f in fresh.faces)
@@ -504,7 +544,7 @@ def training_shape_sets(data: TNetDataConfig) -> tuple[ShapeSet, ShapeSet]:
     ):
         mark = time.perf_counter()
         shapes = generate_shape_set(
-            data.category, split, n_procedural, data.cache_dir, data.workers
+            data.category, split, n_procedural, data.cache_dir, data.workers, data.steep_share
         )
         if n_extra:
             extra = collection_shape_set(

@@ -34,6 +34,7 @@ from litege_core.train.tnet import (
     run_tnet_training,
     sample_batch,
     save_tnet,
+    steep_pose,
     train_step,
     train_tnet,
     training_shape_sets,
@@ -113,6 +114,9 @@ def test_shipped_config_loads_and_round_trips() -> None:
         {"data": {"extra_category": "makehuman", "n_extra_val": -1}},
         {"data": {"extra_category": "makehuman", "n_extra_train": 4, "extra_bend": 0.5}},
         {"data": {"extra_category": "rigged", "n_extra_train": 4, "extra_bend": 1.5}},
+        {"data": {"steep_share": -0.1}},
+        {"data": {"steep_share": 1.5}},
+        {"data": {"category": "biped", "steep_share": 0.3}},
         {"report": {"broken_fraction": 1.0}},
         {"output": {"dir": ""}},
         {"data": []},
@@ -167,6 +171,40 @@ def test_generated_shapes_follow_the_dataset_convention_and_cache(tmp_path) -> N
         for a, b in zip(cached.vertices, shapes.vertices, strict=False):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(cached.faces[0], shapes.faces[0])
+
+
+def test_steep_poses_are_a_nested_seeded_share() -> None:
+    seeds = range(2000)
+    small = [steep_pose("quadruped", seed, 0.1) for seed in seeds]
+    large = [steep_pose("quadruped", seed, 0.3) for seed in seeds]
+    assert 0.07 < np.mean([mode is not None for mode in small]) < 0.13
+    assert 0.26 < np.mean([mode is not None for mode in large]) < 0.34
+    # a seed steep at a share stays steep, in the same mode, at a larger one
+    assert all(b == a for a, b in zip(small, large, strict=True) if a is not None)
+    assert {mode for mode in large if mode} == {"rearing", "leaping"}
+    assert [steep_pose("quadruped", seed, 0.3) for seed in seeds] == large
+    assert steep_pose("quadruped", 5, 0.0) is None
+    assert steep_pose("biped", 5, 1.0) is None  # bipeds have no steep modes
+
+
+def test_steep_shapes_are_posed_and_cached_apart(tmp_path) -> None:
+    from litege_core.synth import generate_shape
+
+    seed = next(s for s in range(1_000_000, 1_000_100) if steep_pose("quadruped", s, 0.5))
+    n_shapes = seed - 1_000_000 + 1
+    drawn = generate_shape_set("quadruped", "val", n_shapes, cache_dir=tmp_path)
+    steep = generate_shape_set("quadruped", "val", n_shapes, cache_dir=tmp_path, steep_share=0.5)
+    family = steep.keys[-1][0]
+    posed = generate_shape("quadruped", family, seed, steep_pose("quadruped", seed, 0.5))
+    centred = steep.vertices[-1] - steep.vertices[-1].mean(axis=0)
+    expected = posed.vertices - posed.vertices.mean(axis=0)
+    scale = np.linalg.norm(centred) / np.linalg.norm(expected)
+    np.testing.assert_allclose(centred, expected * scale, atol=1e-9)  # same shape, same frame
+    assert not np.allclose(steep.vertices[-1], drawn.vertices[-1])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1.npz",
+        f"tnet-shapes-quadruped-val-steep0.5-{n_shapes}-synth-template-v1.npz",
+    ]
 
 
 class _ToyCollection:
