@@ -47,6 +47,7 @@ from litege_core.train.tnet import (
     TNetAugmentConfig,
     TNetDataConfig,
     _item_cloud,
+    steep_pose,
     training_shape_sets,
 )
 from litege_core.variants import small_rotation
@@ -134,8 +135,9 @@ class OrientationTrainConfig(ConfigRoot):
     output: OrientationOutputConfig = field(default_factory=OrientationOutputConfig)
 
 
-def without_lying(shapes: ShapeSet, category: str) -> ShapeSet:
-    """``shapes`` less the procedural ``category`` shapes whose drawn pose is ``lying``."""
+def without_lying(shapes: ShapeSet, category: str, steep_share: float = 0.0) -> ShapeSet:
+    """``shapes`` less the procedural ``category`` shapes posed ``lying``: their drawn pose,
+    unless ``steep_share`` posed them steep (:func:`~litege_core.train.tnet.steep_pose`)."""
     from litege_core.synth import families
     from litege_core.synth.generate import drawn_pose_mode
 
@@ -143,7 +145,9 @@ def without_lying(shapes: ShapeSet, category: str) -> ShapeSet:
     keep = [
         i
         for i, (family, seed) in enumerate(shapes.keys)
-        if family not in procedural or drawn_pose_mode(category, family, seed) != "lying"
+        if family not in procedural
+        or (steep_pose(category, seed, steep_share) or drawn_pose_mode(category, family, seed))
+        != "lying"
     ]
     return ShapeSet(
         [shapes.vertices[i] for i in keep],
@@ -232,8 +236,9 @@ def train_orientation(
     if train_shapes is None or val_shapes is None:
         train_shapes, val_shapes = training_shape_sets(config.data)
     if opt.skip_lying:
-        train_shapes = without_lying(train_shapes, config.data.category)
-        val_shapes = without_lying(val_shapes, config.data.category)
+        data = config.data
+        train_shapes = without_lying(train_shapes, data.category, data.steep_share)
+        val_shapes = without_lying(val_shapes, data.category, data.steep_share)
     val_clouds, val_bases = sample_items(
         val_shapes, opt.val_items, config, np.random.default_rng([opt.seed, 1])
     )

@@ -140,6 +140,15 @@ def test_lying_procedural_shapes_are_left_out() -> None:
     kept = without_lying(ShapeSet(dummy, dummy, keys), "quadruped")
     expected = [key for key, pose in zip(keys, [*poses, "rigged"], strict=True) if pose != "lying"]
     assert kept.keys == expected
+    # a lying seed posed steep stays in
+    from litege_core.train.tnet import steep_pose
+
+    share = 0.5
+    steep = [steep_pose("quadruped", seed, share) for _, seed in keys[:6]]
+    poses = [mode or pose for mode, pose in zip(steep, poses, strict=True)]
+    kept = without_lying(ShapeSet(dummy, dummy, keys), "quadruped", share)
+    expected = [key for key, pose in zip(keys, [*poses, "rigged"], strict=True) if pose != "lying"]
+    assert kept.keys == expected
 
 
 def test_foreign_files_are_artifact_errors(tmp_path) -> None:
