@@ -2,7 +2,7 @@
 
 Usage:
     python scripts/frame_report.py quadrupeds [--procedural 60] [--eval-data ../shared/eval-data] \
-        [--per-shape]
+        [--steep 40] [--per-shape]
 
 Each shape is randomly rotated (seeded) and prepared with ``frames="tnet"`` and
 ``frames="judged"``; the error of a frame is the angle (rad) between the rotation it applies
@@ -11,6 +11,9 @@ and the true one; a failure is an angle above 0.66 rad (the reference's T-Net re
 * **procedural**: held-out test-split shapes (seeds 2,000,100 + k, families cycled, the pose
   mode each seed draws), whose true frame is the generator's (for ``lying`` animals that is the
   ground frame, the body rolled ~83° on its side: a body-upright frame counts as a failure);
+* **steep** (``--steep N``, a quadruped model): the same seeds posed rearing or leaping
+  (``litege_core.synth.poses.QUADRUPED_STEEP_MODES``, families cycled, then the modes), the
+  trunk 45–80° up or stretched, in the ground frame as real rearing animals are;
 * **TOSCA** (read from ``--eval-data`` when present): the 31 ``tosca_5k`` poses and the 4
   high-resolution ``tosca_landmarks`` rest poses. TOSCA files share one frame (x: the animal's
   left-right axis, z: up, −y: forward), so the true canonical rotation of every file is the
@@ -55,6 +58,7 @@ from litege_core.io import load_shape
 from litege_core.matching import MatchingModel
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
+from litege_core.synth.poses import EXTRA_MODES
 from litege_core.variants import random_rotation
 
 FAILURE = 0.66
@@ -277,6 +281,9 @@ def main() -> None:
     parser.add_argument("--eval-data", default="../shared/eval-data")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rigged", type=int, default=40, help="posed rigged animals (0: none)")
+    parser.add_argument(
+        "--steep", type=int, default=0, help="procedural animals rearing or leaping (0: none)"
+    )
     parser.add_argument("--cache", default="out/frame-report-shapes", help="rigged shape cache")
     parser.add_argument(
         "--oracle",
@@ -315,6 +322,27 @@ def main() -> None:
         upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
         rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
         switched[f"procedural {mode}"] = sum(name != "tnet" for _, name in found)
+
+    # ------------------------------------------------------------------ steep poses
+    steep_modes = EXTRA_MODES[model.category]
+    if args.steep and steep_modes:
+        generated = [
+            generate_shape(
+                model.category,
+                names[k % len(names)],
+                2_000_100 + k,
+                steep_modes[(k // len(names)) % len(steep_modes)],
+            )
+            for k in range(args.steep)
+        ]
+        shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 19)
+        for mode in ("tnet", "judged"):
+            found = frames_of(model, shapes, mode)
+            errors = errors_to_truth(found, truths)
+            rows.append(
+                f"| procedural (test seeds), rearing or leaping | {mode} | {summary(errors)} |"
+            )
+            switched[f"steep {mode}"] = sum(name != "tnet" for _, name in found)
 
     # ------------------------------------------------------------------ rigged animals
     if args.rigged and model.category == "quadruped":
@@ -404,6 +432,7 @@ def main() -> None:
     print(
         f"- date {date}; command `python scripts/frame_report.py {args.model} "
         f"--procedural {args.procedural} --rigged {args.rigged}"
+        f"{f' --steep {args.steep}' if args.steep else ''}"
         f"{' --per-shape' if args.per_shape else ''}{' --oracle' if args.oracle else ''}"
         f"{' --sagittal' if args.sagittal else ''}`; frames changed by the judge: {switched}\n"
     )
