@@ -37,7 +37,8 @@ those candidates could reach. ``--sagittal`` adds candidates that owe nothing to
 axes: an animal is mirror-symmetric about its sagittal plane up to its pose, so the normals of
 the shape's best mirror-symmetry planes (:func:`symmetry_normals`) are candidate left-right axes,
 each with 48 frames about it (:func:`sagittal_rotations`); the tables gain their best
-(``sagittal oracle``) and the frame the judge keeps among them (``judged over sagittal``).
+(``sagittal oracle``), the frame the judge keeps among them (``judged over sagittal``) and
+the T-Net's frame laid on the nearest of those planes (``tnet snapped``, :func:`snapped`).
 
 Prints a markdown block; every number comes from this script.
 """
@@ -180,18 +181,40 @@ def sagittal_rotations(normal: np.ndarray, turns: int = SAGITTAL_TURNS) -> np.nd
     return np.array(out)
 
 
-def sagittal_candidates(prepared) -> list[np.ndarray]:
-    """The T-Net's frame and the frames of :func:`sagittal_rotations` for each of the
-    :func:`symmetry_normals` of a shape prepared with ``frames="tnet"`` (``Transform.rotation``
-    of each)."""
+def plane_normals(prepared) -> np.ndarray:
+    """:func:`symmetry_normals` ``(3, 3)`` of a shape prepared with ``frames="tnet"`` (2,000 of
+    its descriptor cloud's points, in the shape's input coordinates)."""
     from litege_core.matching.frame import subsample
 
     transform, cloud, _ = tnet_frame(prepared)
-    unrotated = subsample(cloud @ transform.rotation, 2000, 0)
-    rotations = [np.asarray(transform.rotation)]
-    for normal in symmetry_normals(unrotated):
+    return symmetry_normals(subsample(cloud @ transform.rotation, 2000, 0))
+
+
+def sagittal_candidates(prepared, normals: np.ndarray) -> list[np.ndarray]:
+    """The T-Net's frame and the frames of :func:`sagittal_rotations` about each of the
+    ``normals`` (:func:`plane_normals`) of a shape prepared with ``frames="tnet"``
+    (``Transform.rotation`` of each)."""
+    rotations = [np.asarray(prepared.transform.rotation)]
+    for normal in normals:
         rotations += list(sagittal_rotations(normal))
     return rotations
+
+
+def snapped(rotation: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``rotation`` (rows: the canonical axes in shape coordinates) turned by the smallest
+    rotation that lays its left-right axis (row 0) on the nearest of ``normals`` ``(K, 3)`` (up
+    to sign): the frame's heading and up kept as far as the symmetry plane allows."""
+    lateral = rotation[0]
+    normal = normals[int(np.argmax(np.abs(normals @ lateral)))]
+    normal = normal * np.sign(normal @ lateral)
+    axis = np.cross(lateral, normal)
+    sine, cosine = np.linalg.norm(axis), float(lateral @ normal)
+    if sine < 1e-12:
+        return rotation
+    k = axis / sine
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    turn = np.eye(3) + sine * cross + (1.0 - cosine) * cross @ cross
+    return rotation @ turn.T
 
 
 def judge_over(
@@ -218,20 +241,24 @@ def alternative_errors(
     ``oracle``, the best of the judged candidates (:func:`candidate_rotations`); with
     ``sagittal`` also ``sagittal oracle``, the best of :func:`sagittal_candidates`, and
     ``judged over sagittal``, the frame the judge keeps among those (both the T-Net's frame
-    alone where its turned runs agree, as judged frames)."""
+    alone where its turned runs agree, as judged frames), and ``tnet snapped``, the T-Net's
+    frame laid on the nearest symmetry plane (:func:`snapped`)."""
     out: dict[str, list[float]] = {"oracle": []}
     if sagittal:
-        out.update({"sagittal oracle": [], "judged over sagittal": []})
+        out.update({"sagittal oracle": [], "judged over sagittal": [], "tnet snapped": []})
     for shape, rotation in zip(shapes, rotations, strict=True):
         prepared = model.prepare(shape, frames="tnet")
         judged = candidate_rotations(model, prepared)
         out["oracle"].append(min(angle(r @ rotation, target) for r in judged))
         if sagittal:
             split = len(judged) > 1  # its turned T-Net runs split: judged frames judge it
-            candidates = sagittal_candidates(prepared) if split else judged
+            normals = plane_normals(prepared)
+            candidates = sagittal_candidates(prepared, normals) if split else judged
             out["sagittal oracle"].append(min(angle(r @ rotation, target) for r in candidates))
             kept = judge_over(model, shape, prepared, candidates) if split else judged[0]
             out["judged over sagittal"].append(angle(kept @ rotation, target))
+            tnet_snapped = snapped(np.asarray(prepared.transform.rotation), normals)
+            out["tnet snapped"].append(angle(tnet_snapped @ rotation, target))
     return out
 
 
@@ -442,7 +469,7 @@ def main() -> None:
     if args.per_shape and per_shape:
         extra = [
             m
-            for m in ("oracle", "sagittal oracle", "judged over sagittal")
+            for m in ("oracle", "sagittal oracle", "judged over sagittal", "tnet snapped")
             if m in next(iter(per_shape.values()))
         ]
         titles = {"oracle": "best candidate", "sagittal oracle": "best sagittal candidate"}

@@ -102,7 +102,8 @@ def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_rep
     rotation = _random_rotation(4)
     shape = Shape.from_arrays(np.asarray(generated.vertices) @ rotation.T, generated.faces)
     prepared = model.prepare(shape, frames="tnet")
-    candidates = frame_report.sagittal_candidates(prepared)
+    normals = frame_report.plane_normals(prepared)
+    candidates = frame_report.sagittal_candidates(prepared, normals)
     assert len(candidates) == 1 + 2 * 24 * frame_report.SAGITTAL_PLANES
     np.testing.assert_allclose(candidates[0], prepared.transform.rotation)  # the T-Net's first
     best = min(frame_report.angle(r @ rotation, np.eye(3)) for r in candidates)
@@ -110,6 +111,21 @@ def test_sagittal_candidates_hold_the_true_frame_of_a_symmetric_animal(frame_rep
     model.frame_judge = _JudgePrefers(17)
     kept = frame_report.judge_over(model, shape, prepared, candidates)
     np.testing.assert_allclose(kept, candidates[17], atol=1e-6)
+
+
+def test_snapping_lays_the_left_right_axis_on_the_nearest_plane_and_keeps_the_rest(frame_report):
+    truth = _random_rotation(5)
+    normals = np.array([truth[1], -truth[0], truth[2]])  # the true plane's normal, sign flipped
+    tilt = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(0.5), -np.sin(0.5)], [0.0, np.sin(0.5), 0.0]])
+    tilt[2, 2] = np.cos(0.5)  # a turn about the left-right axis: the plane cannot see it
+    roll = np.array([[np.cos(0.4), -np.sin(0.4), 0.0], [np.sin(0.4), np.cos(0.4), 0.0], [0, 0, 1]])
+    start = tilt @ roll @ truth  # the left-right axis 0.4 rad off the plane's normal
+    result = frame_report.snapped(start, normals)
+    np.testing.assert_allclose(result @ result.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(result[0], truth[0], atol=1e-12)
+    # only the roll is undone: the result is the tilt alone
+    np.testing.assert_allclose(result, tilt @ truth, atol=1e-12)
+    np.testing.assert_allclose(frame_report.snapped(truth, normals), truth, atol=1e-12)
 
 
 class _JudgePrefers:
