@@ -42,6 +42,20 @@ def known_modes(category: str) -> tuple[str, ...]:
     return MODES[category] + EXTRA_MODES[category]
 
 
+def steep_pose(category: str, seed: int, share: float) -> str | None:
+    """The steep mode (:data:`EXTRA_MODES`) shape ``seed`` of ``category`` is posed in when a
+    ``share`` of a set rears or leaps, or ``None`` for the pose its seed draws.
+
+    A pure function of ``(seed, share)``: the shape is steep with probability ``share``
+    (``default_rng([seed, 7919])``), each steep mode equally likely (a second draw); a seed
+    steep at some share stays steep, in the same mode, at every larger share."""
+    modes = EXTRA_MODES.get(category, ())
+    if share <= 0.0 or not modes:
+        return None
+    steep_draw, mode_draw = np.random.default_rng([seed, 7919]).random(2)
+    return modes[int(mode_draw * len(modes))] if steep_draw < share else None
+
+
 Limits = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
 
 
@@ -318,5 +332,6 @@ __all__ = [
     "mode_offsets",
     "posture_offsets",
     "sample_pose",
+    "steep_pose",
     "to_rotation_vectors",
 ]

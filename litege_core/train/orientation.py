@@ -47,7 +47,6 @@ from litege_core.train.tnet import (
     TNetAugmentConfig,
     TNetDataConfig,
     _item_cloud,
-    steep_pose,
     training_shape_sets,
 )
 from litege_core.variants import small_rotation
@@ -137,9 +136,10 @@ class OrientationTrainConfig(ConfigRoot):
 
 def without_lying(shapes: ShapeSet, category: str, steep_share: float = 0.0) -> ShapeSet:
     """``shapes`` less the procedural ``category`` shapes posed ``lying``: their drawn pose,
-    unless ``steep_share`` posed them steep (:func:`~litege_core.train.tnet.steep_pose`)."""
+    unless ``steep_share`` posed them steep (:func:`~litege_core.synth.poses.steep_pose`)."""
     from litege_core.synth import families
     from litege_core.synth.generate import drawn_pose_mode
+    from litege_core.synth.poses import steep_pose
 
     procedural = set(families(category))
     keep = [

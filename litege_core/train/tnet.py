@@ -12,7 +12,7 @@
    rigged animals: the shapes of ``litege data build --category SOURCE``, same seeds) follow
    in both splits, canonical in the same way (:func:`training_shape_sets`). With
    ``data.steep_share`` that share of the procedural shapes rears or leaps instead
-   (:func:`steep_pose`), still in the ground frame of the template.
+   (:func:`~litege_core.synth.poses.steep_pose`), still in the ground frame of the template.
 2. **Batches.** Every step draws ``batch_size`` shapes, one point count ``n`` per batch
    (log-uniform in ``[min_points, max_points]``: 500-point clouds up to the 2000 points
    :func:`predict_rotation` feeds) and, per item, ``n`` fresh area-weighted samples. Items are
@@ -124,7 +124,8 @@ class TNetDataConfig:
     steep_share: float = 0.0
     """Share of the procedural shapes posed in a steep mode (rearing or leaping,
     :data:`~litege_core.synth.poses.QUADRUPED_STEEP_MODES`), as real animals rear on their hind
-    legs or leap; the others keep the pose their seed draws (:func:`steep_pose`)."""
+    legs or leap; the others keep the pose their seed draws
+    (:func:`~litege_core.synth.poses.steep_pose`)."""
     train_data: str = ""
     """Root of the collection assets (``""``: ``$LITEGE_TRAIN_DATA``, else
     ``../shared/train-data``)."""
@@ -342,19 +343,6 @@ def _steep_modes(category: str) -> tuple[str, ...]:
     return EXTRA_MODES.get(category, ())
 
 
-def steep_pose(category: str, seed: int, share: float) -> str | None:
-    """The steep mode shape ``seed`` of ``category`` is posed in, or ``None`` for its drawn pose.
-
-    A pure function of ``(seed, share)``: the shape is steep with probability ``share``
-    (``default_rng([seed, 7919])``), each steep mode equally likely (a second draw); a seed
-    steep at some share stays steep, in the same mode, at every larger share."""
-    modes = _steep_modes(category)
-    if share <= 0.0 or not modes:
-        return None
-    steep_draw, mode_draw = np.random.default_rng([seed, 7919]).random(2)
-    return modes[int(mode_draw * len(modes))] if steep_draw < share else None
-
-
 def _generated_canonical(job: tuple[str, str, int, int, str | None]) -> tuple[NDArray, NDArray]:
     """``(category, family, seed, index, pose)`` → the canonical mesh of that procedural shape
     (``pose`` ``None``: the pose its seed draws)."""
@@ -370,6 +358,8 @@ def _generate_canonical(
 ) -> ShapeSet:
     """The procedural shapes ``keys`` in the canonical frame, on ``workers`` processes (each
     shape is a pure function of its key and position, so the count does not change them)."""
+    from litege_core.synth.poses import steep_pose
+
     jobs = [
         (category, family, seed, index, steep_pose(category, seed, steep_share))
         for index, (family, seed) in enumerate(keys)
@@ -403,7 +393,7 @@ def generate_shape_set(
     steep_share: float = 0.0,
 ) -> ShapeSet:
     """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical;
-    a ``steep_share`` of them rear or leap (:func:`steep_pose`).
+    a ``steep_share`` of them rear or leap (:func:`~litege_core.synth.poses.steep_pose`).
 
     With ``cache_dir`` the set is kept in
     ``<cache_dir>/tnet-shapes-<category>-<split>-[steep<share>-]<n>-<generator version>.npz``:

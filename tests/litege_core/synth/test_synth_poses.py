@@ -108,3 +108,19 @@ def test_rearing_raises_the_trunk_and_leaping_stretches_the_legs(family: str) ->
     assert paw_spread(leaping) > paw_spread(standing)
     if leaping.params["pose_attempts"] <= 3:
         assert paw_spread(leaping) > 1.2 * paw_spread(standing)
+
+
+def test_steep_poses_are_a_nested_seeded_share() -> None:
+    from litege_core.synth.poses import steep_pose
+
+    seeds = range(2000)
+    small = [steep_pose("quadruped", seed, 0.1) for seed in seeds]
+    large = [steep_pose("quadruped", seed, 0.3) for seed in seeds]
+    assert 0.07 < np.mean([mode is not None for mode in small]) < 0.13
+    assert 0.26 < np.mean([mode is not None for mode in large]) < 0.34
+    # a seed steep at a share stays steep, in the same mode, at a larger one
+    assert all(b == a for a, b in zip(small, large, strict=True) if a is not None)
+    assert {mode for mode in large if mode} == {"rearing", "leaping"}
+    assert [steep_pose("quadruped", seed, 0.3) for seed in seeds] == large
+    assert steep_pose("quadruped", 5, 0.0) is None
+    assert steep_pose("biped", 5, 1.0) is None  # bipeds have no steep modes

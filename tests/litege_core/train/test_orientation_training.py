@@ -141,7 +141,7 @@ def test_lying_procedural_shapes_are_left_out() -> None:
     expected = [key for key, pose in zip(keys, [*poses, "rigged"], strict=True) if pose != "lying"]
     assert kept.keys == expected
     # a lying seed posed steep stays in
-    from litege_core.train.tnet import steep_pose
+    from litege_core.synth.poses import steep_pose
 
     share = 0.5
     steep = [steep_pose("quadruped", seed, share) for _, seed in keys[:6]]

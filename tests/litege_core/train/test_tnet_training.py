@@ -34,7 +34,6 @@ from litege_core.train.tnet import (
     run_tnet_training,
     sample_batch,
     save_tnet,
-    steep_pose,
     train_step,
     train_tnet,
     training_shape_sets,
@@ -173,22 +172,9 @@ def test_generated_shapes_follow_the_dataset_convention_and_cache(tmp_path) -> N
         np.testing.assert_array_equal(cached.faces[0], shapes.faces[0])
 
 
-def test_steep_poses_are_a_nested_seeded_share() -> None:
-    seeds = range(2000)
-    small = [steep_pose("quadruped", seed, 0.1) for seed in seeds]
-    large = [steep_pose("quadruped", seed, 0.3) for seed in seeds]
-    assert 0.07 < np.mean([mode is not None for mode in small]) < 0.13
-    assert 0.26 < np.mean([mode is not None for mode in large]) < 0.34
-    # a seed steep at a share stays steep, in the same mode, at a larger one
-    assert all(b == a for a, b in zip(small, large, strict=True) if a is not None)
-    assert {mode for mode in large if mode} == {"rearing", "leaping"}
-    assert [steep_pose("quadruped", seed, 0.3) for seed in seeds] == large
-    assert steep_pose("quadruped", 5, 0.0) is None
-    assert steep_pose("biped", 5, 1.0) is None  # bipeds have no steep modes
-
-
 def test_steep_shapes_are_posed_and_cached_apart(tmp_path) -> None:
     from litege_core.synth import generate_shape
+    from litege_core.synth.poses import steep_pose
 
     seed = next(s for s in range(1_000_000, 1_000_100) if steep_pose("quadruped", s, 0.5))
     n_shapes = seed - 1_000_000 + 1
