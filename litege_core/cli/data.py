@@ -41,7 +41,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     manifest = build_dataset(
         spec,
         directory,
-        factory_for(args.category, args.train_data, bent_pose_settings(args.bend)),
+        factory_for(args.category, args.train_data, bent_pose_settings(args.bend), args.steep),
         workers=args.workers,
         solver=args.solver,
         part=share,
@@ -173,6 +173,14 @@ def register(commands: argparse._SubParsersAction) -> None:
         metavar="P",
         help="--category rigged: share of the posed animals bent along the body (curled, head "
         "turned back, arched; litege_core.synth.bend), default 0",
+    )
+    build.add_argument(
+        "--steep",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="--category quadruped: share of the shapes posed rearing or leaping instead of "
+        "their drawn pose (litege_core.synth.poses.steep_pose), default 0",
     )
     build.add_argument(
         "--train-data",

@@ -38,15 +38,18 @@ def train_data_root(root: str | os.PathLike | None = None) -> Path:
 
 @dataclass(frozen=True)
 class SynthFactory:
-    """Procedural shapes of one ``synth`` category (template triangulation shared)."""
+    """Procedural shapes of one ``synth`` category (template triangulation shared); a
+    ``steep_share`` of them rear or leap (:func:`~litege_core.synth.poses.steep_pose`)."""
 
     category: str
+    steep_share: float = 0.0
 
     @property
     def version(self) -> str:
         from litege_core.synth import GENERATOR_VERSION
 
-        return GENERATOR_VERSION
+        steep = f"+steep{self.steep_share:g}" if self.steep_share > 0.0 else ""
+        return GENERATOR_VERSION + steep
 
     def template(self) -> tuple[NDArray, NDArray]:
         from litege_core.synth import template
@@ -56,8 +59,10 @@ class SynthFactory:
 
     def generate(self, family: str, seed: int) -> NDArray:
         from litege_core.synth import generate_shape
+        from litege_core.synth.poses import steep_pose
 
-        return generate_shape(self.category, family, seed).vertices
+        pose = steep_pose(self.category, seed, self.steep_share)
+        return generate_shape(self.category, family, seed, pose).vertices
 
 
 @dataclass(frozen=True)
@@ -134,23 +139,33 @@ class FolderFactory:
 
 
 def factory_for(
-    category: str, root: str | os.PathLike | None = None, pose: PoseSettings | None = None
+    category: str,
+    root: str | os.PathLike | None = None,
+    pose: PoseSettings | None = None,
+    steep_share: float = 0.0,
 ):
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
     ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
-    ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults.
+    ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults;
+    ``steep_share``: the share of procedural shapes rearing or leaping (quadrupeds).
 
     Raises:
-        InputError: unknown category, the train-data assets are missing, or ``pose`` given
-            for a category other than ``rigged``.
+        InputError: unknown category, the train-data assets are missing, ``pose`` given
+            for a category other than ``rigged``, or a ``steep_share`` outside ``[0, 1]`` or
+            for a category without steep poses.
     """
     from litege_core.synth import CATEGORIES
+    from litege_core.synth.poses import EXTRA_MODES
 
     if pose is not None and category != "rigged":
         raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
+    if not 0.0 <= steep_share <= 1.0:
+        raise InputError(f"the steep share must be in [0, 1], got {steep_share!r}")
+    if steep_share > 0.0 and not EXTRA_MODES.get(category):
+        raise InputError(f"{category!r} shapes have no steep poses (rearing, leaping)")
 
     if category in CATEGORIES:
-        return SynthFactory(category)
+        return SynthFactory(category, steep_share)
     if category in ("rigged", "makehuman"):
         base = train_data_root(root)
         probe = base / ("quaternius-uaa" if category == "rigged" else "makehuman")

@@ -226,3 +226,24 @@ def test_matching_preset_keeps_only_shared_sources():
     spec = preset("matching", "quadruped")
     assert spec.n_extra_sources == 0 and spec.n_shapes["test"] == 0
     assert spec.n_shapes["train"] >= 100 and spec.n_shapes["val"] >= 16
+
+
+def test_the_procedural_factory_poses_its_steep_share_and_names_it():
+    from litege_core.datasets.factories import SynthFactory, factory_for
+    from litege_core.synth import GENERATOR_VERSION, generate_shape
+    from litege_core.synth.poses import steep_pose
+
+    plain, steep = factory_for("quadruped"), factory_for("quadruped", steep_share=0.5)
+    assert isinstance(steep, SynthFactory)
+    assert plain.version == GENERATOR_VERSION
+    assert steep.version == f"{GENERATOR_VERSION}+steep0.5"  # a build never resumes the other
+    seed = next(s for s in range(100) if steep_pose("quadruped", s, 0.5))
+    mode = steep_pose("quadruped", seed, 0.5)
+    np.testing.assert_array_equal(
+        steep.generate("cat", seed), generate_shape("quadruped", "cat", seed, mode).vertices
+    )
+    drawn = next(s for s in range(100) if steep_pose("quadruped", s, 0.5) is None)
+    np.testing.assert_array_equal(steep.generate("cat", drawn), plain.generate("cat", drawn))
+    for category, share in (("quadruped", 1.5), ("quadruped", -0.1), ("biped", 0.3)):
+        with pytest.raises(InputError):
+            factory_for(category, steep_share=share)
