@@ -77,7 +77,6 @@ from litege_core.evaluation.speed import (
 )
 from litege_core.learned import Predictor, load_shipped
 from litege_core.learned.describe import shape_samples
-from litege_core.learned.predictor import DENSE_MIN_PAIRS
 from litege_core.learned.state import ShapeRecord
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
@@ -189,7 +188,7 @@ def stage_functions(predictor: Predictor, work: Workload) -> list[tuple[str, Cal
         c["blocks"] = list(zip(resolved[:count], resolved[count:], strict=True))
 
     def head(c: dict) -> None:
-        c["out"] = evaluate_blocks(predictor, c["blocks"])
+        c["out"] = predictor.evaluate_blocks(c["blocks"])
 
     return [
         ("sampling", sampling),
@@ -200,28 +199,6 @@ def stage_functions(predictor: Predictor, work: Workload) -> list[tuple[str, Cal
         ("point features", features),
         ("head", head),
     ]
-
-
-def evaluate_blocks(predictor: Predictor, blocks: list) -> list:
-    """The pair evaluation of :meth:`Predictor.distances_many` on resolved blocks (its
-    grouping of small blocks and chunked dense blocks), canonical units."""
-    outputs: list = [None] * len(blocks)
-    with torch.no_grad():
-        group: list[int] = []
-        pairs_in_group = 0
-        for b, (src, dst) in enumerate(blocks):
-            pairs = src.count * dst.count
-            if pairs >= min(predictor.chunk_pairs, DENSE_MIN_PAIRS):
-                outputs[b] = predictor._dense_block(src, dst)
-                continue
-            if group and pairs_in_group + pairs > predictor.chunk_pairs:
-                predictor._flat_group([blocks[i] for i in group], group, outputs)
-                group, pairs_in_group = [], 0
-            group.append(b)
-            pairs_in_group += pairs
-        if group:
-            predictor._flat_group([blocks[i] for i in group], group, outputs)
-    return outputs
 
 
 def end_to_end(predictor: Predictor, work: Workload) -> list:

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -620,22 +620,7 @@ class Predictor:
             states + states, sources_list + targets_list, ["source"] * count + ["target"] * count
         )
         blocks = list(zip(resolved[:count], resolved[count:], strict=True))
-        outputs: list[NDArray | None] = [None] * len(blocks)
-        with torch.no_grad():
-            group: list[int] = []
-            group_pairs = 0
-            for b, (src, dst) in enumerate(blocks):
-                pairs = src.count * dst.count
-                if pairs >= min(self.chunk_pairs, DENSE_MIN_PAIRS):
-                    outputs[b] = self._dense_block(src, dst)
-                    continue
-                if group and group_pairs + pairs > self.chunk_pairs:
-                    self._flat_group([blocks[i] for i in group], group, outputs)
-                    group, group_pairs = [], 0
-                group.append(b)
-                group_pairs += pairs
-            if group:
-                self._flat_group([blocks[i] for i in group], group, outputs)
+        outputs = self.evaluate_blocks(blocks)
         if self.fusion is not None:
             outputs = [
                 self._fused(state, src, dst, out)
@@ -733,6 +718,28 @@ class Predictor:
         if self.residual:
             out = out + euclidean
         return out.masked_fill_(euclidean == 0, 0.0)
+
+    def evaluate_blocks(self, blocks: list[tuple[ResolvedPoints, ResolvedPoints]]) -> list[NDArray]:
+        """The ``(S_b, T_b)`` distances (canonical units, before fusion) of each resolved
+        ``(sources, targets)`` block: a large block alone by broadcasting, small ones grouped
+        into flat head calls of at most ``chunk_pairs`` pairs."""
+        outputs: list[NDArray | None] = [None] * len(blocks)
+        with torch.no_grad():
+            group: list[int] = []
+            group_pairs = 0
+            for b, (src, dst) in enumerate(blocks):
+                pairs = src.count * dst.count
+                if pairs >= min(self.chunk_pairs, DENSE_MIN_PAIRS):
+                    outputs[b] = self._dense_block(src, dst)
+                    continue
+                if group and group_pairs + pairs > self.chunk_pairs:
+                    self._flat_group([blocks[i] for i in group], group, outputs)
+                    group, group_pairs = [], 0
+                group.append(b)
+                group_pairs += pairs
+            if group:
+                self._flat_group([blocks[i] for i in group], group, outputs)
+        return cast("list[NDArray]", outputs)  # every block was filled
 
     def _dense_block(self, src: ResolvedPoints, dst: ResolvedPoints) -> NDArray:
         """All pairs of one shape by broadcasting, in chunks of ``chunk_pairs`` pairs."""
