@@ -151,9 +151,11 @@ class TNetDataConfig:
             self.extra_bend == 0.0 or self.extra_category == "rigged",
             'data.extra_bend needs data.extra_category = "rigged"',
         )
+        from litege_core.synth.poses import EXTRA_MODES
+
         _check(0.0 <= self.steep_share <= 1.0, "data.steep_share must be in [0, 1]")
         _check(
-            self.steep_share == 0.0 or bool(_steep_modes(self.category)),
+            self.steep_share == 0.0 or bool(EXTRA_MODES.get(self.category)),
             f"data.steep_share needs a category with steep poses, not {self.category!r}",
         )
 
@@ -334,13 +336,6 @@ def canonical_shape_set(
     if keys is None:
         keys = [("", index) for index in range(len(canonical))]
     return ShapeSet([v for v, _ in canonical], [f for _, f in canonical], list(keys))
-
-
-def _steep_modes(category: str) -> tuple[str, ...]:
-    """The steep pose modes of ``category`` (none for an unknown one)."""
-    from litege_core.synth.poses import EXTRA_MODES
-
-    return EXTRA_MODES.get(category, ())
 
 
 def _generated_canonical(job: tuple[str, str, int, int, str | None]) -> tuple[NDArray, NDArray]:
