@@ -293,6 +293,18 @@ def errors_to_truth(found: list[tuple[np.ndarray, str]], truths: list[np.ndarray
     return [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
 
 
+def mode_errors(
+    model: MatchingModel, shapes: list[Shape], truths: list[np.ndarray]
+) -> dict[str, tuple[list[float], int]]:
+    """Per frame mode (``tnet``, ``judged``): :func:`errors_to_truth` of the shapes' frames and
+    how many frames were not the T-Net's."""
+    out = {}
+    for mode in ("tnet", "judged"):
+        found = frames_of(model, shapes, mode)
+        out[mode] = (errors_to_truth(found, truths), sum(name != "tnet" for _, name in found))
+    return out
+
+
 def summary(errors: list[float]) -> str:
     values = np.asarray(errors)
     return (
@@ -342,13 +354,11 @@ def main() -> None:
     ]
     shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 17)
     poses = [g.pose for g in generated]
-    results = {mode: frames_of(model, shapes, mode) for mode in ("tnet", "judged")}
-    for mode, found in results.items():
-        errors = errors_to_truth(found, truths)
+    for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
         rows.append(f"| procedural (test seeds), all poses | {mode} | {summary(errors)} |")
         upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
         rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
-        switched[f"procedural {mode}"] = sum(name != "tnet" for _, name in found)
+        switched[f"procedural {mode}"] = changed
 
     # ------------------------------------------------------------------ steep poses
     steep_modes = EXTRA_MODES[model.category]
@@ -363,13 +373,11 @@ def main() -> None:
             for k in range(args.steep)
         ]
         shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 19)
-        for mode in ("tnet", "judged"):
-            found = frames_of(model, shapes, mode)
-            errors = errors_to_truth(found, truths)
+        for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
             rows.append(
                 f"| procedural (test seeds), rearing or leaping | {mode} | {summary(errors)} |"
             )
-            switched[f"steep {mode}"] = sum(name != "tnet" for _, name in found)
+            switched[f"steep {mode}"] = changed
 
     # ------------------------------------------------------------------ rigged animals
     if args.rigged and model.category == "quadruped":
@@ -380,11 +388,9 @@ def main() -> None:
             rigged = collection_shape_set("rigged", "val", args.rigged, None, args.cache)
             meshes = zip(rigged.vertices, rigged.faces, strict=True)
             shapes, truths = rotated(meshes, args.seed, 31)
-            for mode in ("tnet", "judged"):
-                found = frames_of(model, shapes, mode)
-                errors = errors_to_truth(found, truths)
+            for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
                 rows.append(f"| rigged animals (val seeds) | {mode} | {summary(errors)} |")
-                switched[f"rigged {mode}"] = sum(name != "tnet" for _, name in found)
+                switched[f"rigged {mode}"] = changed
             if args.oracle:
                 found_errors = alternative_errors(model, shapes, truths, np.eye(3), args.sagittal)
                 for name, errors in found_errors.items():
