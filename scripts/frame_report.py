@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from litege_core.io import load_shape
 from litege_core.matching import MatchingModel
@@ -211,9 +212,7 @@ def snapped(rotation: np.ndarray, normals: np.ndarray) -> np.ndarray:
     sine, cosine = np.linalg.norm(axis), float(lateral @ normal)
     if sine < 1e-12:
         return rotation
-    k = axis / sine
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    turn = np.eye(3) + sine * cross + (1.0 - cosine) * cross @ cross
+    turn = Rotation.from_rotvec(axis / sine * np.arctan2(sine, cosine)).as_matrix()
     return rotation @ turn.T
 
 
