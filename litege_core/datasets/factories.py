@@ -155,14 +155,11 @@ def factory_for(
             for a category without steep poses.
     """
     from litege_core.synth import CATEGORIES
-    from litege_core.synth.poses import EXTRA_MODES
+    from litege_core.synth.poses import check_steep_share
 
     if pose is not None and category != "rigged":
         raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
-    if not 0.0 <= steep_share <= 1.0:
-        raise InputError(f"the steep share must be in [0, 1], got {steep_share!r}")
-    if steep_share > 0.0 and not EXTRA_MODES.get(category):
-        raise InputError(f"{category!r} shapes have no steep poses (rearing, leaping)")
+    check_steep_share(category, steep_share)
 
     if category in CATEGORIES:
         return SynthFactory(category, steep_share)

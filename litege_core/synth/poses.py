@@ -42,6 +42,15 @@ def known_modes(category: str) -> tuple[str, ...]:
     return MODES[category] + EXTRA_MODES[category]
 
 
+def check_steep_share(category: str, share: float) -> None:
+    """Raise :class:`InputError` unless ``share`` (of shapes posed steep, :func:`steep_pose`)
+    lies in ``[0, 1]`` and is 0 for a category without steep modes."""
+    if not 0.0 <= share <= 1.0:
+        raise InputError(f"the steep share must be in [0, 1], got {share!r}")
+    if share > 0.0 and not EXTRA_MODES.get(category):
+        raise InputError(f"{category!r} shapes have no steep poses (rearing, leaping)")
+
+
 def steep_pose(category: str, seed: int, share: float) -> str | None:
     """The steep mode (:data:`EXTRA_MODES`) shape ``seed`` of ``category`` is posed in when a
     ``share`` of a set rears or leaps, or ``None`` for the pose its seed draws.
@@ -327,6 +336,7 @@ __all__ = [
     "QUADRUPED_STEEP_MODES",
     "Limits",
     "Pose",
+    "check_steep_share",
     "joint_frames",
     "known_modes",
     "mode_offsets",

@@ -151,13 +151,9 @@ class TNetDataConfig:
             self.extra_bend == 0.0 or self.extra_category == "rigged",
             'data.extra_bend needs data.extra_category = "rigged"',
         )
-        from litege_core.synth.poses import EXTRA_MODES
+        from litege_core.synth.poses import check_steep_share
 
-        _check(0.0 <= self.steep_share <= 1.0, "data.steep_share must be in [0, 1]")
-        _check(
-            self.steep_share == 0.0 or bool(EXTRA_MODES.get(self.category)),
-            f"data.steep_share needs a category with steep poses, not {self.category!r}",
-        )
+        check_steep_share(self.category, self.steep_share)
 
 
 @dataclass(frozen=True)
