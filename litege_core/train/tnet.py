@@ -387,18 +387,20 @@ def generate_shape_set(
     a ``steep_share`` of them rear or leap (:func:`~litege_core.synth.poses.steep_pose`).
 
     With ``cache_dir`` the set is kept in
-    ``<cache_dir>/tnet-shapes-<category>-<split>-[steep<share>-]<n>-<generator version>.npz``:
+    ``<cache_dir>/tnet-shapes-<category>-<split>-<n>-<factory version>.npz`` (the version of
+    :class:`~litege_core.datasets.factories.SynthFactory`, which names the steep share):
     the largest cached set of the split is reused (sliced, or extended by generating the missing
     shapes). ``workers`` processes generate the missing shapes.
     """
-    from litege_core.synth import GENERATOR_VERSION, families
+    from litege_core.datasets.factories import SynthFactory
+    from litege_core.synth import families
 
     names = families(category)
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     cached: list[NDArray] = []
     faces: NDArray | None = None
-    steep = f"steep{steep_share:g}-" if steep_share > 0.0 else ""
-    prefix, suffix = f"tnet-shapes-{category}-{split}-{steep}", f"-{GENERATOR_VERSION}.npz"
+    version = SynthFactory(category, steep_share).version  # names the steep share
+    prefix, suffix = f"tnet-shapes-{category}-{split}-", f"-{version}.npz"
     largest = _largest_cache(cache_dir, prefix, suffix)
     if largest is not None:
         with np.load(largest) as data:
