@@ -179,8 +179,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         type=float,
         default=0.0,
         metavar="P",
-        help="--category quadruped: share of the shapes posed rearing or leaping instead of "
-        "their drawn pose (litege_core.synth.poses.steep_pose), default 0",
+        help="--category quadruped / makehuman: share of the shapes posed steep instead of "
+        "their drawn pose (quadrupeds rear or leap; MakeHuman bodies bend forward, balance on "
+        "one leg, lift a knee or raise both arms; litege_core.synth.poses.steep_pose), default 0",
     )
     build.add_argument(
         "--train-data",

@@ -94,23 +94,27 @@ class RiggedFactory:
 @dataclass(frozen=True)
 class MakeHumanFactory:
     """Shaped, posed, remeshed MakeHuman bodies (:mod:`litege_core.synth.makehuman`); one
-    family, ``"makehuman"``."""
+    family, ``"makehuman"``; a ``steep_share`` of them bend, balance on one leg or raise their
+    arms (:func:`~litege_core.synth.makehuman.steep_angles`)."""
 
     root: str
     category: str = "makehuman"
+    steep_share: float = 0.0
 
     @property
     def version(self) -> str:
         from litege_core.synth.makehuman import MAKEHUMAN_VERSION
 
-        return MAKEHUMAN_VERSION
+        steep = f"+steep{self.steep_share:g}" if self.steep_share > 0.0 else ""
+        return MAKEHUMAN_VERSION + steep
 
     def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
         from litege_core.synth.makehuman import cached_makehuman, posed_human
 
         if family != "makehuman":
             raise InputError(f"unknown makehuman family {family!r}")
-        vertices, faces, _ = posed_human(cached_makehuman(str(Path(self.root) / "makehuman")), seed)
+        model = cached_makehuman(str(Path(self.root) / "makehuman"))
+        vertices, faces, _ = posed_human(model, seed, steep_share=self.steep_share)
         return vertices, faces
 
 
@@ -147,7 +151,8 @@ def factory_for(
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
     ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
     ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults;
-    ``steep_share``: the share of procedural shapes rearing or leaping (quadrupeds).
+    ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing or
+    leaping, MakeHuman bodies bending, balancing or raising their arms).
 
     Raises:
         InputError: unknown category, the train-data assets are missing, ``pose`` given
@@ -172,7 +177,7 @@ def factory_for(
             )
         if category == "rigged":
             return RiggedFactory(str(base), settings=pose)
-        return MakeHumanFactory(str(base))
+        return MakeHumanFactory(str(base), steep_share=steep_share)
     raise InputError(
         f"unknown category {category!r}; expected one of {(*CATEGORIES, 'rigged', 'makehuman')}"
     )

@@ -24,7 +24,8 @@ A shape is a pure function of ``seed``:
    forward −20…45, knee bent 0…70, foot ±15. Bone ``b`` gets the rest-space rotation ``R_b``
    about its head ``h_b``; the bone matrices compose down the hierarchy,
    ``M_b = M_parent · T(h_b) R_b T(−h_b)``, and the body is posed by linear blend skinning
-   with the rig's weights.
+   with the rig's weights. A seed posed in a steep mode (arms overhead, a knee past 90°, the
+   one-legged balance, the forward bend: :func:`steep_angles`) overrides some of these angles.
 4. The posed body is scaled along x/y/z by factors in ``body_range``, remeshed isotropically
    to ``vertex_range`` vertices, slivers collapsed, and checked to be a closed manifold (a
    failing draw is retried with the next sub-seed).
@@ -51,6 +52,7 @@ from litege_core.synth.meshops import (
 )
 
 MAKEHUMAN_VERSION = "makehuman-1"
+SIDES = (".L", ".R")
 FORWARD = np.array([0.0, 0.0, 1.0])
 """MakeHuman's base mesh is y-up, facing +z, with the ``.L`` side at +x."""
 TARGETS = (
@@ -295,13 +297,15 @@ class HumanDraw:
     angles: dict[str, float]
     body_scale: tuple[float, float, float]
     target_vertices: int
+    mode: str | None = None
+    """The steep pose (:func:`steep_angles`), ``None`` for a drawn one."""
 
 
-def random_pose(
-    model: MakeHumanModel, heads: NDArray, tails: NDArray, rng: np.random.Generator
-) -> tuple[dict[str, NDArray], dict[str, float]]:
-    """Random rest-space bone rotations (module docstring, step 3) and the drawn angles."""
-    x, y, z = np.eye(3)
+def draw_angles(rng: np.random.Generator) -> dict[str, float]:
+    """The drawn pose angles in degrees (module docstring, step 3), keyed ``spine_forward``,
+    ``spine_side``, ``spine_twist``, ``neck_forward``, ``neck_twist`` and, per side ``.L`` /
+    ``.R``, ``arm_raise``, ``arm_swing``, ``elbow``, ``leg_spread``, ``leg_swing``, ``knee``,
+    ``foot``."""
     angles: dict[str, float] = {
         "spine_forward": rng.uniform(-10, 30),
         "spine_side": rng.uniform(-15, 15),
@@ -309,9 +313,80 @@ def random_pose(
         "neck_forward": rng.uniform(-15, 30),
         "neck_twist": rng.uniform(-35, 35),
     }
+    for side in SIDES:
+        for name, low, high in (
+            ("arm_raise", -30, 75),
+            ("arm_swing", -25, 50),
+            ("elbow", -30, 40),
+            ("leg_spread", -5, 25),
+            ("leg_swing", -20, 45),
+            ("knee", 0, 70),
+            ("foot", -15, 15),
+        ):
+            angles[f"{name}{side}"] = rng.uniform(low, high)
+    return {k: float(v) for k, v in angles.items()}
+
+
+def steep_angles(mode: str, rng: np.random.Generator) -> dict[str, float]:
+    """The angles (degrees, :func:`draw_angles` keys) that pose a body in a steep ``mode`` of
+    :data:`~litege_core.synth.poses.MAKEHUMAN_STEEP_MODES`; the others keep their drawn values.
+
+    * ``arms_overhead``: both arms raised 120–160° (hands above the head), elbows −50…0 (−50
+      straightens the rest pose's bent elbow);
+    * ``leg_lifted``: one leg's knee bent 90–135°, the thigh swung −35…50 (foot lifted
+      behind or knee raised in front);
+    * ``one_leg_balance``: one thigh spread 35–70° and swung 10–45, knee 105–145 (the foot
+      against the other leg), arms overhead half the time;
+    * ``bending_forward``: both thighs swung 55–95 (hip flexion), spine forward 15–40, knees
+      0–25, arms raised 35–70 and swung 60–110 (reaching towards the feet).
+
+    Raises:
+        InputError: ``mode`` is not a MakeHuman steep mode.
+    """
+    from litege_core.errors import InputError
+    from litege_core.synth.poses import MAKEHUMAN_STEEP_MODES
+
+    if mode not in MAKEHUMAN_STEEP_MODES:
+        raise InputError(f"unknown MakeHuman steep mode {mode!r}: {MAKEHUMAN_STEEP_MODES}")
+    out: dict[str, float] = {}
+
+    def arms_overhead() -> None:
+        for side in SIDES:
+            out[f"arm_raise{side}"] = rng.uniform(120, 160)
+            out[f"arm_swing{side}"] = rng.uniform(-15, 25)
+            out[f"elbow{side}"] = rng.uniform(-50, 0)
+
+    if mode == "arms_overhead":
+        arms_overhead()
+    elif mode == "leg_lifted":
+        side = SIDES[int(rng.integers(2))]
+        out[f"knee{side}"] = rng.uniform(90, 135)
+        out[f"leg_swing{side}"] = rng.uniform(-35, 50)
+    elif mode == "one_leg_balance":
+        side = SIDES[int(rng.integers(2))]
+        out[f"leg_spread{side}"] = rng.uniform(35, 70)
+        out[f"leg_swing{side}"] = rng.uniform(10, 45)
+        out[f"knee{side}"] = rng.uniform(105, 145)
+        if rng.random() < 0.5:
+            arms_overhead()
+    else:  # bending_forward
+        out["spine_forward"] = rng.uniform(15, 40)
+        for side in SIDES:
+            out[f"leg_swing{side}"] = rng.uniform(55, 95)
+            out[f"knee{side}"] = rng.uniform(0, 25)
+            out[f"arm_raise{side}"] = rng.uniform(35, 70)
+            out[f"arm_swing{side}"] = rng.uniform(60, 110)
+    return {k: float(v) for k, v in out.items()}
+
+
+def pose_rotations(
+    model: MakeHumanModel, heads: NDArray, tails: NDArray, angles: dict[str, float]
+) -> dict[str, NDArray]:
+    """Rest-space bone rotations ``(3, 3)`` of the pose ``angles`` (:func:`draw_angles` keys,
+    degrees) on a skeleton with joint ``heads`` / ``tails`` ``(B, 3)``."""
+    x, y, z = np.eye(3)
     rotations: dict[str, NDArray] = {}
-    spine = ("spine04", "spine03", "spine02", "spine01")
-    for bone in spine:
+    for bone in ("spine04", "spine03", "spine02", "spine01"):
         rotations[bone] = (
             _rot(y, angles["spine_twist"] / 4)
             @ _rot(z, angles["spine_side"] / 4)
@@ -324,69 +399,88 @@ def random_pose(
         d = tails[b] - heads[b]
         return d / np.linalg.norm(d)
 
-    for side, sign in ((".L", 1.0), (".R", -1.0)):
-        raise_arm, swing_arm = rng.uniform(-30, 75), rng.uniform(-25, 50)
-        elbow = rng.uniform(-30, 40)
-        spread, swing_leg = rng.uniform(-5, 25), rng.uniform(-20, 45)
-        knee, foot = rng.uniform(0, 70), rng.uniform(-15, 15)
-        angles.update(
-            {
-                f"arm_raise{side}": raise_arm,
-                f"arm_swing{side}": swing_arm,
-                f"elbow{side}": elbow,
-                f"leg_spread{side}": spread,
-                f"leg_swing{side}": swing_leg,
-                f"knee{side}": knee,
-                f"foot{side}": foot,
-            }
-        )
+    for side, sign in zip(SIDES, (1.0, -1.0), strict=True):
         upper = direction(f"upperarm01{side}")
         fore = direction(f"lowerarm01{side}")
-        rotations[f"upperarm01{side}"] = _rot(z, sign * raise_arm) @ _rot(
-            np.cross(upper, FORWARD), swing_arm
+        rotations[f"upperarm01{side}"] = _rot(z, sign * angles[f"arm_raise{side}"]) @ _rot(
+            np.cross(upper, FORWARD), angles[f"arm_swing{side}"]
         )
         hinge = np.cross(upper, fore)
         if np.linalg.norm(hinge) > 1e-6:
-            rotations[f"lowerarm01{side}"] = _rot(hinge, elbow)
-        rotations[f"upperleg01{side}"] = _rot(z, sign * spread) @ _rot(x, -swing_leg)
-        rotations[f"lowerleg01{side}"] = _rot(x, knee)
-        rotations[f"foot{side}"] = _rot(x, foot)
-    return rotations, {k: float(v) for k, v in angles.items()}
+            rotations[f"lowerarm01{side}"] = _rot(hinge, angles[f"elbow{side}"])
+        rotations[f"upperleg01{side}"] = _rot(z, sign * angles[f"leg_spread{side}"]) @ _rot(
+            x, -angles[f"leg_swing{side}"]
+        )
+        rotations[f"lowerleg01{side}"] = _rot(x, angles[f"knee{side}"])
+        rotations[f"foot{side}"] = _rot(x, angles[f"foot{side}"])
+    return rotations
+
+
+def random_pose(
+    model: MakeHumanModel,
+    heads: NDArray,
+    tails: NDArray,
+    rng: np.random.Generator,
+    mode: str | None = None,
+) -> tuple[dict[str, NDArray], dict[str, float]]:
+    """Random rest-space bone rotations (module docstring, step 3) and the drawn angles; a
+    steep ``mode`` (:func:`steep_angles`) overrides some of the drawn angles."""
+    angles = draw_angles(rng)
+    if mode is not None:
+        angles.update(steep_angles(mode, rng))
+    return pose_rotations(model, heads, tails, angles), angles
 
 
 def pose_human(
-    model: MakeHumanModel, rng: np.random.Generator, settings: HumanSettings
+    model: MakeHumanModel,
+    rng: np.random.Generator,
+    settings: HumanSettings,
+    mode: str | None = None,
 ) -> tuple[NDArray, HumanDraw]:
     """A shaped, posed body ``(Vb, 3)`` on ``model.faces`` (unit-area scale, centred) and the
-    draw (module docstring, steps 1–3 and the scale of step 4)."""
+    draw (module docstring, steps 1–3 and the scale of step 4); ``mode``: a steep pose
+    (:func:`steep_angles`) or ``None`` for the drawn one."""
     gender, muscle, weight = (float(v) for v in rng.uniform(0.0, 1.0, size=3))
     shaped = body_shape(model, gender, muscle, weight)
     heads, tails = joint_positions(model, shaped)
-    rotations, angles = random_pose(model, heads, tails, rng)
+    rotations, angles = random_pose(model, heads, tails, rng, mode)
     body = rng.uniform(*settings.body_range, size=3)
     n_target = int(rng.integers(settings.vertex_range[0], settings.vertex_range[1] + 1))
     rest = shaped[model.body]
     posed = skin(model, rest, bone_matrices(model, heads, rotations))
     posed = (posed - posed.mean(axis=0)) * unit_area_scale(rest, model.faces) * body
     draw = HumanDraw(
-        gender, muscle, weight, angles, (float(body[0]), float(body[1]), float(body[2])), n_target
+        gender,
+        muscle,
+        weight,
+        angles,
+        (float(body[0]), float(body[1]), float(body[2])),
+        n_target,
+        mode,
     )
     return posed, draw
 
 
 def posed_human(
-    model: MakeHumanModel, seed: int, settings: HumanSettings = HumanSettings()
+    model: MakeHumanModel,
+    seed: int,
+    settings: HumanSettings = HumanSettings(),
+    steep_share: float = 0.0,
 ) -> tuple[NDArray, NDArray, HumanDraw]:
     """The remeshed human ``(vertices (V, 3), faces (F, 3), draw)`` of ``seed``; attempt ``k``
-    draws from ``default_rng([seed, k])``.
+    draws from ``default_rng([seed, k])``. A ``steep_share`` of the seeds is posed in a steep
+    mode (:func:`~litege_core.synth.poses.steep_pose`); the other seeds keep their bodies.
 
     Raises:
         ComputationError: no attempt gave a clean closed manifold.
     """
+    from litege_core.synth.poses import steep_pose
+
+    mode = steep_pose("makehuman", seed, steep_share)
     last: Exception | None = None
     for attempt in range(settings.attempts):
         rng = np.random.default_rng([seed, attempt])
-        posed, draw = pose_human(model, rng, settings)
+        posed, draw = pose_human(model, rng, settings, mode)
         try:
             vertices, faces = remesh(posed, model.faces, draw.target_vertices, tolerance=0.05)
             vertices, faces = collapse_slivers(vertices, faces, min_angle=2.0)
@@ -402,6 +496,7 @@ def posed_human(
 
 __all__ = [
     "MAKEHUMAN_VERSION",
+    "SIDES",
     "TARGETS",
     "HumanDraw",
     "HumanSettings",
@@ -410,10 +505,13 @@ __all__ = [
     "bone_matrices",
     "cached_makehuman",
     "corner_factors",
+    "draw_angles",
     "joint_positions",
     "load_makehuman",
     "pose_human",
+    "pose_rotations",
     "posed_human",
     "random_pose",
     "skin",
+    "steep_angles",
 ]

@@ -33,7 +33,16 @@ QUADRUPED_STEEP_MODES = ("rearing", "leaping")
 legs or leap. Generated only when asked for: seeds never draw them, so every dataset of the
 drawn modes stays as it was. The frame selectors of issue 15 fail on exactly such real poses
 (docs/jobs.md, session of 2026-11-29, second)."""
-EXTRA_MODES: dict[str, tuple[str, ...]] = {"quadruped": QUADRUPED_STEEP_MODES, "biped": ()}
+MAKEHUMAN_STEEP_MODES = ("arms_overhead", "leg_lifted", "one_leg_balance", "bending_forward")
+"""MakeHuman body poses outside the drawn ranges (:func:`litege_core.synth.makehuman.random_pose`):
+both arms above the head, one knee bent past 90°, the one-legged balance with the lifted foot on
+the other leg, and the forward bend from the hips. Real scanned humans hold them (FAUST's worst
+shapes for the shipped ``humans`` are such poses, BENCHMARKS "humans-steep")."""
+EXTRA_MODES: dict[str, tuple[str, ...]] = {
+    "quadruped": QUADRUPED_STEEP_MODES,
+    "biped": (),
+    "makehuman": MAKEHUMAN_STEEP_MODES,
+}
 
 
 def known_modes(category: str) -> tuple[str, ...]:
@@ -48,12 +57,15 @@ def check_steep_share(category: str, share: float) -> None:
     if not 0.0 <= share <= 1.0:
         raise InputError(f"the steep share must be in [0, 1], got {share!r}")
     if share > 0.0 and not EXTRA_MODES.get(category):
-        raise InputError(f"{category!r} shapes have no steep poses (rearing, leaping)")
+        raise InputError(
+            f"{category!r} shapes have no steep poses (quadrupeds rear or leap, MakeHuman bodies "
+            "bend, balance or raise their arms)"
+        )
 
 
 def steep_pose(category: str, seed: int, share: float) -> str | None:
     """The steep mode (:data:`EXTRA_MODES`) shape ``seed`` of ``category`` is posed in when a
-    ``share`` of a set rears or leaps, or ``None`` for the pose its seed draws.
+    ``share`` of a set is posed steep, or ``None`` for the pose its seed draws.
 
     A pure function of ``(seed, share)``: the shape is steep with probability ``share``
     (``default_rng([seed, 7919])``), each steep mode equally likely (a second draw); a seed
@@ -329,6 +341,7 @@ __all__ = [
     "BIPED_MODES",
     "EXTRA_MODES",
     "LIMITS",
+    "MAKEHUMAN_STEEP_MODES",
     "MODES",
     "NOISE_STD",
     "QUADRUPED_LIMITS",

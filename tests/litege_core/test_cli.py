@@ -39,7 +39,7 @@ def test_data_build_refuses_bends_outside_the_rigged_animals(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-def test_data_build_refuses_steep_poses_outside_the_quadrupeds(tmp_path, capsys):
+def test_data_build_refuses_steep_poses_for_procedural_bipeds(tmp_path, capsys):
     code = main(["data", "build", "--category", "biped", "--steep", "0.3", "--out", str(tmp_path)])
     assert code == 2
     assert "no steep poses" in capsys.readouterr().err

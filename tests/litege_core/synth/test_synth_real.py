@@ -213,3 +213,54 @@ def test_the_rigged_factory_version_names_its_pose_settings():
         factory_for("quadruped", None, bent.settings)
     with pytest.raises(InputError, match="rigged animals only"):
         species_factory("makehuman", TRAIN_DATA, bent.settings)
+
+
+def _seed_in(mode: str) -> int:
+    from litege_core.synth.poses import steep_pose
+
+    return next(s for s in range(1000) if steep_pose("makehuman", s, 1.0) == mode)
+
+
+def test_steep_humans_hold_their_poses_and_the_drawn_ones_keep_their_bodies(human):
+    from litege_core.synth.poses import MAKEHUMAN_STEEP_MODES, steep_pose
+
+    extents = {}
+    for mode in MAKEHUMAN_STEEP_MODES:
+        seed = _seed_in(mode)
+        vertices, faces, draw = makehuman.posed_human(human, seed, FAST_HUMAN, steep_share=1.0)
+        plain, _, plain_draw = makehuman.posed_human(human, seed, FAST_HUMAN)
+        assert draw.mode == mode and plain_draw.mode is None
+        assert meshops.manifold_report(vertices, faces).ok
+        extents[mode] = (np.ptp(vertices, axis=0), np.ptp(plain, axis=0))
+        angles = draw.angles
+        if mode == "arms_overhead":
+            assert min(angles["arm_raise.L"], angles["arm_raise.R"]) >= 120
+        elif mode == "leg_lifted":
+            assert max(angles["knee.L"], angles["knee.R"]) >= 90
+        elif mode == "one_leg_balance":
+            assert max(angles["leg_spread.L"], angles["leg_spread.R"]) >= 35
+    # hands above the head make the body taller; the forward bend folds it at the hips
+    overhead, drawn = extents["arms_overhead"]
+    assert overhead[1] > 1.05 * drawn[1]  # a drawn arm (raised ≤ 75°) never tops the head
+    bent, drawn = extents["bending_forward"]
+    assert bent[1] < 0.7 * drawn[1] and bent[2] > drawn[2]
+    # a seed not posed steep at this share is the body of the drawn pose, vertex for vertex
+    seed = next(s for s in range(1000) if steep_pose("makehuman", s, 0.4) is None)
+    shared, _, _ = makehuman.posed_human(human, seed, FAST_HUMAN, steep_share=0.4)
+    np.testing.assert_array_equal(shared, makehuman.posed_human(human, seed, FAST_HUMAN)[0])
+
+
+def test_steep_angles_refuse_an_unknown_mode():
+    from litege_core.errors import InputError
+
+    with pytest.raises(InputError, match="rearing"):
+        makehuman.steep_angles("rearing", np.random.default_rng(0))
+
+
+def test_the_makehuman_factory_names_its_steep_share():
+    from litege_core.datasets.factories import MakeHumanFactory, factory_for
+
+    steep = factory_for("makehuman", TRAIN_DATA, steep_share=0.4)
+    assert isinstance(steep, MakeHumanFactory) and steep.steep_share == 0.4
+    assert steep.version == f"{makehuman.MAKEHUMAN_VERSION}+steep0.4"
+    assert factory_for("makehuman", TRAIN_DATA).version == makehuman.MAKEHUMAN_VERSION
