@@ -11,9 +11,10 @@ and the true one; a failure is an angle above 0.66 rad (the reference's T-Net re
 * **procedural**: held-out test-split shapes (seeds 2,000,100 + k, families cycled, the pose
   mode each seed draws), whose true frame is the generator's (for ``lying`` animals that is the
   ground frame, the body rolled ~83° on its side: a body-upright frame counts as a failure);
-* **steep** (``--steep N``, a quadruped model): the same seeds posed rearing or leaping
-  (``litege_core.synth.poses.QUADRUPED_STEEP_MODES``, families cycled, then the modes), the
-  trunk 45–80° up or stretched, in the ground frame as real rearing animals are;
+* **steep** (``--steep N``, a quadruped model): the same seeds posed rearing, leaping,
+  sitting up or lying on the belly (``litege_core.synth.poses.QUADRUPED_STEEP_MODES``,
+  families cycled, then the modes), the trunk steep, stretched or low, in the ground frame as
+  real animals are;
 * **TOSCA** (read from ``--eval-data`` when present): the 31 ``tosca_5k`` poses and the 4
   high-resolution ``tosca_landmarks`` rest poses. TOSCA files share one frame (x: the animal's
   left-right axis, z: up, −y: forward), so the true canonical rotation of every file is the
@@ -320,7 +321,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rigged", type=int, default=40, help="posed rigged animals (0: none)")
     parser.add_argument(
-        "--steep", type=int, default=0, help="procedural animals rearing or leaping (0: none)"
+        "--steep",
+        type=int,
+        default=0,
+        help="procedural animals in the steep modes (rearing, leaping, sitting up, couchant; "
+        "0: none)",
     )
     parser.add_argument("--cache", default="out/frame-report-shapes", help="rigged shape cache")
     parser.add_argument(
@@ -373,9 +378,7 @@ def main() -> None:
         ]
         shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 19)
         for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
-            rows.append(
-                f"| procedural (test seeds), rearing or leaping | {mode} | {summary(errors)} |"
-            )
+            rows.append(f"| procedural (test seeds), steep modes | {mode} | {summary(errors)} |")
             switched[f"steep {mode}"] = changed
 
     # ------------------------------------------------------------------ rigged animals

@@ -180,8 +180,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         default=0.0,
         metavar="P",
         help="--category quadruped / makehuman: share of the shapes posed steep instead of "
-        "their drawn pose (quadrupeds rear or leap; MakeHuman bodies bend forward, balance on "
-        "one leg, lift a knee or raise both arms; litege_core.synth.poses.steep_pose), default 0",
+        "their drawn pose (quadrupeds rear, leap, sit up or lie on the belly; MakeHuman "
+        "bodies bend forward, balance on one leg, lift a knee or raise both arms; "
+        "litege_core.synth.poses.steep_pose), default 0",
     )
     build.add_argument(
         "--train-data",

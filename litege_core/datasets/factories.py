@@ -39,7 +39,8 @@ def train_data_root(root: str | os.PathLike | None = None) -> Path:
 @dataclass(frozen=True)
 class SynthFactory:
     """Procedural shapes of one ``synth`` category (template triangulation shared); a
-    ``steep_share`` of them rear or leap (:func:`~litege_core.synth.poses.steep_pose`)."""
+    ``steep_share`` of them rear, leap, sit up or lie on the belly
+    (:func:`~litege_core.synth.poses.steep_pose`)."""
 
     category: str
     steep_share: float = 0.0
@@ -47,9 +48,9 @@ class SynthFactory:
     @property
     def version(self) -> str:
         from litege_core.synth import GENERATOR_VERSION
+        from litege_core.synth.poses import steep_tag
 
-        steep = f"+steep{self.steep_share:g}" if self.steep_share > 0.0 else ""
-        return GENERATOR_VERSION + steep
+        return GENERATOR_VERSION + steep_tag(self.category, self.steep_share)
 
     def template(self) -> tuple[NDArray, NDArray]:
         from litege_core.synth import template
@@ -104,9 +105,9 @@ class MakeHumanFactory:
     @property
     def version(self) -> str:
         from litege_core.synth.makehuman import MAKEHUMAN_VERSION
+        from litege_core.synth.poses import steep_tag
 
-        steep = f"+steep{self.steep_share:g}" if self.steep_share > 0.0 else ""
-        return MAKEHUMAN_VERSION + steep
+        return MAKEHUMAN_VERSION + steep_tag(self.category, self.steep_share)
 
     def generate_mesh(self, family: str, seed: int) -> tuple[NDArray, NDArray]:
         from litege_core.synth.makehuman import cached_makehuman, posed_human

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 from litege_core.synth.poses import (
+    CONTACT_MODES,
     MODES,
     NOISE_STD,
     Pose,
@@ -182,7 +183,7 @@ def generate_shape(
                 mode_scale=mode_scale,
             )
             vertices, joints = apply_pose(tmpl, rest_vertices, rest_joints, sampled)
-            if not reject or not self_intersects(vertices, tmpl.faces):
+            if not reject or mode in CONTACT_MODES or not self_intersects(vertices, tmpl.faces):
                 break
     ground = np.array([0.0, vertices[:, 1].min(), 0.0])
     vertices = (vertices - ground) * scale

@@ -28,11 +28,16 @@ QUADRUPED_MODES = ("standing", "walking", "sitting", "lying")
 BIPED_MODES = ("standing", "walking", "arms_raised", "crouching")
 MODES = {"quadruped": QUADRUPED_MODES, "biped": BIPED_MODES}
 """The modes a seed draws from (``generate.MODE_WEIGHTS``)."""
-QUADRUPED_STEEP_MODES = ("rearing", "leaping")
-"""Quadruped modes whose trunk is steep or fully stretched, as real animals rear on their hind
-legs or leap. Generated only when asked for: seeds never draw them, so every dataset of the
-drawn modes stays as it was. The frame selectors of issue 15 fail on exactly such real poses
-(docs/jobs.md, session of 2026-11-29, second)."""
+QUADRUPED_STEEP_MODES = ("rearing", "leaping", "sitting_upright", "couchant")
+"""Quadruped modes real animals hold and the drawn modes do not: the trunk steep or fully
+stretched (rearing on the hind legs, leaping) or every leg folded (sitting up on the haunches,
+lying on the belly). Generated only when asked for: seeds never draw them, so every dataset of
+the drawn modes stays as it was. The frame selectors of issue 15 fail on the steep ones
+(docs/jobs.md, session of 2026-11-29, second); TOSCA's five worst shapes for the geodesic
+network sit up or crouch (BENCHMARKS "geodesic-folded")."""
+CONTACT_MODES = ("sitting_upright", "couchant")
+"""Modes whose folded legs press against the trunk, as a real animal's do: their shapes are
+not redrawn for self-intersection (the geodesic targets are intrinsic to the surface)."""
 MAKEHUMAN_STEEP_MODES = ("arms_overhead", "leg_lifted", "one_leg_balance", "bending_forward")
 """MakeHuman body poses outside the drawn ranges (:func:`litege_core.synth.makehuman.random_pose`):
 both arms above the head, one knee bent past 90°, the one-legged balance with the lifted foot on
@@ -43,6 +48,19 @@ EXTRA_MODES: dict[str, tuple[str, ...]] = {
     "biped": (),
     "makehuman": MAKEHUMAN_STEEP_MODES,
 }
+STEEP_REVISION = {"quadruped": 2, "makehuman": 1}
+"""Revision of each category's steep modes: revision 1 of the quadrupeds had only rearing and
+leaping, so a set of another revision draws other poses from the same seeds and share."""
+
+
+def steep_tag(category: str, share: float) -> str:
+    """The version suffix of a set with a ``share`` of steep ``category`` shapes
+    (``+steep0.3r2``; ``""`` for none): builds and caches of another share or revision are
+    never resumed as this one."""
+    if share <= 0.0:
+        return ""
+    revision = STEEP_REVISION.get(category, 1)
+    return f"+steep{share:g}" + (f"r{revision}" if revision > 1 else "")
 
 
 def known_modes(category: str) -> tuple[str, ...]:
@@ -239,6 +257,34 @@ def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Ge
             put("neck1", -0.3 * pitch)
             put("head", -0.2 * pitch)
             put("tail1", 0.3)
+        elif mode == "sitting_upright":
+            # Sitting up on the haunches (a sitting cat or dog): trunk 50–65° up, the thighs
+            # folded forward along the ground, hocks down, forelegs straight and vertical,
+            # the tail laid back.
+            pitch = -(0.85 + 0.3 * amount)
+            put("pelvis", pitch)
+            for side in ("l", "r"):
+                put(f"hip_{side}", -(1.45 + pitch), 0.0, 0.2)
+                put(f"knee_{side}", 2.2)
+                put(f"ankle_{side}", -1.4)
+                put(f"shoulder_{side}", -pitch)
+            put("neck1", -0.3 * pitch)
+            put("head", -0.3 * pitch)
+            put("tail1", -0.9 * pitch)
+        elif mode == "couchant":
+            # Lying on the belly (sternal recumbency: a crouching cat, a sphinx): the hind
+            # legs folded under the trunk, the upper forelegs back and the forearms forward
+            # along the ground, head up.
+            for side in ("l", "r"):
+                put(f"hip_{side}", -1.3, 0.0, 0.2)
+                put(f"knee_{side}", 2.2)
+                put(f"ankle_{side}", -1.3)
+                put(f"shoulder_{side}", 0.9)
+                put(f"elbow_{side}", -2.0)
+                put(f"wrist_{side}", 0.3)
+            put("neck1", -0.3 * amount)
+            put("head", 0.3)
+            put("tail1", 0.3)
         elif mode == "leaping":
             # Airborne, legs stretched fore and aft (extended gallop or a jump).
             put("pelvis", -0.2 * amount)
@@ -339,6 +385,7 @@ def sample_pose(
 __all__ = [
     "BIPED_LIMITS",
     "BIPED_MODES",
+    "CONTACT_MODES",
     "EXTRA_MODES",
     "LIMITS",
     "MAKEHUMAN_STEEP_MODES",
@@ -347,6 +394,7 @@ __all__ = [
     "QUADRUPED_LIMITS",
     "QUADRUPED_MODES",
     "QUADRUPED_STEEP_MODES",
+    "STEEP_REVISION",
     "Limits",
     "Pose",
     "check_steep_share",
@@ -356,5 +404,6 @@ __all__ = [
     "posture_offsets",
     "sample_pose",
     "steep_pose",
+    "steep_tag",
     "to_rotation_vectors",
 ]

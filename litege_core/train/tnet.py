@@ -11,8 +11,9 @@
    With ``data.extra_category`` the posed meshes of a collection source (MakeHuman bodies,
    rigged animals: the shapes of ``litege data build --category SOURCE``, same seeds) follow
    in both splits, canonical in the same way (:func:`training_shape_sets`). With
-   ``data.steep_share`` that share of the procedural shapes rears or leaps instead
-   (:func:`~litege_core.synth.poses.steep_pose`), still in the ground frame of the template.
+   ``data.steep_share`` that share of the procedural shapes rears, leaps, sits up or lies
+   on the belly instead (:func:`~litege_core.synth.poses.steep_pose`), still in the ground
+   frame of the template.
 2. **Batches.** Every step draws ``batch_size`` shapes, one point count ``n`` per batch
    (log-uniform in ``[min_points, max_points]``: 500-point clouds up to the 2000 points
    :func:`predict_rotation` feeds) and, per item, ``n`` fresh area-weighted samples. Items are
@@ -122,9 +123,9 @@ class TNetDataConfig:
     arched: :mod:`litege_core.synth.bend`; the body's centre keeps its heading, so the
     template's frame stays the true one)."""
     steep_share: float = 0.0
-    """Share of the procedural shapes posed in a steep mode (rearing or leaping,
-    :data:`~litege_core.synth.poses.QUADRUPED_STEEP_MODES`), as real animals rear on their hind
-    legs or leap; the others keep the pose their seed draws
+    """Share of the procedural shapes posed in a steep mode (rearing, leaping, sitting up or
+    lying on the belly, :data:`~litege_core.synth.poses.QUADRUPED_STEEP_MODES`), as real
+    animals do; the others keep the pose their seed draws
     (:func:`~litege_core.synth.poses.steep_pose`)."""
     train_data: str = ""
     """Root of the collection assets (``""``: ``$LITEGE_TRAIN_DATA``, else

@@ -110,6 +110,27 @@ def test_rearing_raises_the_trunk_and_leaping_stretches_the_legs(family: str) ->
         assert paw_spread(leaping) > 1.2 * paw_spread(standing)
 
 
+@pytest.mark.parametrize("family", ["cat", "horse", "hippo"])
+def test_sitting_up_raises_the_trunk_and_couchant_lowers_it(family: str) -> None:
+    """Both fold every hind leg against the trunk, so they are kept at full strength (never
+    redrawn weaker for a self-intersection)."""
+    standing = synth.generate_shape("quadruped", family, 3, pose="standing")
+    sitting = synth.generate_shape("quadruped", family, 3, pose="sitting_upright")
+    couchant = synth.generate_shape("quadruped", family, 3, pose="couchant")
+    assert sitting.params["pose_attempts"] == couchant.params["pose_attempts"] == 1
+    assert _trunk_pitch(sitting) > np.radians(40.0) > _trunk_pitch(standing)
+    names = synth.template("quadruped").skeleton.names
+
+    def height(shape, joint: str) -> float:  # above the lowest vertex (the ground)
+        return float(shape.joints[names.index(joint), 1] - shape.vertices[:, 1].min())
+
+    # lying on the belly: the trunk sits far lower than standing, the forearms low and flat
+    assert height(couchant, "spine2") < 0.75 * height(standing, "spine2")
+    assert height(couchant, "wrist_l") <= height(couchant, "elbow_l")
+    # sitting up: the neck rises above its standing height
+    assert height(sitting, "neck1") > 1.05 * height(standing, "neck1")
+
+
 def test_steep_poses_are_a_nested_seeded_share() -> None:
     from litege_core.synth.poses import steep_pose
 
@@ -120,7 +141,7 @@ def test_steep_poses_are_a_nested_seeded_share() -> None:
     assert 0.26 < np.mean([mode is not None for mode in large]) < 0.34
     # a seed steep at a share stays steep, in the same mode, at a larger one
     assert all(b == a for a, b in zip(small, large, strict=True) if a is not None)
-    assert {mode for mode in large if mode} == {"rearing", "leaping"}
+    assert {mode for mode in large if mode} == set(poses.QUADRUPED_STEEP_MODES)
     assert [steep_pose("quadruped", seed, 0.3) for seed in seeds] == large
     assert steep_pose("quadruped", 5, 0.0) is None
     assert steep_pose("biped", 5, 1.0) is None  # bipeds have no steep modes

@@ -188,7 +188,7 @@ def test_steep_shapes_are_posed_and_cached_apart(tmp_path) -> None:
     np.testing.assert_allclose(centred, expected * scale, atol=1e-9)  # same shape, same frame
     assert not np.allclose(steep.vertices[-1], drawn.vertices[-1])
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1+steep0.5.npz",
+        f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1+steep0.5r2.npz",
         f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1.npz",
     ]
 
