@@ -76,8 +76,8 @@ def check_steep_share(category: str, share: float) -> None:
         raise InputError(f"the steep share must be in [0, 1], got {share!r}")
     if share > 0.0 and not EXTRA_MODES.get(category):
         raise InputError(
-            f"{category!r} shapes have no steep poses (quadrupeds rear or leap, MakeHuman bodies "
-            "bend, balance or raise their arms)"
+            f"{category!r} shapes have no steep poses (quadrupeds rear, leap, sit up or lie on "
+            "the belly; MakeHuman bodies bend, balance or raise their arms)"
         )
 
 
