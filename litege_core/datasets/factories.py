@@ -152,8 +152,9 @@ def factory_for(
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
     ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
     ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults;
-    ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing or
-    leaping, MakeHuman bodies bending, balancing or raising their arms).
+    ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing,
+    leaping, sitting up or lying on the belly; MakeHuman bodies bending, balancing or raising
+    their arms).
 
     Raises:
         InputError: unknown category, the train-data assets are missing, ``pose`` given

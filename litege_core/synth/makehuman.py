@@ -43,13 +43,14 @@ from numpy.typing import NDArray
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
-from litege_core.errors import ComputationError, ShapeFileError
+from litege_core.errors import ComputationError, InputError, ShapeFileError
 from litege_core.synth.meshops import (
     collapse_slivers,
     manifold_report,
     remesh,
     unit_area_scale,
 )
+from litege_core.synth.poses import MAKEHUMAN_STEEP_MODES, steep_pose
 
 MAKEHUMAN_VERSION = "makehuman-1"
 SIDES = (".L", ".R")
@@ -343,9 +344,6 @@ def steep_angles(mode: str, rng: np.random.Generator) -> dict[str, float]:
     Raises:
         InputError: ``mode`` is not a MakeHuman steep mode.
     """
-    from litege_core.errors import InputError
-    from litege_core.synth.poses import MAKEHUMAN_STEEP_MODES
-
     if mode not in MAKEHUMAN_STEEP_MODES:
         raise InputError(f"unknown MakeHuman steep mode {mode!r}: {MAKEHUMAN_STEEP_MODES}")
     out: dict[str, float] = {}
@@ -474,8 +472,6 @@ def posed_human(
     Raises:
         ComputationError: no attempt gave a clean closed manifold.
     """
-    from litege_core.synth.poses import steep_pose
-
     mode = steep_pose("makehuman", seed, steep_share)
     last: Exception | None = None
     for attempt in range(settings.attempts):
