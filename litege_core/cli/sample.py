@@ -162,8 +162,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--pose",
         default=None,
         help="pose mode of litege_core.synth.pose_modes (quadrupeds: standing, walking, "
-        "sitting, lying, and rearing, leaping, which seeds never draw; humans: standing, "
-        "walking, arms_raised, crouching); default: drawn from the seed",
+        "sitting, lying, and rearing, leaping, sitting_upright, couchant, which seeds never "
+        "draw; humans: standing, walking, arms_raised, crouching); default: drawn from the seed",
     )
     sample.set_defaults(handler=cmd_sample)
 
