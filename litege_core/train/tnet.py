@@ -385,7 +385,8 @@ def generate_shape_set(
     steep_share: float = 0.0,
 ) -> ShapeSet:
     """Procedural shapes ``0..n_shapes−1`` of ``split`` (the dataset convention), canonical;
-    a ``steep_share`` of them rear or leap (:func:`~litege_core.synth.poses.steep_pose`).
+    a ``steep_share`` of them rear, leap, sit up or lie on the belly
+    (:func:`~litege_core.synth.poses.steep_pose`).
 
     With ``cache_dir`` the set is kept in
     ``<cache_dir>/tnet-shapes-<category>-<split>-<n>-<factory version>.npz`` (the version of
