@@ -1,12 +1,16 @@
 """Train the category router that picks the geodesic model of an upload (issue 14, ``auto``).
 
 Usage: python scripts/train_router.py --out out/router [--minutes 12] [--procedural 240]
-           [--collection 160] [--cache out/tnet-shapes] [--ship]
+           [--collection 160] [--steep 0.3] [--bend 0.7] [--human-steep 0.4]
+           [--cache out/tnet-shapes] [--ship]
 
 Meshes (generated, never the dev set; cached as the T-Net trainer caches them, same seeds):
 ``--procedural`` procedural quadrupeds and as many procedural bipeds (train split), and
 ``--collection`` posed rigged animals and as many posed MakeHuman bodies
 (``../shared/train-data``); validation: a quarter as many of each from the val split.
+``--steep`` / ``--human-steep``: the share of procedural quadrupeds / MakeHuman bodies in
+steep poses (rearing, sitting up, lying; bending, balancing, arms overhead), ``--bend``: of
+rigged animals bent along the body; an upright animal must not pass for a human.
 Categories (the bundles' own): ``quadruped`` (procedural quadrupeds, rigged animals: the
 ``quadrupeds`` model), ``biped`` (procedural bipeds, MakeHuman bodies: the ``humans``
 model). Training: :mod:`litege_core.train.router`. Writes ``router.safetensors`` and
@@ -43,14 +47,25 @@ SOURCES = (  # (label, kind, name): procedural category or collection source
 )
 
 
-def labelled_meshes(split: str, procedural: int, collection: int, cache: str) -> list:
-    """``((vertices, faces), label)`` of every mesh of ``split``."""
+def labelled_meshes(
+    split: str, procedural: int, collection: int, cache: str, poses: argparse.Namespace
+) -> list:
+    """``((vertices, faces), label)`` of every mesh of ``split``; ``poses``: the steep shares
+    and the rigged bend share (``--steep``, ``--human-steep``, ``--bend``)."""
     out = []
     for label, kind, name in SOURCES:
         if kind == "procedural":
-            shapes = generate_shape_set(name, split, procedural, cache)
+            steep = poses.steep if name == "quadruped" else 0.0
+            shapes = generate_shape_set(name, split, procedural, cache, steep_share=steep)
         else:
-            shapes = collection_shape_set(name, split, collection, cache_dir=cache)
+            shapes = collection_shape_set(
+                name,
+                split,
+                collection,
+                cache_dir=cache,
+                bend=poses.bend if name == "rigged" else 0.0,
+                steep_share=poses.human_steep if name == "makehuman" else 0.0,
+            )
         out += [((v, f), label) for v, f in zip(shapes.vertices, shapes.faces, strict=True)]
     return out
 
@@ -63,6 +78,13 @@ def main() -> None:
     parser.add_argument("--procedural", type=int, default=240)
     parser.add_argument("--collection", type=int, default=160)
     parser.add_argument("--cache", default="out/tnet-shapes")
+    parser.add_argument(
+        "--steep", type=float, default=0.0, help="procedural quadrupeds in the steep modes"
+    )
+    parser.add_argument("--bend", type=float, default=0.0, help="rigged animals bent")
+    parser.add_argument(
+        "--human-steep", type=float, default=0.0, help="MakeHuman bodies in steep poses"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ship", action="store_true")
     args = parser.parse_args()
@@ -72,8 +94,8 @@ def main() -> None:
         print(f"{time.strftime('%H:%M:%S')} {line}", file=sys.stderr, flush=True)
 
     mark = time.monotonic()
-    train = labelled_meshes("train", args.procedural, args.collection, args.cache)
-    val = labelled_meshes("val", args.procedural // 4, args.collection // 4, args.cache)
+    train = labelled_meshes("train", args.procedural, args.collection, args.cache, args)
+    val = labelled_meshes("val", args.procedural // 4, args.collection // 4, args.cache, args)
     log(f"{len(train)} train and {len(val)} val meshes in {time.monotonic() - mark:.0f} s")
     config = RouterTrainConfig(steps=args.steps, minutes=args.minutes, seed=args.seed)
     result = train_router(train, val, len(CATEGORIES), config, log)
@@ -88,6 +110,8 @@ def main() -> None:
             )
         },
         "val_meshes": len(val),
+        "steep_share": {"quadruped": args.steep, "makehuman": args.human_steep},
+        "rigged_bend": args.bend,
         "steps_run": result.steps,
         "seconds": round(result.seconds, 1),
         "best_val_accuracy": result.best_val_accuracy,

@@ -48,9 +48,11 @@ EXTRA_MODES: dict[str, tuple[str, ...]] = {
     "biped": (),
     "makehuman": MAKEHUMAN_STEEP_MODES,
 }
-STEEP_REVISION = {"quadruped": 2, "makehuman": 1}
+STEEP_REVISION = {"quadruped": 3, "makehuman": 1}
 """Revision of each category's steep modes: revision 1 of the quadrupeds had only rearing and
-leaping, so a set of another revision draws other poses from the same seeds and share."""
+leaping, revision 2 sat up on the tail, trunk 50–65° up with the forepaws in the air
+(revision 3 sits on the rump, paws on the ground), so a set of another revision draws other
+poses from the same seeds and share."""
 
 
 def steep_tag(category: str, share: float) -> str:
@@ -258,19 +260,26 @@ def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Ge
             put("head", -0.2 * pitch)
             put("tail1", 0.3)
         elif mode == "sitting_upright":
-            # Sitting up on the haunches (a sitting cat or dog): trunk 50–65° up, the thighs
-            # folded forward along the ground, hocks down, forelegs straight and vertical,
-            # the tail laid back.
-            pitch = -(0.85 + 0.3 * amount)
-            put("pelvis", pitch)
+            # Sitting up on the haunches (a sitting cat or dog), revision 3: the chest 34–46°
+            # up and the pelvis steeper (the lumbar spine flexes forward by a third of it), so
+            # the rump sits on the ground; the thighs folded forward along the ground, hocks
+            # down; forelegs straight, a little ahead of the shoulders, paws on the ground;
+            # the head held level; the tail laid back along the ground and curled to a side.
+            side_sign = 1.0 if phase < np.pi else -1.0
+            pitch = -(0.6 + 0.2 * amount)
+            put("pelvis", 1.3 * pitch)
+            for k in (1, 2, 3):
+                put(f"spine{k}", -0.1 * pitch)
             for side in ("l", "r"):
-                put(f"hip_{side}", -(1.45 + pitch), 0.0, 0.2)
+                put(f"hip_{side}", -(1.45 + 1.3 * pitch), 0.0, 0.2)
                 put(f"knee_{side}", 2.2)
                 put(f"ankle_{side}", -1.4)
-                put(f"shoulder_{side}", -pitch)
-            put("neck1", -0.3 * pitch)
-            put("head", -0.3 * pitch)
-            put("tail1", -0.9 * pitch)
+                put(f"shoulder_{side}", -pitch - 0.2)
+            put("neck1", -0.4 * pitch)
+            put("head", -0.5 * pitch)
+            put("tail1", -1.6 * pitch, 0.0, 0.5 * side_sign)
+            put("tail2", 0.0, 0.0, 0.5 * side_sign)
+            put("tail3", 0.0, 0.0, 0.5 * side_sign)
         elif mode == "couchant":
             # Lying on the belly (sternal recumbency: a crouching cat, a sphinx): the hind
             # legs folded under the trunk, the upper forelegs back and the forearms forward

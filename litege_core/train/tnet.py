@@ -444,16 +444,16 @@ def _write_cache(path: Path, **arrays: NDArray) -> None:
 
 
 def _collection_canonical(
-    job: tuple[str, str, str, int, int, float],
+    job: tuple[str, str, str, int, int, float, float],
 ) -> tuple[NDArray, NDArray]:
-    """``(source, root, family, seed, index, bend)`` → the canonical mesh of that collection
-    shape."""
+    """``(source, root, family, seed, index, bend, steep_share)`` → the canonical mesh of that
+    collection shape."""
     from litege_core.datasets.factories import factory_for
     from litege_core.synth.rigged import bent_pose_settings
 
-    source, root, family, seed, index, bend = job
-    pose = bent_pose_settings(bend)
-    vertices, faces = factory_for(source, root, pose).generate_mesh(family, seed)
+    source, root, family, seed, index, bend, steep_share = job
+    factory = factory_for(source, root, bent_pose_settings(bend), steep_share)
+    vertices, faces = factory.generate_mesh(family, seed)
     return _canonical_mesh(vertices, faces, index)
 
 
@@ -465,11 +465,13 @@ def collection_shape_set(
     cache_dir: str | Path | None = None,
     workers: int = 1,
     bend: float = 0.0,
+    steep_share: float = 0.0,
 ) -> ShapeSet:
     """Posed meshes ``0..n_shapes−1`` of a collection source (``"makehuman"``, ``"rigged"``) in
-    ``split``, canonical: the shapes ``litege data build --category SOURCE [--bend B]`` starts
-    from (same families and seeds), without remeshing for ground truth beyond what the source
-    does; ``bend``: share of the rigged animals bent along the body.
+    ``split``, canonical: the shapes ``litege data build --category SOURCE [--bend B]
+    [--steep S]`` starts from (same families and seeds), without remeshing for ground truth
+    beyond what the source does; ``bend``: share of the rigged animals bent along the body;
+    ``steep_share``: share of the MakeHuman bodies in steep poses.
 
     With ``cache_dir`` the set is kept in ``tnet-shapes-<source>-<split>-<n>-<version>.npz``
     (ragged: concatenated vertices and faces with per-shape counts) and the largest cached set
@@ -480,7 +482,7 @@ def collection_shape_set(
     from litege_core.synth.rigged import bent_pose_settings
 
     root = str(train_data_root(root))
-    factory = factory_for(source, root, bent_pose_settings(bend))
+    factory = factory_for(source, root, bent_pose_settings(bend), steep_share)
     names = preset("small", source).families_of(split)
     keys = [(names[k % len(names)], SPLIT_SEED_OFFSETS[split] + k) for k in range(n_shapes)]
     prefix, suffix = f"tnet-shapes-{source}-{split}-", f"-{factory.version}.npz"
@@ -494,7 +496,7 @@ def collection_shape_set(
             faces = np.split(data["faces"], f_split)
             meshes = list(zip(vertices, faces, strict=True))[:n_shapes]
     jobs = [
-        (source, root, family, seed, index, bend)
+        (source, root, family, seed, index, bend, steep_share)
         for index, (family, seed) in enumerate(keys)
         if index >= len(meshes)
     ]

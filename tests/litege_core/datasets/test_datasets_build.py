@@ -237,7 +237,7 @@ def test_the_procedural_factory_poses_its_steep_share_and_names_it():
     assert isinstance(steep, SynthFactory)
     assert plain.version == GENERATOR_VERSION
     # a build never resumes the other, nor one of the two-mode revision 1 (rearing, leaping)
-    assert steep.version == f"{GENERATOR_VERSION}+steep0.5r2"
+    assert steep.version == f"{GENERATOR_VERSION}+steep0.5r3"
     seed = next(s for s in range(100) if steep_pose("quadruped", s, 0.5))
     mode = steep_pose("quadruped", seed, 0.5)
     np.testing.assert_array_equal(

@@ -188,7 +188,7 @@ def test_steep_shapes_are_posed_and_cached_apart(tmp_path) -> None:
     np.testing.assert_allclose(centred, expected * scale, atol=1e-9)  # same shape, same frame
     assert not np.allclose(steep.vertices[-1], drawn.vertices[-1])
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1+steep0.5r2.npz",
+        f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1+steep0.5r3.npz",
         f"tnet-shapes-quadruped-val-{n_shapes}-synth-template-v1.npz",
     ]
 
@@ -197,10 +197,10 @@ class _ToyCollection:
     """A stand-in collection factory: toy meshes of a size that depends on the seed."""
 
     category = "makehuman"
-    version = "toy-1"
 
-    def __init__(self, root: str) -> None:
+    def __init__(self, root: str, steep_share: float = 0.0) -> None:
         self.root = root
+        self.version = "toy-1" + (f"+steep{steep_share:g}" if steep_share else "")
 
     def generate_mesh(self, family: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
         assert family == "makehuman"
@@ -213,7 +213,9 @@ def toy_collection(monkeypatch):
     import litege_core.datasets.factories as factories
 
     monkeypatch.setattr(
-        factories, "factory_for", lambda source, root=None, pose=None: _ToyCollection(root)
+        factories,
+        "factory_for",
+        lambda source, root=None, pose=None, steep_share=0.0: _ToyCollection(root, steep_share),
     )
 
 
@@ -229,6 +231,10 @@ def test_collection_shapes_are_canonical_and_cached_ragged(toy_collection, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         f"tnet-shapes-makehuman-train-{n}-toy-1.npz" for n in (1, 3)
     ]
+    steep = collection_shape_set("makehuman", "train", 2, "assets", tmp_path, steep_share=0.4)
+    assert (tmp_path / "tnet-shapes-makehuman-train-2-toy-1+steep0.4.npz").is_file()  # its own
+    assert len(steep.vertices) == 2
+    (tmp_path / "tnet-shapes-makehuman-train-2-toy-1+steep0.4.npz").unlink()
     again = collection_shape_set("makehuman", "train", 2, "assets", tmp_path)  # sliced from 3
     assert again.keys == shapes.keys[:2]
     for a, b, fa, fb in zip(
