@@ -59,6 +59,7 @@ from scipy.spatial.transform import Rotation
 
 from litege_core.io import load_shape
 from litege_core.matching import MatchingModel
+from litege_core.matching.judge import FrameJudge
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 from litege_core.synth.poses import EXTRA_MODES
@@ -339,6 +340,12 @@ def main() -> None:
         help="with --oracle: also frames about symmetry-plane normals (their best, the judge's)",
     )
     parser.add_argument(
+        "--reference-poses",
+        default="",
+        help="comma-separated pose modes of extra reference animals for the judge "
+        "(e.g. sitting_upright,rearing,couchant; default: rest-pose references only)",
+    )
+    parser.add_argument(
         "--per-shape",
         action="store_true",
         help="also list every real shape: the frame each mode kept and its angle (rad)",
@@ -346,6 +353,16 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = MatchingModel.load(args.model)
+    poses = tuple(p for p in args.reference_poses.split(",") if p)
+    if poses and (judge := model.frame_judge) is not None:
+        model.frame_judge = FrameJudge(
+            judge.folded,
+            judge.networks,
+            model.bundle.basis,
+            model.category,
+            model.device,
+            reference_poses=poses,
+        )
     names = families(model.category)
     rows: list[str] = []
     switched: dict[str, int] = {}
@@ -469,7 +486,9 @@ def main() -> None:
         f"--procedural {args.procedural} --rigged {args.rigged}"
         f"{f' --steep {args.steep}' if args.steep else ''}"
         f"{' --per-shape' if args.per_shape else ''}{' --oracle' if args.oracle else ''}"
-        f"{' --sagittal' if args.sagittal else ''}`; frames changed by the judge: {switched}\n"
+        f"{' --sagittal' if args.sagittal else ''}"
+        f"{f' --reference-poses {args.reference_poses}' if poses else ''}`; "
+        f"frames changed by the judge: {switched}\n"
     )
     print("| shapes | frames | n | median rad | mean rad | failures % |")
     print("|---|---|---:|---:|---:|---:|")

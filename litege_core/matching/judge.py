@@ -76,21 +76,24 @@ class ReferenceAnimal:
         name: ``family`` of the procedural generator.
         vertices: ``(V, 3)`` float64 vertices, centred, unit area, canonical orientation.
         cloud: ``(P, 3)`` float64 area-weighted surface samples in the same frame.
+        pose: ``"rest"`` or the pose mode it is generated in.
     """
 
     name: str
     vertices: NDArray
     cloud: NDArray
+    pose: str = "rest"
 
 
-@functools.lru_cache(maxsize=4)
-def reference_animals(category: str) -> tuple[ReferenceAnimal, ...]:
-    """Mean shape of every procedural family of ``category``, rest pose, canonical frame.
+@functools.lru_cache(maxsize=8)
+def reference_animals(category: str, poses: tuple[str, ...] = ()) -> tuple[ReferenceAnimal, ...]:
+    """Mean shape of every procedural family of ``category``, rest pose, canonical frame; then
+    the same mean shapes in each pose mode of ``poses`` (seed 0, canonical frame).
 
-    Deterministic; generated on first use (about a second) and kept for the process.
+    Deterministic; generated on first use (about a second per pose) and kept for the process.
 
     Raises:
-        InputError: a category the procedural generator does not know.
+        InputError: a category the procedural generator does not know, or an unknown mode.
     """
     from litege_core.canonical import canonicalize_unit_area
     from litege_core.sampling import sample_surface
@@ -99,8 +102,11 @@ def reference_animals(category: str) -> tuple[ReferenceAnimal, ...]:
     if category not in CATEGORIES:
         raise InputError(f"no reference animals for category {category!r}")
     out = []
-    for family in families(category):
-        generated = generate_shape(category, family, 0, mean_shape=True, rest_pose=True)
+    for pose, family in [(p, f) for p in ("rest", *poses) for f in families(category)]:
+        if pose == "rest":
+            generated = generate_shape(category, family, 0, mean_shape=True, rest_pose=True)
+        else:
+            generated = generate_shape(category, family, 0, pose, mean_shape=True)
         vertices = np.asarray(generated.vertices, dtype=np.float64)
         faces = np.asarray(generated.faces, dtype=np.int64)
         rng = np.random.default_rng(0)
@@ -109,7 +115,7 @@ def reference_animals(category: str) -> tuple[ReferenceAnimal, ...]:
         aligned = transform.apply(vertices)
         aligned.setflags(write=False)
         cloud.setflags(write=False)
-        out.append(ReferenceAnimal(family, aligned, cloud))
+        out.append(ReferenceAnimal(family, aligned, cloud, pose))
     return tuple(out)
 
 
@@ -126,6 +132,9 @@ class FrameJudge:
         queries_per_reference: farthest points of each reference.
         n_target_points: farthest points of a judged shape.
         seed: seed of the voxel subset.
+        reference_poses: pose modes of extra reference animals (default: none, the rest-pose
+            family means only); a candidate's score is then, per family, its best (lowest)
+            over the family's poses, averaged over the families.
     """
 
     def __init__(
@@ -140,6 +149,7 @@ class FrameJudge:
         queries_per_reference: int = QUERIES_PER_REFERENCE,
         n_target_points: int = TARGET_POINTS,
         seed: int = 0,
+        reference_poses: Sequence[str] = (),
     ) -> None:
         if n_voxels < 1 or queries_per_reference < 1 or n_target_points < 1:
             raise InputError("the frame judge needs at least one voxel, query and target point")
@@ -159,6 +169,8 @@ class FrameJudge:
         self._mean = torch.from_numpy(np.asarray(basis.mean, dtype=np.float32)[keep]).to(device)
         self._solve = torch.from_numpy(np.linalg.pinv(components).astype(np.float32)).to(device)
         self._references: list[torch.Tensor] | None = None
+        self.reference_poses = tuple(reference_poses)
+        self._reference_owner: torch.Tensor | None = None  # (R,) reference animal of each row
 
     # ------------------------------------------------------------------ pieces
 
@@ -180,7 +192,7 @@ class FrameJudge:
     def reference_features(self) -> list[torch.Tensor]:
         """Per network ``(R·q, 2n)`` head features of the reference points (built once)."""
         if self._references is None:
-            animals = reference_animals(self.category)
+            animals = reference_animals(self.category, self.reference_poses)
             codes = self._exact.describe_batch([a.cloud.astype(np.float32) for a in animals])
             points, rows = [], []
             for b, animal in enumerate(animals):
@@ -191,6 +203,7 @@ class FrameJudge:
             tensor = torch.from_numpy(np.concatenate(points).astype(np.float32)).to(self.device)
             index = torch.tensor(rows, device=self.device)
             self._references = self._features(tensor, codes.index_select(0, index))
+            self._reference_owner = index
         return self._references
 
     # ------------------------------------------------------------------ scores
@@ -206,7 +219,9 @@ class FrameJudge:
 
         Returns:
             ``(C,)`` float64: mean over reference points of the smallest predicted cross-shape
-            geodesic to the candidate's points (network units).
+            geodesic to the candidate's points (network units); with reference poses, that
+            mean per reference animal, the lowest over each family's poses, averaged over the
+            families.
         """
         if len(clouds) != len(points) or not clouds:
             raise InputError("give one cloud and one point set per candidate (at least one)")
@@ -226,10 +241,20 @@ class FrameJudge:
                 out = net.head(diff.reshape(-1, diff.shape[-1]), inplace=True)
                 total[:, start:stop] += out.reshape(n_ref, stop - start)
         total /= len(self.folded)
+        assert self._reference_owner is not None
+        owner_of_row = self._reference_owner
+        n_animals = int(owner_of_row.max()) + 1
+        counts = torch.bincount(owner_of_row, minlength=n_animals).to(total.dtype)
+        n_poses = 1 + len(self.reference_poses)  # animals are pose-major: pose · F + family
         result = np.empty(len(sizes))
         start = 0
         for c, size in enumerate(sizes):
-            result[c] = float(total[:, start : start + size].min(dim=1).values.mean())
+            nearest = total[:, start : start + size].min(dim=1).values  # (R,)
+            per_animal = torch.zeros(n_animals, device=self.device).index_add_(
+                0, owner_of_row, nearest
+            )
+            per_animal /= counts
+            result[c] = float(per_animal.reshape(n_poses, -1).min(dim=0).values.mean())
             start += size
         return result
 

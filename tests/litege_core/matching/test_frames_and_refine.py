@@ -141,6 +141,44 @@ def test_reference_animals_are_canonical_unit_area_family_means():
         reference_animals("teapots")
 
 
+def test_posed_reference_animals_follow_the_rest_pose_ones():
+    rest = reference_animals("quadruped")
+    animals = reference_animals("quadruped", ("sitting_upright",))
+    n = len(families("quadruped"))
+    assert [(a.name, a.pose) for a in animals] == [(a.name, "rest") for a in rest] + [
+        (name, "sitting_upright") for name in families("quadruped")
+    ]
+    for k, (still, sitting) in enumerate(zip(animals[:n], animals[n:], strict=True)):
+        np.testing.assert_array_equal(still.vertices, rest[k].vertices)  # rest pose unchanged
+        assert np.abs(sitting.cloud.mean(axis=0)).max() < 0.02
+        assert np.abs(sitting.vertices - still.vertices).max() > 0.1  # posed otherwise
+    with pytest.raises(InputError):
+        reference_animals("quadruped", ("floating",))
+
+
+def test_posed_references_score_each_family_by_its_best_pose(model):
+    """With extra poses a candidate scores, per family, its lowest over the poses: never above
+    the rest-pose score, and exactly the rest-pose score when its own references only count."""
+
+    def judge(poses: tuple[str, ...]) -> FrameJudge:
+        return FrameJudge(
+            model._folded,
+            list(model.bundle.networks),
+            model.bundle.basis,
+            "quadruped",
+            model.device,
+            n_voxels=64,
+            reference_poses=poses,
+        )
+
+    rng = np.random.default_rng(0)
+    clouds = [rng.normal(size=(50, 3)) * 0.3 for _ in range(3)]
+    points = [rng.normal(size=(20, 3)) * 0.3 for _ in range(3)]
+    rest = judge(()).scores(clouds, points)
+    posed = judge(("couchant", "rearing")).scores(clouds, points)
+    assert np.all(posed <= rest + 1e-6) and np.any(posed < rest - 1e-6)
+
+
 def test_approximate_descriptors_with_every_voxel_match_the_exact_ones(model, shapes):
     basis = model.bundle.basis
     judge = FrameJudge(
