@@ -353,15 +353,15 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = MatchingModel.load(args.model)
-    poses = tuple(p for p in args.reference_poses.split(",") if p)
-    if poses and (judge := model.frame_judge) is not None:
+    reference_poses = tuple(p for p in args.reference_poses.split(",") if p)
+    if reference_poses and (judge := model.frame_judge) is not None:
         model.frame_judge = FrameJudge(
             judge.folded,
             judge.networks,
             model.bundle.basis,
             model.category,
             model.device,
-            reference_poses=poses,
+            reference_poses=reference_poses,
         )
     names = families(model.category)
     rows: list[str] = []
@@ -487,7 +487,7 @@ def main() -> None:
         f"{f' --steep {args.steep}' if args.steep else ''}"
         f"{' --per-shape' if args.per_shape else ''}{' --oracle' if args.oracle else ''}"
         f"{' --sagittal' if args.sagittal else ''}"
-        f"{f' --reference-poses {args.reference_poses}' if poses else ''}`; "
+        f"{f' --reference-poses {args.reference_poses}' if reference_poses else ''}`; "
         f"frames changed by the judge: {switched}\n"
     )
     print("| shapes | frames | n | median rad | mean rad | failures % |")
