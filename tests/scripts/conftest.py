@@ -50,3 +50,8 @@ def swap_tnet() -> ModuleType:
 @pytest.fixture(scope="module")
 def frame_report() -> ModuleType:
     return load_script("frame_report")
+
+
+@pytest.fixture(scope="module")
+def contact_error() -> ModuleType:
+    return load_script("contact_error")
