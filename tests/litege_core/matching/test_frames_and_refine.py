@@ -141,6 +141,18 @@ def test_reference_animals_are_canonical_unit_area_family_means():
         reference_animals("teapots")
 
 
+def _tiny_judge(model: MatchingModel, **options) -> FrameJudge:
+    """A quadruped judge on the tiny model's networks (64 voxels unless ``options`` say)."""
+    return FrameJudge(
+        model._folded,
+        list(model.bundle.networks),
+        model.bundle.basis,
+        "quadruped",
+        model.device,
+        **{"n_voxels": 64, **options},
+    )
+
+
 def test_posed_reference_animals_follow_the_rest_pose_ones():
     rest = reference_animals("quadruped")
     animals = reference_animals("quadruped", ("sitting_upright",))
@@ -158,37 +170,18 @@ def test_posed_reference_animals_follow_the_rest_pose_ones():
 
 def test_posed_references_score_each_family_by_its_best_pose(model):
     """With extra poses a candidate scores, per family, its lowest over the poses: never above
-    the rest-pose score, and exactly the rest-pose score when its own references only count."""
-
-    def judge(poses: tuple[str, ...]) -> FrameJudge:
-        return FrameJudge(
-            model._folded,
-            list(model.bundle.networks),
-            model.bundle.basis,
-            "quadruped",
-            model.device,
-            n_voxels=64,
-            reference_poses=poses,
-        )
-
+    the rest-pose score, and below it somewhere."""
     rng = np.random.default_rng(0)
     clouds = [rng.normal(size=(50, 3)) * 0.3 for _ in range(3)]
     points = [rng.normal(size=(20, 3)) * 0.3 for _ in range(3)]
-    rest = judge(()).scores(clouds, points)
-    posed = judge(("couchant", "rearing")).scores(clouds, points)
+    rest = _tiny_judge(model).scores(clouds, points)
+    posed = _tiny_judge(model, reference_poses=("couchant", "rearing")).scores(clouds, points)
     assert np.all(posed <= rest + 1e-6) and np.any(posed < rest - 1e-6)
 
 
 def test_approximate_descriptors_with_every_voxel_match_the_exact_ones(model, shapes):
     basis = model.bundle.basis
-    judge = FrameJudge(
-        model._folded,
-        list(model.bundle.networks),
-        basis,
-        "quadruped",
-        model.device,
-        n_voxels=basis.n_voxels + 10,
-    )
+    judge = _tiny_judge(model, n_voxels=basis.n_voxels + 10)
     (prepared,) = model.prepare_many([shapes[0]], frames="tnet")
     cloud = prepared._lazy["cloud"]
     approx = judge.approximate_descriptors([cloud]).numpy()[0]
@@ -455,14 +448,7 @@ def test_refine_needs_meshes_and_pyfm(model, shapes, monkeypatch):
 
 
 def test_judge_scores_need_one_cloud_per_point_set(model):
-    judge = FrameJudge(
-        model._folded,
-        list(model.bundle.networks),
-        model.bundle.basis,
-        "quadruped",
-        model.device,
-        n_voxels=64,
-    )
+    judge = _tiny_judge(model)
     with pytest.raises(InputError):
         judge.scores([np.zeros((5, 3))], [])
     with torch.no_grad():
