@@ -261,7 +261,7 @@ def mode_offsets(category: str, mode: str, skeleton: Skeleton, rng: np.random.Ge
             put("tail1", 0.3)
         elif mode == "sitting_upright":
             # Sitting up on the haunches (a sitting cat or dog), revision 3: the chest 34–46°
-            # up and the pelvis steeper (the lumbar spine flexes forward by a third of it), so
+            # up and the pelvis 1.3× as steep (the lumbar spine takes back the 0.3), so
             # the rump sits on the ground; the thighs folded forward along the ground, hocks
             # down; forelegs straight, a little ahead of the shoulders, paws on the ground;
             # the head held level; the tail laid back along the ground and curled to a side.
