@@ -36,7 +36,7 @@ from litege_core.evaluation.fusion import (
 )
 from litege_core.evaluation.geodesic import collection_eval_shapes, generated_eval_shapes
 from litege_core.evaluation.speed import cpu_name
-from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned import Predictor, load_model
 from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.fusion import MESH_RINGS, save_fusion
 from litege_core.learned.small_head import small_head_config
@@ -74,8 +74,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     start = time.perf_counter()
-    path = Path(args.model)
-    bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
+    bundle = load_model(args.model)
     predictor = Predictor(bundle, head="full", descriptor_lattice="full")  # shipped recipe
     veto_head = args.veto_head
     if veto_head == "auto":

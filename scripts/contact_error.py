@@ -27,7 +27,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -41,7 +40,7 @@ from litege_core.evaluation.geodesic import (
     real_shape_paths,
     register_turned,
 )
-from litege_core.learned.bundle import load_bundle, load_shipped
+from litege_core.learned.bundle import load_model
 from litege_core.learned.frame import candidate_rotations
 from litege_core.learned.predictor import Predictor
 
@@ -94,8 +93,7 @@ def main() -> None:
             print(f"| {key} | – | no shapes under {args.eval_data} | | | | | | | |")
             continue
         name = chosen.get(key, real.model)
-        bundle = load_bundle(name) if Path(name).is_dir() else load_shipped(name)
-        predictor = Predictor(bundle, head="full", descriptor_lattice="full")
+        predictor = Predictor(load_model(name), head="full", descriptor_lattice="full")
         shapes = real_eval_shapes(paths, real.group, args.sources, cache_dir=args.cache)
         errors, signed, contact, worst_in_contact = [], [], [], 0
         per_shape = []  # (name, error, signed, worst row error, its contact, item)

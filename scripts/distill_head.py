@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned import Predictor, load_bundle, load_model
 from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.small_head import SMALL_HEAD_CONFIG, SMALL_HEAD_WEIGHTS, save_small_head
 from litege_core.train.distill import (
@@ -75,8 +75,7 @@ def main() -> None:
         print(stamped, file=log_file, flush=True)
         print(stamped, file=sys.stderr, flush=True)
 
-    path = Path(args.model)
-    bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
+    bundle = load_model(args.model)
     teacher = Predictor(bundle, head="full", descriptor_lattice="full")  # the trained network
     config = DistillConfig(
         features=args.features,

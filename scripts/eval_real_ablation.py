@@ -28,7 +28,6 @@ import argparse
 import re
 import shlex
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -47,7 +46,7 @@ from litege_core.evaluation.geodesic import (
     real_shape_paths,
 )
 from litege_core.evaluation.speed import cpu_name
-from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned import Predictor, load_model
 
 TTA_OPTION = re.compile(r"tta(\d+)(?:x(\d+(?:\.\d+)?))?")
 
@@ -76,10 +75,8 @@ def load_predictor(name: str) -> Predictor:
     heads = options & {"small", "fullhead"}
     if len(lattices) > 1 or len(heads) > 1:
         raise SystemExit(f"more than one lattice or head in {name}@{text}")
-    path = Path(name)
-    bundle = load_bundle(path) if path.is_dir() else load_shipped(name)
     return Predictor(
-        bundle,
+        load_model(name),
         head={"small": "small", "fullhead": "full"}[heads.pop()] if heads else "auto",
         descriptor_lattice=lattices.pop() if lattices else "auto",
         fusion="graph" if "fusion" in options else "none",

@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import argparse
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 
 from litege_core.evaluation.geodesic import make_input, real_eval_shapes, real_shape_paths
-from litege_core.learned import Predictor, load_bundle, load_shipped
+from litege_core.learned import Predictor, load_model
 from litege_core.learned.router import first_of_each_category, load_router
 
 OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
@@ -32,8 +31,7 @@ OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
 
 def predictor(name_or_dir: str) -> Predictor:
     """A CPU predictor of a shipped model name or a bundle directory."""
-    bundle = load_bundle(name_or_dir) if Path(name_or_dir).is_dir() else load_shipped(name_or_dir)
-    return Predictor(bundle)
+    return Predictor(load_model(name_or_dir))
 
 
 def relative_error(predicted: np.ndarray, truth: np.ndarray) -> float:

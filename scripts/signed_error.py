@@ -18,7 +18,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -32,7 +31,7 @@ from litege_core.evaluation.geodesic import (
     real_eval_shapes,
     real_shape_paths,
 )
-from litege_core.learned.bundle import load_bundle, load_shipped
+from litege_core.learned.bundle import load_model
 from litege_core.learned.predictor import Predictor
 
 
@@ -63,8 +62,7 @@ def main() -> None:
     parser.add_argument("--cache", default="out/exact-cache", help="exact-row cache")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    path = Path(args.model)
-    bundle = load_bundle(path) if path.is_dir() else load_shipped(args.model)
+    bundle = load_model(args.model)
     predictor = Predictor(bundle, head="full", descriptor_lattice="full")
     category = bundle.category
     groups = {

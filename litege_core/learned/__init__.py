@@ -24,6 +24,7 @@ _EXPORTS: dict[str, str] = {
     "shipped_bundles": "manifest",
     "ModelBundle": "bundle",
     "load_bundle": "bundle",
+    "load_model": "bundle",
     "load_shipped": "bundle",
     "save_bundle": "bundle",
     "ShapeDescription": "describe",
@@ -51,7 +52,13 @@ def __getattr__(name: str) -> object:
 
 
 if TYPE_CHECKING:
-    from litege_core.learned.bundle import ModelBundle, load_bundle, load_shipped, save_bundle
+    from litege_core.learned.bundle import (
+        ModelBundle,
+        load_bundle,
+        load_model,
+        load_shipped,
+        save_bundle,
+    )
     from litege_core.learned.describe import ShapeDescription, describe_shape, shape_samples
     from litege_core.learned.manifest import DEFAULT_MODEL, PipelineConfig, shipped_bundles
     from litege_core.learned.numpy_predictor import NumpyPredictor
@@ -78,6 +85,7 @@ __all__ = [
     "ShapeState",
     "describe_shape",
     "load_bundle",
+    "load_model",
     "load_shipped",
     "save_bundle",
     "shape_samples",

@@ -230,6 +230,14 @@ def load_shipped(name: str = DEFAULT_MODEL, device: str | torch.device = "cpu") 
     return load_bundle(SHIPPED_DIR / name, device)
 
 
+def load_model(name_or_dir: str | os.PathLike, device: str | torch.device = "cpu") -> ModelBundle:
+    """A bundle directory (:func:`load_bundle`) if ``name_or_dir`` is one, else a shipped
+    bundle by name (:func:`load_shipped`)."""
+    if Path(name_or_dir).is_dir():
+        return load_bundle(name_or_dir, device)
+    return load_shipped(str(name_or_dir), device)
+
+
 __all__ = [
     "BASIS_FILE",
     "DEFAULT_MODEL",
@@ -245,6 +253,7 @@ __all__ = [
     "consistent_manifest",
     "descriptor_summary",
     "load_bundle",
+    "load_model",
     "load_shipped",
     "load_weights",
     "manifest_core",

@@ -359,11 +359,9 @@ def measure_step_rate(prepared: Any, steps: int = PROBE_STEPS) -> float:
 
 
 def _predictor(reference: str | Path, device: Any) -> Any:
-    from litege_core.learned import Predictor, load_bundle, load_shipped
+    from litege_core.learned import Predictor, load_model
 
-    path = Path(reference)
-    bundle = load_bundle(path, device) if path.is_dir() else load_shipped(str(reference), device)
-    return Predictor(bundle, device)
+    return Predictor(load_model(reference, device), device)
 
 
 def _reference_names(options: FolderTrainOptions) -> list[str]:

@@ -9,7 +9,8 @@ import pytest
 
 from litege_core.engines import compute_distances
 from litege_core.errors import InputError
-from litege_core.learned import DEFAULT_MODEL, Predictor, load_shipped, shipped_bundles
+from litege_core.learned import DEFAULT_MODEL, Predictor, load_model, load_shipped, shipped_bundles
+from litege_core.learned.bundle import SHIPPED_DIR
 from litege_core.metrics import geodesic_error
 from litege_core.synth import families, generate_shape
 from litege_core.variants import random_rotation
@@ -24,6 +25,14 @@ def test_default_model_is_shipped():
 def test_unknown_model_is_a_clear_error():
     with pytest.raises(InputError, match="shipped models"):
         load_shipped("unicorns")
+
+
+def test_load_model_takes_a_shipped_name_or_a_bundle_directory():
+    by_name = load_model("humans")
+    by_directory = load_model(SHIPPED_DIR / "humans")
+    assert by_name.content_hash == by_directory.content_hash == load_shipped("humans").content_hash
+    with pytest.raises(InputError, match="shipped models"):
+        load_model("no/such/bundle")
 
 
 @pytest.fixture(scope="module", params=shipped_bundles())
