@@ -40,6 +40,7 @@ from litege_core.evaluation.geodesic import (
     real_shape_paths,
     register_turned,
 )
+from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
 from litege_core.learned.frame import candidate_rotations
 from litege_core.learned.predictor import Predictor
@@ -72,7 +73,8 @@ def main() -> None:
     details = []
 
     print(
-        f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; {args.sources} FPS sources per shape, "
+        f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine {cpu_name()}; "
+        f"{args.sources} FPS sources per shape, "
         f"exact MMP rows, unit area; contact radius {args.radius}, stretch {args.stretch}; "
         "error of each source's row, GT mean 100 per shape, mesh input, full head and lattice; "
         f"command `python scripts/contact_error.py --sets {args.sets} --sources {args.sources} "

@@ -31,6 +31,7 @@ from litege_core.evaluation.geodesic import (
     real_eval_shapes,
     real_shape_paths,
 )
+from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
 from litege_core.learned.predictor import Predictor
 
@@ -78,7 +79,8 @@ def main() -> None:
         if paths:
             groups[real.group] = real_eval_shapes(paths, real.group, args.sources, args.cache)
     print(
-        f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; model `{args.model}` "
+        f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine {cpu_name()}; "
+        f"model `{args.model}` "
         f"({bundle.content_hash[:12]}), full head and lattice; {args.sources} FPS sources, "
         "exact rows, GT mean 100 per shape; command `python scripts/signed_error.py "
         f"--model {args.model}"
