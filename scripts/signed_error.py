@@ -17,6 +17,7 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
+import itertools
 from datetime import UTC, datetime
 
 import numpy as np
@@ -34,6 +35,7 @@ from litege_core.evaluation.geodesic import (
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
 from litege_core.learned.predictor import Predictor
+from litege_core.shape import Shape
 
 
 def signed_row(predictor: Predictor, shapes: list[EvalShape], setting: str) -> tuple[float, ...]:
@@ -51,6 +53,36 @@ def signed_row(predictor: Predictor, shapes: list[EvalShape], setting: str) -> t
     return float(np.mean(absolute)), float(np.mean(signed)), float(np.median(z))
 
 
+RATIO_BINS = (1.0, 1.05, 1.15, 1.3, 1.6, 2.2, np.inf)
+"""Bins of a pair's geodesic / Euclidean ratio (1 = straight across; large = limb to limb)."""
+
+
+def ratio_rows(predictor: Predictor, shapes: list[EvalShape]) -> list[tuple[float, float, float]]:
+    """Per bin of :data:`RATIO_BINS` on the meshes: ``(share of pairs, mean signed error, mean
+    |error|)`` (GT mean 100 per shape), to tell a bias along straight paths (scale) from one
+    on winding paths (limbs, contact)."""
+    ratios, errors = [], []
+    for shape in shapes:
+        state = predictor.register(Shape.from_arrays(shape.vertices, shape.faces))
+        rows = predictor.distances(state, shape.sources)
+        euclid = np.linalg.norm(
+            shape.vertices[shape.sources][:, None] - shape.vertices[None], axis=2
+        )
+        valid = euclid > 0.05
+        ratios.append((shape.gt / np.maximum(euclid, 1e-12))[valid])
+        errors.append(((rows - shape.gt) * 100.0 / shape.gt.mean())[valid])
+    ratio, error = np.concatenate(ratios), np.concatenate(errors)
+    out = []
+    for low, high in itertools.pairwise(RATIO_BINS):
+        chosen = (ratio >= low) & (ratio < high)
+        if not chosen.any():
+            out.append((0.0, float("nan"), float("nan")))
+            continue
+        picked = error[chosen]
+        out.append((float(chosen.mean()), float(picked.mean()), float(np.abs(picked).mean())))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="quadrupeds", help="shipped name or bundle dir")
@@ -61,6 +93,9 @@ def main() -> None:
     parser.add_argument("--settings", default="mesh,cloud_2000,cloud_300")
     parser.add_argument("--eval-data", default="../shared/eval-data")
     parser.add_argument("--cache", default="out/exact-cache", help="exact-row cache")
+    parser.add_argument(
+        "--by-ratio", action="store_true", help="also split the mesh error by geodesic/Euclidean"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     bundle = load_model(args.model)
@@ -85,7 +120,9 @@ def main() -> None:
         "exact rows, GT mean 100 per shape; command `python scripts/signed_error.py "
         f"--model {args.model}"
         + "".join(f" --dataset {d}" for d in args.dataset)
-        + f" --sets {args.sets} --synthetic {args.synthetic} --settings {args.settings}`\n"
+        + f" --sets {args.sets} --synthetic {args.synthetic} --settings {args.settings}"
+        + (" --by-ratio" if args.by_ratio else "")
+        + "`\n"
     )
     print("| shapes | n | setting | mean abs error | mean signed error | median z |")
     print("|---|---:|---|---:|---:|---:|")
@@ -95,6 +132,23 @@ def main() -> None:
             print(
                 f"| {name} | {len(shapes)} | {setting} | {absolute:.2f} | {signed:+.2f} | {z:.2f} |"
             )
+    if args.by_ratio:
+        bins = [
+            f"{low:g}–{high:g}" if np.isfinite(high) else f"≥ {low:g}"
+            for low, high in itertools.pairwise(RATIO_BINS)
+        ]
+        print(
+            "\nMesh pairs (Euclidean > 0.05) by geodesic / Euclidean ratio: share of pairs, "
+            "mean signed error, mean |error| (GT mean 100 per shape)\n"
+        )
+        print("| shapes | " + " | ".join(bins) + " |")
+        print("|---|" + "---:|" * len(bins))
+        for name, shapes in groups.items():
+            cells = [
+                f"{share:.0%}: {signed:+.1f} / {absolute:.1f}"
+                for share, signed, absolute in ratio_rows(predictor, shapes)
+            ]
+            print(f"| {name} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

@@ -41,7 +41,13 @@ def cmd_data_build(args: argparse.Namespace) -> int:
     manifest = build_dataset(
         spec,
         directory,
-        factory_for(args.category, args.train_data, bent_pose_settings(args.bend), args.steep),
+        factory_for(
+            args.category,
+            args.train_data,
+            bent_pose_settings(args.bend),
+            args.steep,
+            args.spread,
+        ),
         workers=args.workers,
         solver=args.solver,
         part=share,
@@ -183,6 +189,15 @@ def register(commands: argparse._SubParsersAction) -> None:
         "their drawn pose (quadrupeds rear, leap, sit up or lie on the belly; MakeHuman "
         "bodies bend forward, balance on one leg, lift a knee or raise both arms; "
         "litege_core.synth.poses.steep_pose), default 0",
+    )
+    build.add_argument(
+        "--spread",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="--category quadruped / biped: multiply every family's proportion range (log "
+        "standard deviation of limb, girth and trunk factors) by X, e.g. 3 for ±18 %% at 1 σ "
+        "instead of ±6 %% (litege_core.synth.shape_space.sample_factors), default 1",
     )
     build.add_argument(
         "--train-data",

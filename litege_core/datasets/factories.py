@@ -40,17 +40,20 @@ def train_data_root(root: str | os.PathLike | None = None) -> Path:
 class SynthFactory:
     """Procedural shapes of one ``synth`` category (template triangulation shared); a
     ``steep_share`` of them rear, leap, sit up or lie on the belly
-    (:func:`~litege_core.synth.poses.steep_pose`)."""
+    (:func:`~litege_core.synth.poses.steep_pose`); ``spread`` widens every family's
+    proportion range (:func:`~litege_core.synth.shape_space.sample_factors`)."""
 
     category: str
     steep_share: float = 0.0
+    spread: float = 1.0
 
     @property
     def version(self) -> str:
         from litege_core.synth import GENERATOR_VERSION
         from litege_core.synth.poses import steep_tag
 
-        return GENERATOR_VERSION + steep_tag(self.category, self.steep_share)
+        spread = "" if self.spread == 1.0 else f"+spread{self.spread:g}"
+        return GENERATOR_VERSION + steep_tag(self.category, self.steep_share) + spread
 
     def template(self) -> tuple[NDArray, NDArray]:
         from litege_core.synth import template
@@ -63,7 +66,7 @@ class SynthFactory:
         from litege_core.synth.poses import steep_pose
 
         pose = steep_pose(self.category, seed, self.steep_share)
-        return generate_shape(self.category, family, seed, pose).vertices
+        return generate_shape(self.category, family, seed, pose, spread=self.spread).vertices
 
 
 @dataclass(frozen=True)
@@ -148,18 +151,20 @@ def factory_for(
     root: str | os.PathLike | None = None,
     pose: PoseSettings | None = None,
     steep_share: float = 0.0,
+    spread: float = 1.0,
 ):
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
     ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
     ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults;
     ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing,
     leaping, sitting up or lying on the belly; MakeHuman bodies bending, balancing or raising
-    their arms).
+    their arms); ``spread``: the procedural families' proportion range, × their own.
 
     Raises:
         InputError: unknown category, the train-data assets are missing, ``pose`` given
             for a category other than ``rigged``, or a ``steep_share`` outside ``[0, 1]`` or
-            for a category without steep poses.
+            for a category without steep poses, or a ``spread`` other than 1 for a category
+            that is not procedural or not positive.
     """
     from litege_core.synth import CATEGORIES
     from litege_core.synth.poses import check_steep_share
@@ -167,9 +172,13 @@ def factory_for(
     if pose is not None and category != "rigged":
         raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
     check_steep_share(category, steep_share)
+    if spread != 1.0 and category not in CATEGORIES:
+        raise InputError(f"--spread applies to the procedural categories, not to {category!r}")
+    if not spread > 0.0:
+        raise InputError(f"spread must be positive, got {spread}")
 
     if category in CATEGORIES:
-        return SynthFactory(category, steep_share)
+        return SynthFactory(category, steep_share, spread)
     if category in ("rigged", "makehuman"):
         base = train_data_root(root)
         probe = base / ("quaternius-uaa" if category == "rigged" else "makehuman")

@@ -131,6 +131,7 @@ def generate_shape(
     reject: bool = True,
     mean_shape: bool = False,
     rest_pose: bool = False,
+    spread: float = 1.0,
 ) -> GeneratedShape:
     """Generate the shape ``(category, family, seed)``.
 
@@ -142,6 +143,9 @@ def generate_shape(
         reject: redraw poses that self-intersect (costs ~0.1 s per check).
         mean_shape: use the family's mean factors instead of sampling them.
         rest_pose: skip posing (the template's standing pose).
+        spread: multiplier of the family's proportion range
+            (:func:`~litege_core.synth.shape_space.sample_factors`); the pose drawn from the
+            seed does not depend on it.
     """
     check_category(category)
     if family not in FAMILIES[category]:
@@ -153,7 +157,7 @@ def generate_shape(
     rng = _rng(category, family, seed)
     tmpl = template(category)
     fam = FAMILIES[category][family]
-    factors = sample_factors(category, family, rng)
+    factors = sample_factors(category, family, rng, spread)
     if mean_shape:
         factors = mean_factors(category, family)
     modes = pose_modes(category)

@@ -271,14 +271,22 @@ def family(category: str, name: str) -> Family:
     return table[name]
 
 
-def sample_factors(category: str, name: str, rng: np.random.Generator) -> dict[str, float]:
-    """Draw one individual's factors (consumes exactly one normal per factor)."""
+def sample_factors(
+    category: str, name: str, rng: np.random.Generator, spread: float = 1.0
+) -> dict[str, float]:
+    """Draw one individual's factors (consumes exactly one normal per factor).
+
+    ``spread`` multiplies every factor's log standard deviation: 1 gives the family's own
+    range; 3 turns the default ±6 % (1 σ) into ±18 %, so that a family's limbs, girths and
+    trunk cover proportions the family means alone never reach (issue 14, step 3)."""
+    if not spread > 0.0:
+        raise InputError(f"spread must be positive, got {spread}")
     fam = family(category, name)
     noise = np.clip(rng.standard_normal(len(FACTORS[category])), -2.5, 2.5)
     out = {}
     for factor, z in zip(FACTORS[category], noise, strict=True):
         mean = fam.means.get(factor, 1.0)
-        std = fam.log_std.get(factor, fam.default_log_std)
+        std = fam.log_std.get(factor, fam.default_log_std) * spread
         out[factor] = float(mean * np.exp(std * z))
     return out
 

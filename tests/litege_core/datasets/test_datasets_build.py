@@ -248,3 +248,19 @@ def test_the_procedural_factory_poses_its_steep_share_and_names_it():
     for category, share in (("quadruped", 1.5), ("quadruped", -0.1), ("biped", 0.3)):
         with pytest.raises(InputError):
             factory_for(category, steep_share=share)
+
+
+def test_the_procedural_factory_widens_proportions_by_its_spread_and_names_it():
+    from litege_core.datasets.factories import factory_for
+    from litege_core.synth import GENERATOR_VERSION, generate_shape
+
+    wide = factory_for("quadruped", steep_share=0.5, spread=3.0)
+    assert wide.version == f"{GENERATOR_VERSION}+steep0.5r3+spread3"
+    assert factory_for("quadruped", spread=1.0).version == GENERATOR_VERSION
+    np.testing.assert_array_equal(
+        factory_for("quadruped", spread=2.0).generate("horse", 3),
+        generate_shape("quadruped", "horse", 3, spread=2.0).vertices,
+    )
+    for category, spread in (("quadruped", 0.0), ("rigged", 2.0)):
+        with pytest.raises(InputError):
+            factory_for(category, "../shared/train-data", spread=spread)

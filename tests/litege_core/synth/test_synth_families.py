@@ -97,6 +97,26 @@ def test_variation_is_not_isometric() -> None:
     assert np.std(ratio) > 0.05
 
 
+def test_spread_widens_the_proportions_and_keeps_the_pose() -> None:
+    """``spread`` scales every factor's log deviation from the family mean by the same draw;
+    1 is the family's own range, and the pose drawn from the seed does not change."""
+    means = shape_space.mean_factors("quadruped", "dog")
+    for seed in range(4):
+        plain = synth.generate_shape("quadruped", "dog", seed)
+        wide = synth.generate_shape("quadruped", "dog", seed, spread=3.0)
+        assert wide.pose == plain.pose
+        for factor, mean in means.items():
+            np.testing.assert_allclose(
+                np.log(wide.params[factor] / mean), 3.0 * np.log(plain.params[factor] / mean)
+            )
+    same = synth.generate_shape("quadruped", "dog", 1, spread=1.0)
+    np.testing.assert_array_equal(
+        same.vertices, synth.generate_shape("quadruped", "dog", 1).vertices
+    )
+    with pytest.raises(InputError):
+        synth.generate_shape("quadruped", "dog", 1, spread=0.0)
+
+
 def test_bad_arguments_are_input_errors() -> None:
     with pytest.raises(InputError):
         synth.generate_shape("quadruped", "unicorn", 0)
