@@ -47,6 +47,7 @@ def cmd_data_build(args: argparse.Namespace) -> int:
             bent_pose_settings(args.bend),
             args.steep,
             args.spread,
+            args.girth_std,
         ),
         workers=args.workers,
         solver=args.solver,
@@ -198,6 +199,15 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="--category quadruped / biped: multiply every family's proportion range (log "
         "standard deviation of limb, girth and trunk factors) by X, e.g. 3 for ±18 %% at 1 σ "
         "instead of ±6 %% (litege_core.synth.shape_space.sample_factors), default 1",
+    )
+    build.add_argument(
+        "--girth-std",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="--category quadruped / biped: give each shape a lean or stocky build, one "
+        "multiplier exp(S·z) of all its girth factors (trunk, limbs, neck, tail; "
+        "litege_core.synth.shape_space.GIRTH_FACTORS), default 0 (none)",
     )
     build.add_argument(
         "--train-data",

@@ -41,11 +41,14 @@ class SynthFactory:
     """Procedural shapes of one ``synth`` category (template triangulation shared); a
     ``steep_share`` of them rear, leap, sit up or lie on the belly
     (:func:`~litege_core.synth.poses.steep_pose`); ``spread`` widens every family's
-    proportion range (:func:`~litege_core.synth.shape_space.sample_factors`)."""
+    proportion range (:func:`~litege_core.synth.shape_space.sample_factors`) and
+    ``girth_std`` draws each shape a lean or stocky build
+    (:func:`~litege_core.synth.generate.girth_multiplier`)."""
 
     category: str
     steep_share: float = 0.0
     spread: float = 1.0
+    girth_std: float = 0.0
 
     @property
     def version(self) -> str:
@@ -53,7 +56,8 @@ class SynthFactory:
         from litege_core.synth.poses import steep_tag
 
         spread = "" if self.spread == 1.0 else f"+spread{self.spread:g}"
-        return GENERATOR_VERSION + steep_tag(self.category, self.steep_share) + spread
+        girth = f"+girth{self.girth_std:g}" if self.girth_std else ""
+        return GENERATOR_VERSION + steep_tag(self.category, self.steep_share) + spread + girth
 
     def template(self) -> tuple[NDArray, NDArray]:
         from litege_core.synth import template
@@ -66,7 +70,10 @@ class SynthFactory:
         from litege_core.synth.poses import steep_pose
 
         pose = steep_pose(self.category, seed, self.steep_share)
-        return generate_shape(self.category, family, seed, pose, spread=self.spread).vertices
+        shape = generate_shape(
+            self.category, family, seed, pose, spread=self.spread, girth_std=self.girth_std
+        )
+        return shape.vertices
 
 
 @dataclass(frozen=True)
@@ -152,19 +159,22 @@ def factory_for(
     pose: PoseSettings | None = None,
     steep_share: float = 0.0,
     spread: float = 1.0,
+    girth_std: float = 0.0,
 ):
     """The factory of a category: ``"quadruped"`` / ``"biped"`` (procedural, template kind) or
     ``"rigged"`` / ``"makehuman"`` (collection kind, assets under the train-data ``root``);
     ``pose``: the rigged animals' pose ranges (e.g. body bends), ``None`` for the defaults;
     ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing,
     leaping, sitting up or lying on the belly; MakeHuman bodies bending, balancing or raising
-    their arms); ``spread``: the procedural families' proportion range, × their own.
+    their arms); ``spread``: the procedural families' proportion range, × their own;
+    ``girth_std``: log std of the procedural shapes' shared build (lean to stocky).
 
     Raises:
         InputError: unknown category, the train-data assets are missing, ``pose`` given
             for a category other than ``rigged``, or a ``steep_share`` outside ``[0, 1]`` or
-            for a category without steep poses, or a ``spread`` other than 1 for a category
-            that is not procedural or not positive.
+            for a category without steep poses, or a ``spread`` other than 1 or a
+            ``girth_std`` other than 0 for a category that is not procedural, or either out
+            of range.
     """
     from litege_core.synth import CATEGORIES
     from litege_core.synth.poses import check_steep_share
@@ -172,13 +182,15 @@ def factory_for(
     if pose is not None and category != "rigged":
         raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
     check_steep_share(category, steep_share)
-    if spread != 1.0 and category not in CATEGORIES:
-        raise InputError(f"--spread applies to the procedural categories, not to {category!r}")
-    if not spread > 0.0:
-        raise InputError(f"spread must be positive, got {spread}")
+    if (spread != 1.0 or girth_std) and category not in CATEGORIES:
+        raise InputError(
+            f"--spread and --girth-std apply to the procedural categories, not to {category!r}"
+        )
+    if not spread > 0.0 or not girth_std >= 0.0:
+        raise InputError(f"need spread > 0 and girth_std >= 0, got {spread}, {girth_std}")
 
     if category in CATEGORIES:
-        return SynthFactory(category, steep_share, spread)
+        return SynthFactory(category, steep_share, spread, girth_std)
     if category in ("rigged", "makehuman"):
         base = train_data_root(root)
         probe = base / ("quaternius-uaa" if category == "rigged" else "makehuman")

@@ -291,6 +291,25 @@ def sample_factors(
     return out
 
 
+GIRTH_FACTORS = {
+    "quadruped": ("trunk_width", "trunk_depth", "leg_girth", "neck_girth", "tail_girth"),
+    "biped": ("body_depth", "belly", "arm_girth", "leg_girth", "neck_girth"),
+}
+"""The factors a shared girth multiplier scales together: a lean or a stocky build
+(:func:`with_girth`)."""
+
+
+def with_girth(category: str, factors: dict[str, float], girth: float) -> dict[str, float]:
+    """``factors`` with every :data:`GIRTH_FACTORS` entry multiplied by ``girth`` (< 1: a lean
+    body on thin limbs, as greyhounds, deer and TOSCA's dogs and horses have; > 1: stocky)."""
+    if not girth > 0.0:
+        raise InputError(f"girth must be positive, got {girth}")
+    return {
+        name: value * girth if name in GIRTH_FACTORS[category] else value
+        for name, value in factors.items()
+    }
+
+
 def mean_factors(category: str, name: str) -> dict[str, float]:
     """The family's mean individual."""
     fam = family(category, name)
@@ -406,6 +425,7 @@ __all__ = [
     "BIPED_FAMILIES",
     "FACTORS",
     "FAMILIES",
+    "GIRTH_FACTORS",
     "QUADRUPED_FACTORS",
     "QUADRUPED_FAMILIES",
     "Family",
@@ -414,4 +434,5 @@ __all__ = [
     "mean_factors",
     "quadruped_proportions",
     "sample_factors",
+    "with_girth",
 ]

@@ -261,6 +261,15 @@ def test_the_procedural_factory_widens_proportions_by_its_spread_and_names_it():
         factory_for("quadruped", spread=2.0).generate("horse", 3),
         generate_shape("quadruped", "horse", 3, spread=2.0).vertices,
     )
-    for category, spread in (("quadruped", 0.0), ("rigged", 2.0)):
+    lean = factory_for("quadruped", spread=3.0, girth_std=0.3)
+    assert lean.version == f"{GENERATOR_VERSION}+spread3+girth0.3"
+    np.testing.assert_array_equal(
+        lean.generate("dog", 4),
+        generate_shape("quadruped", "dog", 4, spread=3.0, girth_std=0.3).vertices,
+    )
+    for category, spread, girth in (("quadruped", 0.0, 0.0), ("rigged", 2.0, 0.0)):
         with pytest.raises(InputError):
-            factory_for(category, "../shared/train-data", spread=spread)
+            factory_for(category, "../shared/train-data", spread=spread, girth_std=girth)
+    for category, girth in (("quadruped", -0.1), ("rigged", 0.3)):
+        with pytest.raises(InputError):
+            factory_for(category, "../shared/train-data", girth_std=girth)

@@ -117,6 +117,32 @@ def test_spread_widens_the_proportions_and_keeps_the_pose() -> None:
         synth.generate_shape("quadruped", "dog", 1, spread=0.0)
 
 
+def test_girth_scales_the_girth_factors_together_and_keeps_the_rest() -> None:
+    """A shape's build multiplies exactly the girth factors, comes from its own stream (the
+    other factors and the pose mode stay), lies in [exp(-2.5 s), exp(s)] and thins the body."""
+    from litege_core.synth.generate import girth_multiplier
+
+    girths = [girth_multiplier("quadruped", "dog", seed, 0.3) for seed in range(200)]
+    assert np.exp(-0.75) - 1e-12 <= min(girths) < 0.8 and 1.2 < max(girths) <= np.exp(0.3)
+    assert girth_multiplier("quadruped", "dog", 5, 0.0) == 1.0
+    seed = int(np.argmin(girths))
+    plain = synth.generate_shape("quadruped", "dog", seed, spread=3.0)
+    lean = synth.generate_shape("quadruped", "dog", seed, spread=3.0, girth_std=0.3)
+    assert lean.pose == plain.pose
+    for factor in shape_space.FACTORS["quadruped"]:  # pose_attempts may differ: rejection
+        value = plain.params[factor]
+        ratio = girths[seed] if factor in shape_space.GIRTH_FACTORS["quadruped"] else 1.0
+        assert lean.params[factor] == pytest.approx(value * ratio)
+
+    def unit_area_volume(vertices: np.ndarray) -> float:
+        corners = quality.unit_area(vertices, lean.faces)[lean.faces]
+        return float(np.linalg.det(corners).sum() / 6.0)
+
+    assert unit_area_volume(lean.vertices) < 0.9 * unit_area_volume(plain.vertices)
+    with pytest.raises(InputError):
+        girth_multiplier("quadruped", "dog", 1, -0.1)
+
+
 def test_bad_arguments_are_input_errors() -> None:
     with pytest.raises(InputError):
         synth.generate_shape("quadruped", "unicorn", 0)
