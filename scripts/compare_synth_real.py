@@ -5,6 +5,8 @@ For each group of shapes, on unit-area meshes:
     sources per shape): median, 90th, 99th percentile and maximum (long tail = limb-to-limb
     paths, expected on real animals);
   * the PCA-aligned extents (sorted, divided by the longest) — body proportions;
+  * thickness: the length of an inward ray from 800 area-uniform surface samples to the
+    opposite side (10th percentile: limbs, ears, tails; median: the body);
   * triangle quality: mean minimum angle and mean longest/shortest edge ratio.
 
 Groups: procedural quadrupeds (test seeds, one row per family), procedural bipeds, with
@@ -13,11 +15,12 @@ with ``--bend`` of them bent (``litege data build --bend``), and, when ``../shar
 exists, TOSCA animals (cat, dog, horse, wolf) and FAUST humans. Real shapes are read for
 evaluation only and never copied.
 
-With ``--spread X``, a group of procedural quadrupeds whose proportion ranges are X times
-their families' (``litege data build --spread``).
+With ``--spread X`` / ``--girth-std S``, a group of procedural quadrupeds whose proportion
+ranges are X times their families' and whose builds vary lean to stocky (``litege data build
+--spread X --girth-std S``).
 
 Usage: python scripts/compare_synth_real.py [--per-group 6] [--sources 12] [--rigged 0]
-    [--bend 0.7] [--spread 3]
+    [--bend 0.7] [--spread 3] [--girth-std 0.3]
 """
 
 from __future__ import annotations
@@ -66,11 +69,26 @@ def shape_stats(shape: Shape, n_sources: int) -> dict[str, np.ndarray | float]:
     )
     angles = np.degrees(np.arccos(np.clip(cosines, -1, 1)))
     return {
+        "thickness": thickness(vertices, faces),
         "ratio": geodesic[valid] / euclid[valid],
         "extents": extents / extents[0],
         "min_angle": float(angles.min(axis=1).mean()),
         "edge_ratio": float((edges.max(axis=1) / edges.min(axis=1)).mean()),
     }
+
+
+def thickness(vertices: np.ndarray, faces: np.ndarray, n_samples: int = 800) -> np.ndarray:
+    """``(10th percentile, median)`` of the inward ray length from ``n_samples`` area-uniform
+    surface points (seed 0) of a closed, outward-oriented mesh to the opposite side."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    points, face_index = trimesh.sample.sample_surface(mesh, n_samples, seed=0)
+    inward = -mesh.face_normals[face_index]
+    origins = points + 1e-4 * inward
+    hits, rays, _ = mesh.ray.intersects_location(origins, inward, multiple_hits=False)
+    lengths = np.linalg.norm(hits - origins[rays], axis=1)
+    return np.percentile(lengths, [10, 50])
 
 
 def rigged_shapes(n: int, bend: float) -> list[Shape]:
@@ -89,7 +107,7 @@ def rigged_shapes(n: int, bend: float) -> list[Shape]:
 
 
 def groups(
-    per_group: int, rigged: int = 0, bend: float = 0.7, spread: float = 1.0
+    per_group: int, rigged: int = 0, bend: float = 0.7, spread: float = 1.0, girth: float = 0.0
 ) -> dict[str, list[Shape]]:
     result: dict[str, list[Shape]] = {}
     for category in ("quadruped", "biped"):
@@ -98,10 +116,10 @@ def groups(
             generate_shape(category, names[i % len(names)], 2_000_000 + i).to_shape()
             for i in range(per_group)
         ]
-        if category == "quadruped" and spread != 1.0:
-            result[f"procedural quadrupeds, spread {spread:g}"] = [
+        if category == "quadruped" and (spread != 1.0 or girth):
+            result[f"procedural quadrupeds, spread {spread:g}, girth std {girth:g}"] = [
                 generate_shape(
-                    category, names[i % len(names)], 2_000_000 + i, spread=spread
+                    category, names[i % len(names)], 2_000_000 + i, spread=spread, girth_std=girth
                 ).to_shape()
                 for i in range(per_group)
             ]
@@ -127,31 +145,35 @@ def main() -> None:
     parser.add_argument("--rigged", type=int, default=0, help="posed rigged animals per group")
     parser.add_argument("--bend", type=float, default=0.7, help="share bent in the bent group")
     parser.add_argument("--spread", type=float, default=1.0, help="widened quadrupeds group")
+    parser.add_argument("--girth-std", type=float, default=0.0, help="its lean/stocky builds")
     args = parser.parse_args()
     print("### Procedural families vs real shapes (unit-area meshes)\n")
     print(
         f"- date {date.today()}; machine {platform.processor() or platform.machine()}; "
         f"command `python scripts/compare_synth_real.py --per-group {args.per_group} "
         f"--sources {args.sources} --rigged {args.rigged} --bend {args.bend} "
-        f"--spread {args.spread:g}`; exact MMP "
+        f"--spread {args.spread:g} --girth-std {args.girth_std:g}`; exact MMP "
         f"geodesics from {args.sources} FPS sources per shape to all vertices, pairs with "
         "Euclidean distance > 0.05\n"
     )
     print(
         "| group | shapes | vertices | geo/euc median | p90 | p99 | max | pairs ≥ 1.3 "
-        "| extents (2nd, 3rd) | mean min angle ° | mean edge ratio |"
+        "| extents (2nd, 3rd) | thickness p10, median | mean min angle ° | mean edge ratio |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
-    for name, shapes in groups(args.per_group, args.rigged, args.bend, args.spread).items():
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---:|")
+    for name, shapes in groups(
+        args.per_group, args.rigged, args.bend, args.spread, args.girth_std
+    ).items():
         stats = [shape_stats(s, args.sources) for s in shapes]
         ratio = np.concatenate([s["ratio"] for s in stats])
         extents = np.mean([s["extents"] for s in stats], axis=0)
+        thick = np.mean([s["thickness"] for s in stats], axis=0)
         q50, q90, q99 = np.percentile(ratio, [50, 90, 99])
         print(
             f"| {name} | {len(shapes)} | {int(np.mean([s.n_points for s in shapes]))} | "
             f"{q50:.2f} | {q90:.2f} | {q99:.2f} | {ratio.max():.2f} | "
             f"{(ratio >= 1.3).mean():.0%} | "
-            f"{extents[1]:.2f}, {extents[2]:.2f} | "
+            f"{extents[1]:.2f}, {extents[2]:.2f} | {thick[0]:.3f}, {thick[1]:.3f} | "
             f"{np.mean([s['min_angle'] for s in stats]):.1f} | "
             f"{np.mean([s['edge_ratio'] for s in stats]):.2f} |"
         )
