@@ -83,6 +83,18 @@ def ratio_rows(predictor: Predictor, shapes: list[EvalShape]) -> list[tuple[floa
     return out
 
 
+def by_class(name: str, shapes: list[EvalShape]) -> dict[str, list[EvalShape]]:
+    """``{name: shapes}``, then, for a real set of several classes (TOSCA's cats, dogs, ...:
+    the shape names without their digits), one entry per class."""
+    classes: dict[str, list[EvalShape]] = {}
+    for shape in shapes:
+        classes.setdefault(shape.name.rstrip("0123456789"), []).append(shape)
+    out = {name: shapes}
+    if "(real)" in name and len(classes) > 1:
+        out.update({f"{name}: {label} ({len(group)})": group for label, group in classes.items()})
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="quadrupeds", help="shipped name or bundle dir")
@@ -144,11 +156,12 @@ def main() -> None:
         print("| shapes | " + " | ".join(bins) + " |")
         print("|---|" + "---:|" * len(bins))
         for name, shapes in groups.items():
-            cells = [
-                f"{share:.0%}: {signed:+.1f} / {absolute:.1f}"
-                for share, signed, absolute in ratio_rows(predictor, shapes)
-            ]
-            print(f"| {name} | " + " | ".join(cells) + " |")
+            for label, chosen in by_class(name, shapes).items():
+                cells = [
+                    f"{share:.0%}: {signed:+.1f} / {absolute:.1f}"
+                    for share, signed, absolute in ratio_rows(predictor, chosen)
+                ]
+                print(f"| {label} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

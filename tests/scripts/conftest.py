@@ -55,3 +55,8 @@ def frame_report() -> ModuleType:
 @pytest.fixture(scope="module")
 def contact_error() -> ModuleType:
     return load_script("contact_error")
+
+
+@pytest.fixture(scope="module")
+def signed_error() -> ModuleType:
+    return load_script("signed_error")

@@ -1,0 +1,49 @@
+"""scripts/signed_error.py: the error split by geodesic / Euclidean ratio, and by class."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from litege_core.evaluation.geodesic import EvalShape
+
+
+class StraightLinePredictor:
+    """Predicts the Euclidean distance: right on straight paths, short on winding ones."""
+
+    def register(self, shape):
+        return shape
+
+    def distances(self, state, sources):
+        points = state.points
+        return np.linalg.norm(points[sources][:, None] - points[None], axis=2)
+
+
+def strip_shape(name: str) -> EvalShape:
+    """Points on a line with a 'geodesic' 1× the Euclidean distance up to x = 1, 2.5× past it."""
+    x = np.linspace(0.0, 2.0, 21)
+    vertices = np.stack([x, 0 * x, 0 * x], 1)
+    faces = np.array([[0, 1, 2]])
+    euclid = np.abs(x[[0, 10]][:, None] - x[None])
+    gt = np.where(x[None] > 1.0, 2.5 * euclid, euclid)
+    return EvalShape(name, "toy (real)", vertices, faces, np.array([0, 10]), gt)
+
+
+def test_ratio_rows_put_the_shortfall_in_the_winding_bins(signed_error, monkeypatch) -> None:
+    monkeypatch.setattr(
+        signed_error.Shape, "from_arrays", lambda v, f: type("S", (), {"points": v})
+    )
+    rows = signed_error.ratio_rows(StraightLinePredictor(), [strip_shape("cat0")])
+    shares = np.array([share for share, _, _ in rows])
+    assert np.isclose(shares.sum(), 1.0)
+    straight, winding = rows[0], rows[-1]  # ratio 1 and ratio 2.5
+    assert straight[0] > 0 and np.isclose(straight[1], 0.0) and np.isclose(straight[2], 0.0)
+    assert winding[0] > 0 and winding[1] < 0 and np.isclose(winding[2], -winding[1])
+    assert all(np.isnan(signed) for share, signed, _ in rows[1:-1] if share == 0)
+
+
+def test_by_class_splits_a_real_set_by_the_names_without_digits(signed_error) -> None:
+    shapes = [strip_shape(name) for name in ("cat0", "cat10", "dog2")]
+    split = signed_error.by_class("toy (real)", shapes)
+    assert list(split) == ["toy (real)", "toy (real): cat (2)", "toy (real): dog (1)"]
+    assert [s.name for s in split["toy (real): cat (2)"]] == ["cat0", "cat10"]
+    assert list(signed_error.by_class("synthetic", shapes)) == ["synthetic"]
