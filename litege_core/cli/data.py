@@ -205,9 +205,10 @@ def register(commands: argparse._SubParsersAction) -> None:
         type=float,
         default=0.0,
         metavar="S",
-        help="--category quadruped / biped: give each shape a lean or stocky build, one "
-        "multiplier exp(S·z) of all its girth factors (trunk, limbs, neck, tail; "
-        "litege_core.synth.shape_space.GIRTH_FACTORS), default 0 (none)",
+        help="--category quadruped / biped / rigged: give each shape a lean or stocky build, "
+        "one multiplier exp(S·z), z in [-2.5, 1], of its trunk, limb, neck and tail girths "
+        "(litege_core.synth.shape_space.GIRTH_FACTORS; rigged: RiggedModel.with_build), "
+        "default 0 (none)",
     )
     build.add_argument(
         "--train-data",

@@ -14,6 +14,7 @@ train-data directory is ``root`` or, by default, ``$LITEGE_TRAIN_DATA`` or
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -167,14 +168,14 @@ def factory_for(
     ``steep_share``: the share of shapes in steep poses (procedural quadrupeds rearing,
     leaping, sitting up or lying on the belly; MakeHuman bodies bending, balancing or raising
     their arms); ``spread``: the procedural families' proportion range, × their own;
-    ``girth_std``: log std of the procedural shapes' shared build (lean to stocky).
+    ``girth_std``: log std of the procedural shapes' and the rigged animals' build (lean to
+    stocky).
 
     Raises:
         InputError: unknown category, the train-data assets are missing, ``pose`` given
             for a category other than ``rigged``, or a ``steep_share`` outside ``[0, 1]`` or
-            for a category without steep poses, or a ``spread`` other than 1 or a
-            ``girth_std`` other than 0 for a category that is not procedural, or either out
-            of range.
+            for a category without steep poses, a ``spread`` other than 1 for a category
+            that is not procedural, a ``girth_std`` for MakeHuman, or either out of range.
     """
     from litege_core.synth import CATEGORIES
     from litege_core.synth.poses import check_steep_share
@@ -182,9 +183,11 @@ def factory_for(
     if pose is not None and category != "rigged":
         raise InputError(f"pose settings apply to the rigged animals only, not to {category!r}")
     check_steep_share(category, steep_share)
-    if (spread != 1.0 or girth_std) and category not in CATEGORIES:
+    if spread != 1.0 and category not in CATEGORIES:
+        raise InputError(f"--spread applies to the procedural categories, not to {category!r}")
+    if girth_std and category not in (*CATEGORIES, "rigged"):
         raise InputError(
-            f"--spread and --girth-std apply to the procedural categories, not to {category!r}"
+            f"--girth-std applies to the procedural and rigged animals, not to {category!r}"
         )
     if not spread > 0.0 or not girth_std >= 0.0:
         raise InputError(f"need spread > 0 and girth_std >= 0, got {spread}, {girth_std}")
@@ -199,6 +202,10 @@ def factory_for(
                 f"{probe} not found: pass the train-data directory (or set LITEGE_TRAIN_DATA)"
             )
         if category == "rigged":
+            if girth_std:
+                from litege_core.synth.rigged import PoseSettings
+
+                pose = dataclasses.replace(pose or PoseSettings(), girth_std=girth_std)
             return RiggedFactory(str(base), settings=pose)
         return MakeHumanFactory(str(base), steep_share=steep_share)
     raise InputError(

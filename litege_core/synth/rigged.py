@@ -52,6 +52,10 @@ from litege_core.synth.meshops import (
 )
 
 RIGGED_VERSION = "rigged-2"
+KEEP_GIRTH = ("head", "ear", "jaw", "eye")
+"""Joints (by a part of their lower-case name) whose vertices a build leaves as they are."""
+GIRTH_STREAM = 7
+"""Third entry of the seed sequence of a shape's build draw (apart from its pose draws)."""
 LEG_FRACTION = 0.45
 """Joints whose rest position lies in the lower 45 % of the rest height count as leg joints."""
 
@@ -93,13 +97,18 @@ class PoseSettings:
     subdivide: bool = True
     attempts: int = 6
     bend: BendSettings = field(default_factory=BendSettings)
+    girth_std: float = 0.0
+    """Log std of a lean-to-stocky build (:meth:`RiggedModel.with_build`): each shape's
+    trunk, limbs, neck and tail girths × ``exp(girth_std · z)``, ``z ~ N(0, 1)`` in [−2.5, 1],
+    drawn from a stream of its own (the pose does not change); 0: none."""
 
     def describe(self) -> str:
         """A compact, stable description (part of a dataset factory's version)."""
+        girth = f",girth{self.girth_std:g}" if self.girth_std else ""
         return (
             f"pose({self.perturb_degrees:g},{self.body_range[0]:g}-{self.body_range[1]:g},"
             f"{self.vertex_range[0]}-{self.vertex_range[1]},{int(self.subdivide)},"
-            f"{self.attempts},{self.bend.describe()})"
+            f"{self.attempts},{self.bend.describe()}{girth})"
         )
 
 
@@ -137,6 +146,56 @@ class RiggedModel:
     def body_axes(self) -> NDArray:
         """``(3, 3)`` rows ``(forward, lateral, up)`` of the rest pose (y up)."""
         return body_axes(self.rest_vertices())
+
+    @functools.cached_property
+    def radial_offsets(self) -> NDArray:
+        """``(V, 3)`` bind-space offsets of each vertex from its bones' axes, blended by its
+        skin weights; zero for the head, ears, jaw and eyes (:data:`KEEP_GIRTH`).
+
+        A bone's axis runs from its joint to the mean of its child joints, or, for a joint
+        without children, on along its parent's direction as far as the vertices it holds
+        reach. Moving each vertex along this offset thins (or thickens) the limbs and the
+        trunk around the skeleton without moving a joint."""
+        mesh = self.mesh
+        joints_at = np.linalg.inv(mesh.inverse_bind)[:, :3, 3]  # (J, 3) bind positions
+        slot = {int(node): j for j, node in enumerate(mesh.joint_nodes)}
+        parent = np.full(len(joints_at), -1)
+        for j, node in enumerate(mesh.joint_nodes):
+            up = int(self.tree.parents[node])
+            while up >= 0 and up not in slot:
+                up = int(self.tree.parents[up])
+            parent[j] = slot.get(up, -1)
+        dominant = mesh.joints[np.arange(len(mesh.vertices)), mesh.weights.argmax(axis=1)]
+        ends = joints_at.copy()
+        for j in range(len(joints_at)):
+            children = np.flatnonzero(parent == j)
+            if children.size:
+                ends[j] = joints_at[children].mean(axis=0)
+            elif parent[j] >= 0:
+                direction = joints_at[j] - joints_at[parent[j]]
+                direction /= max(float(np.linalg.norm(direction)), 1e-12)
+                held = mesh.vertices[dominant == j] - joints_at[j]
+                reach = float((held @ direction).max()) if held.size else 0.0
+                ends[j] = joints_at[j] + max(reach, 0.0) * direction
+        keep = np.array(
+            [
+                any(word in self.tree.names[node].lower() for word in KEEP_GIRTH)
+                for node in mesh.joint_nodes
+            ]
+        )
+        start, end = joints_at[mesh.joints], ends[mesh.joints]  # (V, K, 3)
+        axis = end - start
+        length2 = np.maximum(np.einsum("vkd,vkd->vk", axis, axis), 1e-18)
+        along = np.clip(
+            np.einsum("vkd,vkd->vk", mesh.vertices[:, None] - start, axis) / length2, 0.0, 1.0
+        )
+        offsets = mesh.vertices[:, None] - (start + along[..., None] * axis)
+        weights = np.where(keep[mesh.joints], 0.0, mesh.weights)
+        return np.einsum("vk,vkd->vd", weights, offsets)
+
+    def with_build(self, girth: float) -> NDArray:
+        """``(V, 3)`` bind vertices of a build ``girth`` (< 1 lean, > 1 stocky)."""
+        return self.mesh.vertices + (girth - 1.0) * self.radial_offsets
 
     def rest_vertices(self) -> NDArray:
         """``(V, 3)`` skinned positions in the rest pose of the node tree (scaled)."""
@@ -238,13 +297,15 @@ class PoseDraw:
     body_scale: tuple[float, float, float]
     target_vertices: int
     bend: Bend | None = None
+    girth: float = 1.0
 
 
 def pose_model(
-    model: RiggedModel, rng: np.random.Generator, settings: PoseSettings
+    model: RiggedModel, rng: np.random.Generator, settings: PoseSettings, girth: float = 1.0
 ) -> tuple[NDArray, PoseDraw]:
     """Posed body vertices ``(V, 3)`` (on ``model.mesh.faces``, unit-area scale) and the draw
-    (steps 2–3 of the module docstring, before remeshing)."""
+    (steps 2–3 of the module docstring, before remeshing), of build ``girth``
+    (:meth:`RiggedModel.with_build`; 1: the model's own)."""
     clip = model.clips[int(rng.integers(len(model.clips)))]
     t = float(rng.uniform(0.0, clip.duration)) if clip.duration > 0 else 0.0
     translation, rotation, scale = gltf.sample_pose(model.tree, clip, t)
@@ -255,12 +316,13 @@ def pose_model(
     n_target = int(rng.integers(settings.vertex_range[0], settings.vertex_range[1] + 1))
     local = model.tree.local_matrices(translation, rotation, scale)
     matrices = gltf.skin_matrices(model.tree, model.mesh, local)
-    posed = gltf.linear_blend_skinning(
-        model.mesh.vertices, model.mesh.joints, model.mesh.weights, matrices
-    )
+    bind = model.mesh.vertices if girth == 1.0 else model.with_build(girth)
+    posed = gltf.linear_blend_skinning(bind, model.mesh.joints, model.mesh.weights, matrices)
     posed, bend = random_bend(rng, posed, model.body_axes, settings.bend)
     posed = (posed - posed.mean(axis=0)) * model.scale * body
-    draw = PoseDraw(clip.name, t, (float(body[0]), float(body[1]), float(body[2])), n_target, bend)
+    draw = PoseDraw(
+        clip.name, t, (float(body[0]), float(body[1]), float(body[2])), n_target, bend, girth
+    )
     return posed, draw
 
 
@@ -296,9 +358,13 @@ def posed_animal(
         ComputationError: no attempt gave a clean manifold.
     """
     last: Exception | None = None
+    girth = 1.0
+    if settings.girth_std:
+        z = np.random.default_rng([seed, 0, GIRTH_STREAM]).standard_normal()
+        girth = float(np.exp(settings.girth_std * np.clip(z, -2.5, 1.0)))
     for attempt in range(settings.attempts):
         rng = np.random.default_rng([seed, attempt])
-        posed, draw = pose_model(model, rng, settings)
+        posed, draw = pose_model(model, rng, settings, girth)
         try:
             vertices, faces = finish_mesh(
                 posed, model.mesh.faces, draw.target_vertices, settings.subdivide

@@ -1,6 +1,7 @@
 """Posed real animals (rigged glTF) and MakeHuman bodies. They need the train-data directory
 (``$LITEGE_TRAIN_DATA`` or ../shared/train-data), which users do not have: skipped without it."""
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -197,6 +198,38 @@ def test_bent_animals_are_seeded_clean_manifolds_and_default_poses_stay_straight
     assert straight_draw.body_scale == draw.body_scale
 
 
+def test_a_lean_build_thins_the_body_around_the_skeleton_and_keeps_the_head(fox):
+    np.testing.assert_array_equal(fox.with_build(1.0), fox.mesh.vertices)
+    lean, stocky = fox.with_build(0.6), fox.with_build(1.3)
+    moved = np.linalg.norm(lean - fox.mesh.vertices, axis=1)
+    head = np.isin(
+        fox.mesh.joints[np.arange(len(moved)), fox.mesh.weights.argmax(axis=1)],
+        [
+            j
+            for j, node in enumerate(fox.mesh.joint_nodes)
+            if "head" in fox.tree.names[node].lower()
+        ],
+    )
+    assert head.any() and np.median(moved[head]) < 0.2 * np.median(moved[~head])
+
+    def volume(vertices: np.ndarray) -> float:
+        return float(np.linalg.det(vertices[fox.mesh.faces]).sum() / 6.0)
+
+    assert volume(lean) < 0.75 * volume(fox.mesh.vertices) < 0.75 * volume(stocky)
+    # the build is drawn apart from the pose: same clip, time and body scale
+    settings = rigged.PoseSettings(vertex_range=(1200, 1400), girth_std=0.3)
+    vertices, faces, draw = rigged.posed_animal(fox, 5, settings)
+    assert meshops.manifold_report(vertices, faces).ok and draw.girth != 1.0
+    _, _, plain = rigged.posed_animal(fox, 5, FAST_ANIMAL)
+    assert (plain.clip, plain.time, plain.body_scale, plain.girth) == (
+        draw.clip,
+        draw.time,
+        draw.body_scale,
+        1.0,
+    )
+    assert "girth0.3" in settings.describe() and "girth" not in FAST_ANIMAL.describe()
+
+
 def test_the_rigged_factory_version_names_its_pose_settings():
     from litege_core.datasets.factories import RiggedFactory, factory_for, species_factory
     from litege_core.errors import InputError
@@ -209,6 +242,9 @@ def test_the_rigged_factory_version_names_its_pose_settings():
     assert bent.version.startswith(rigged.RIGGED_VERSION + ":") and "p=0.7" in bent.version
     bent_species = species_factory("Fox", TRAIN_DATA, bent.settings)
     assert bent_species.version != species_factory("Fox", TRAIN_DATA).version
+    lean = factory_for("rigged", TRAIN_DATA, bent.settings, girth_std=0.3)
+    assert lean.settings == dataclasses.replace(bent.settings, girth_std=0.3)
+    assert lean.version != bent.version and "girth0.3" in lean.version
     with pytest.raises(InputError, match="rigged animals only"):
         factory_for("quadruped", None, bent.settings)
     with pytest.raises(InputError, match="rigged animals only"):
