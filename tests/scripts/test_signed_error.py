@@ -47,3 +47,15 @@ def test_by_class_splits_a_real_set_by_the_names_without_digits(signed_error) ->
     assert list(split) == ["toy (real)", "toy (real): cat (2)", "toy (real): dog (1)"]
     assert [s.name for s in split["toy (real): cat (2)"]] == ["cat0", "cat10"]
     assert list(signed_error.by_class("synthetic", shapes)) == ["synthetic"]
+
+
+def test_fit_stretch_recovers_an_affine_detour_and_stretched_error_applies_it(signed_error) -> None:
+    rng = np.random.default_rng(0)
+    euclid = rng.uniform(1.0, 50.0, size=(3, 40))
+    predicted = euclid + rng.uniform(0.0, 20.0, size=(3, 40))
+    true = euclid + 2.0 + 1.5 * (predicted - euclid)
+    pairs = [(euclid, predicted, true)]
+    alpha, beta = signed_error.fit_stretch(pairs)
+    assert np.isclose(alpha, 2.0) and np.isclose(beta, 1.5)
+    assert np.isclose(signed_error.stretched_error(pairs, alpha, beta), 0.0)
+    assert signed_error.stretched_error(pairs, 0.0, 1.0) > 1.0
