@@ -33,7 +33,9 @@ from litege_core.synth.poses import (
 from litege_core.synth.quality import self_intersects
 from litege_core.synth.shape_space import (
     FAMILIES,
+    GIRTH_STREAM,
     bone_scales,
+    draw_girth,
     mean_factors,
     sample_factors,
     with_girth,
@@ -91,10 +93,6 @@ def symmetry_map(category: str) -> NDArray:
     return template(category).symmetry
 
 
-GIRTH_STREAM = 7
-"""Third entry of the seed sequence of :func:`girth_multiplier`'s stream."""
-
-
 def _rng(category: str, family: str, seed: int) -> np.random.Generator:
     key = zlib.crc32(f"{category}/{family}".encode())
     return np.random.default_rng(np.random.SeedSequence([key, int(seed)]))
@@ -125,16 +123,13 @@ def _draw_mode(category: str, rng: np.random.Generator) -> str:
 
 
 def girth_multiplier(category: str, family: str, seed: int, girth_std: float) -> float:
-    """The build multiplier of shape ``(category, family, seed)``: ``exp(girth_std · z)``,
-    ``z ~ N(0, 1)`` clipped to [−2.5, 1], from a stream apart from the shape's factors and
-    pose. Leaner more often than stockier: the family means are average to stocky already,
-    and real lean builds (greyhounds, deer; TOSCA's dogs and horses measure about half our
-    dogs' girth at unit area) lie far below them."""
-    if girth_std < 0.0:
-        raise InputError(f"girth_std must be non-negative, got {girth_std}")
+    """The build multiplier of shape ``(category, family, seed)``
+    (:func:`~litege_core.synth.shape_space.draw_girth`), from a stream apart from the shape's
+    factors and pose."""
     key = zlib.crc32(f"{category}/{family}".encode())
-    rng = np.random.default_rng(np.random.SeedSequence([key, int(seed), GIRTH_STREAM]))
-    return float(np.exp(girth_std * np.clip(rng.standard_normal(), -2.5, 1.0)))
+    return draw_girth(
+        np.random.default_rng(np.random.SeedSequence([key, int(seed), GIRTH_STREAM])), girth_std
+    )
 
 
 def drawn_pose_mode(category: str, family: str, seed: int) -> str:

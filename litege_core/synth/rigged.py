@@ -50,12 +50,11 @@ from litege_core.synth.meshops import (
     unit_area_scale,
     weld,
 )
+from litege_core.synth.shape_space import GIRTH_STREAM, draw_girth
 
 RIGGED_VERSION = "rigged-2"
 KEEP_GIRTH = ("head", "ear", "jaw", "eye")
 """Joints (by a part of their lower-case name) whose vertices a build leaves as they are."""
-GIRTH_STREAM = 7
-"""Third entry of the seed sequence of a shape's build draw (apart from its pose draws)."""
 LEG_FRACTION = 0.45
 """Joints whose rest position lies in the lower 45 % of the rest height count as leg joints."""
 
@@ -99,7 +98,7 @@ class PoseSettings:
     bend: BendSettings = field(default_factory=BendSettings)
     girth_std: float = 0.0
     """Log std of a lean-to-stocky build (:meth:`RiggedModel.with_build`): each shape's
-    trunk, limbs, neck and tail girths × ``exp(girth_std · z)``, ``z ~ N(0, 1)`` in [−2.5, 1],
+    trunk, limbs, neck and tail girths × :func:`~litege_core.synth.shape_space.draw_girth`,
     drawn from a stream of its own (the pose does not change); 0: none."""
 
     def describe(self) -> str:
@@ -360,8 +359,7 @@ def posed_animal(
     last: Exception | None = None
     girth = 1.0
     if settings.girth_std:
-        z = np.random.default_rng([seed, 0, GIRTH_STREAM]).standard_normal()
-        girth = float(np.exp(settings.girth_std * np.clip(z, -2.5, 1.0)))
+        girth = draw_girth(np.random.default_rng([seed, GIRTH_STREAM]), settings.girth_std)
     for attempt in range(settings.attempts):
         rng = np.random.default_rng([seed, attempt])
         posed, draw = pose_model(model, rng, settings, girth)

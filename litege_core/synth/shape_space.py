@@ -299,6 +299,21 @@ GIRTH_FACTORS = {
 (:func:`with_girth`)."""
 
 
+GIRTH_STREAM = 7
+"""Last entry of the seed sequence a shape's build is drawn from (apart from its factors and
+pose draws)."""
+
+
+def draw_girth(rng: np.random.Generator, girth_std: float) -> float:
+    """A build multiplier ``exp(girth_std · z)``, ``z ~ N(0, 1)`` clipped to [−2.5, 1]: leaner
+    more often than stockier, since the family means (and the rigged animals) are average to
+    stocky already and real lean builds (greyhounds, deer; TOSCA's thin parts measure two
+    thirds of ours at unit area, ``scripts/compare_synth_real.py``) lie far below them."""
+    if girth_std < 0.0:
+        raise InputError(f"girth_std must be non-negative, got {girth_std}")
+    return float(np.exp(girth_std * np.clip(rng.standard_normal(), -2.5, 1.0)))
+
+
 def with_girth(category: str, factors: dict[str, float], girth: float) -> dict[str, float]:
     """``factors`` with every :data:`GIRTH_FACTORS` entry multiplied by ``girth`` (< 1: a lean
     body on thin limbs, as greyhounds, deer and TOSCA's dogs and horses have; > 1: stocky)."""
@@ -426,10 +441,12 @@ __all__ = [
     "FACTORS",
     "FAMILIES",
     "GIRTH_FACTORS",
+    "GIRTH_STREAM",
     "QUADRUPED_FACTORS",
     "QUADRUPED_FAMILIES",
     "Family",
     "bone_scales",
+    "draw_girth",
     "family",
     "mean_factors",
     "quadruped_proportions",

@@ -122,6 +122,8 @@ def test_girth_scales_the_girth_factors_together_and_keeps_the_rest() -> None:
     other factors and the pose mode stay), lies in [exp(-2.5 s), exp(s)] and thins the body."""
     from litege_core.synth.generate import girth_multiplier
 
+    for category, girth_factors in shape_space.GIRTH_FACTORS.items():
+        assert set(girth_factors) <= set(shape_space.FACTORS[category])
     girths = [girth_multiplier("quadruped", "dog", seed, 0.3) for seed in range(200)]
     assert np.exp(-0.75) - 1e-12 <= min(girths) < 0.8 and 1.2 < max(girths) <= np.exp(0.3)
     assert girth_multiplier("quadruped", "dog", 5, 0.0) == 1.0
