@@ -8,6 +8,10 @@ be corrected from them; one that only the real dev sets show cannot (never fit o
 
     python scripts/signed_error.py --model quadrupeds --dataset data/folder-cal --sets tosca
     python scripts/signed_error.py --model humans --dataset data/makehuman-cal --sets faust
+
+``--by-ratio`` splits the mesh error by each pair's geodesic / Euclidean ratio (and a real set by
+class); ``--stretch-from DATASET`` fits an affine stretch of the detours on a calibration set and
+shows every group's error with it (BENCHMARKS "winding-bias").
 """
 
 from __future__ import annotations
@@ -72,8 +76,9 @@ def residual_pairs(
 
 
 def fit_stretch(pairs: list[tuple[NDArray, NDArray, NDArray]]) -> tuple[float, float]:
-    """Least-squares ``(α, β)`` of ``true − e ≈ α + β (predicted − e)`` over all pairs: a
-    network that shrinks its detours toward the mean on unfamiliar shapes has β > 1."""
+    """Least-squares ``(α, β)`` of ``true − e ≈ α + β (predicted − e)`` over all pairs. A
+    network that only shrank its detours would give β > 1; its scatter pulls β the other way
+    (the truth regresses toward the mean given the prediction too)."""
     predicted = np.concatenate([(p - e).ravel() for e, p, _ in pairs])
     true = np.concatenate([(t - e).ravel() for e, _, t in pairs])
     design = np.stack([np.ones_like(predicted), predicted], axis=1)
