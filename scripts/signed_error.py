@@ -22,6 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import itertools
+from collections.abc import Iterator
 from datetime import UTC, datetime
 
 import numpy as np
@@ -30,6 +31,7 @@ from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
+    EvalInput,
     EvalShape,
     collection_eval_shapes,
     generated_eval_shapes,
@@ -43,18 +45,26 @@ from litege_core.learned.predictor import Predictor
 from litege_core.shape import Shape
 
 
-def signed_row(predictor: Predictor, shapes: list[EvalShape], setting: str) -> tuple[float, ...]:
-    """``(mean |error|, mean signed error, median z)`` over ``shapes`` (per-shape means, GT mean
-    100 per shape), inputs as ``litege eval geodesic`` makes them (seed = index)."""
-    absolute, signed, z = [], [], []
+def predicted_inputs(
+    predictor: Predictor, shapes: list[EvalShape], setting: str
+) -> Iterator[tuple[EvalInput, NDArray, float, float]]:
+    """Per shape, the input of ``setting`` as ``litege eval geodesic`` makes it (seed = index),
+    the network's rows for its sources, its OOD z-score and its GT mean / 100."""
     for index, shape in enumerate(shapes):
         item = make_input(shape, setting, index)
         state = predictor.register(item.shape)
         rows = predictor.distances(state, item.source_index)
-        scale = float(item.gt.mean()) / 100.0
+        yield item, rows, state.ood_score, float(item.gt.mean()) / 100.0
+
+
+def signed_row(predictor: Predictor, shapes: list[EvalShape], setting: str) -> tuple[float, ...]:
+    """``(mean |error|, mean signed error, median z)`` over ``shapes`` (per-shape means, GT mean
+    100 per shape)."""
+    absolute, signed, z = [], [], []
+    for item, rows, ood, scale in predicted_inputs(predictor, shapes, setting):
         absolute.append(float(np.abs(rows - item.gt).mean()) / scale)
         signed.append(float((rows - item.gt).mean()) / scale)
-        z.append(state.ood_score)
+        z.append(ood)
     return float(np.mean(absolute)), float(np.mean(signed)), float(np.median(z))
 
 
@@ -64,13 +74,9 @@ def residual_pairs(
     """Per shape ``(Euclidean, predicted, true)`` distances of every (source, point) pair of
     the input ``setting`` (seed = index), all divided by the shape's GT mean / 100."""
     out = []
-    for index, shape in enumerate(shapes):
-        item = make_input(shape, setting, index)
-        state = predictor.register(item.shape)
-        rows = predictor.distances(state, item.source_index)
+    for item, rows, _, scale in predicted_inputs(predictor, shapes, setting):
         points = item.shape.vertices
         euclid = np.linalg.norm(points[item.source_index][:, None] - points[None], axis=2)
-        scale = float(item.gt.mean()) / 100.0
         out.append((euclid / scale, rows / scale, item.gt / scale))
     return out
 
