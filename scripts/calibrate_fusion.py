@@ -27,7 +27,9 @@ import torch
 from litege_core.evaluation.fusion import (
     CALIBRATION_SETTINGS,
     DEFAULT_K,
+    NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
+    choose_normal_limits,
     collect_samples,
     fit_fusion,
     fusion_summary,
@@ -61,6 +63,12 @@ def main() -> None:
         default=",".join(str(r) for r in PRUNE_RATIO_CANDIDATES),
         help="comma-separated candidates: the one whose fit has the lowest mean fused error on "
         "the calibration shapes is kept",
+    )
+    parser.add_argument(
+        "--normal-cos",
+        default=",".join(str(c) for c in NORMAL_COS_CANDIDATES),
+        help="comma-separated normal limits (1: none): each density keeps the one whose graph "
+        "has the lowest error on the calibration shapes",
     )
     parser.add_argument(
         "--veto-head",
@@ -99,11 +107,21 @@ def main() -> None:
         "date": f"{datetime.now(UTC):%Y-%m-%d}",
     }
     ratios = sorted(float(r) for r in args.prune_ratio.split(","))
-    by_ratio = collect_samples(
-        predictor, shapes, settings, k=args.k, prune_ratios=ratios, veto_head=veto_head
+    limits = sorted(float(c) for c in args.normal_cos.split(","))
+    by_variant = collect_samples(
+        predictor,
+        shapes,
+        settings,
+        k=args.k,
+        prune_ratios=ratios,
+        normal_limits=limits,
+        veto_head=veto_head,
     )
     candidates = []  # (mean fused error, prune ratio, samples, calibration)
-    for prune_ratio, samples in by_ratio.items():
+    for prune_ratio in ratios:
+        chosen, samples = choose_normal_limits(
+            {limit: by_variant[(prune_ratio, limit)] for limit in limits}
+        )
         calibration = fit_fusion(
             samples,
             bundle.content_hash,
@@ -111,6 +129,7 @@ def main() -> None:
             prune_ratio=prune_ratio,
             veto_head=veto_head,
             fitted_on=fitted_on,
+            normal_cos=chosen if limits != [1.0] else None,
         )
         error = mean_fused_error(samples, calibration)
         candidates.append((error, prune_ratio, samples, calibration))
@@ -125,16 +144,26 @@ def main() -> None:
         f"{time.perf_counter() - start:.0f} s; command `python scripts/calibrate_fusion.py "
         f"--model {args.model} --synthetic {args.synthetic} "
         + " ".join(f"--dataset {d}" for d in args.dataset)
-        + f" --sources {args.sources} --prune-ratio {args.prune_ratio}`"
+        + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
+        + f" --normal-cos {args.normal_cos}`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
         for x, b in zip(calibration.bias_log10_points, calibration.bias, strict=True)
     )
+    normal = (
+        ", ".join(
+            f"{10**x:.0f} pts: {c:g}"
+            for x, c in zip(calibration.bias_log10_points, calibration.normal_cos, strict=True)
+        )
+        if calibration.normal_cos
+        else "none"
+    )
     a, c_z, c_n, c_r = calibration.gate
     print(
         f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
-        f"× chord (predicted by the {veto_head} head); median graph / geodesic: {knots}; "
+        f"× chord (predicted by the {veto_head} head) and chords with |n·ĉ| above the normal "
+        f"limit ({normal}); median graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "

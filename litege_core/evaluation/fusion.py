@@ -6,7 +6,9 @@ graph's rows are computed once (:func:`collect_samples`); the graph's bias knots
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
 the same median over the mesh inputs, whose graph follows the mesh's connectivity), and the
 four cloud gate constants and the mesh gate minimise the mean per-shape error of the fused
-rows (Nelder–Mead, from ``w = 1/2``).
+rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot is the candidate
+whose bias-corrected graph has the lowest mean per-shape error at that density
+(:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
 """
 
 from __future__ import annotations
@@ -38,6 +40,10 @@ clouds with three noise levels (unit-area units)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
+NORMAL_COS_CANDIDATES = (1.0, 0.9, 0.8, 0.7, 0.6)
+"""Normal limits ``scripts/calibrate_fusion.py`` tries per density (1: no normal veto). A lower
+limit cuts more chords that cross a thin part or the gap between two parts; a too low one cuts
+the surface's own edges where it curves within a neighbourhood (sparse clouds, noise)."""
 PRUNE_RATIO_CANDIDATES = (1.1, 1.2, 1.3, 1.6)
 """Veto thresholds ``scripts/calibrate_fusion.py`` tries; the one whose fit has the lowest mean
 fused error on the calibration shapes is kept. A lower threshold cuts more shortcuts between
@@ -63,7 +69,7 @@ class FusionSample:
 
 
 def probe_calibration(
-    bundle_hash: str, k: int, prune_ratio: float, veto_head: str = "full"
+    bundle_hash: str, k: int, prune_ratio: float, veto_head: str = "full", normal_cos: float = 1.0
 ) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
@@ -77,7 +83,12 @@ def probe_calibration(
         mesh_gate=-60.0,
         bundle_hash=bundle_hash,
         veto_head=veto_head,
+        normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
     )
+
+
+GraphVariant = tuple[float, float]
+"""``(prune_ratio, normal_cos)`` of a cloud graph."""
 
 
 def collect_samples(
@@ -87,45 +98,49 @@ def collect_samples(
     *,
     k: int = DEFAULT_K,
     prune_ratios: Sequence[float] = (DEFAULT_PRUNE_RATIO,),
+    normal_limits: Sequence[float] = (1.0,),
     veto_head: str = "full",
     seed: int = 0,
-) -> dict[float, list[FusionSample]]:
+) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
-    them (``make_input(shape, setting, seed + i)``), for each veto threshold.
+    them (``make_input(shape, setting, seed + i)``), for each veto threshold and normal limit.
 
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
         shapes: calibration shapes (exact rows at unit area).
         prune_ratios: veto thresholds of the cloud graphs (the network rows are shared).
+        normal_limits: normal limits of the cloud graphs (1: none).
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
 
     Returns:
-        ``{prune_ratio: samples}``, the samples in the same order for every threshold.
+        ``{(prune_ratio, normal_cos): samples}``, the samples in the same order for every
+        variant.
     """
     from litege_core.learned import Predictor
 
     bundle = predictor.bundle
     graph_predictors = {
-        ratio: Predictor(
+        (ratio, limit): Predictor(
             bundle,
             predictor.device,
             descriptor_lattice=predictor.descriptor_lattice,
             head=predictor.head,
-            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head),
+            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit),
         )
         for ratio in prune_ratios
+        for limit in normal_limits
     }
-    samples: dict[float, list[FusionSample]] = {ratio: [] for ratio in prune_ratios}
+    samples: dict[GraphVariant, list[FusionSample]] = {key: [] for key in graph_predictors}
     for setting in settings:
         for i, shape in enumerate(shapes):
             item = make_input(shape, setting, seed + i)
             state = predictor.register(item.shape, seed=seed)
             network = predictor.distances(state, item.source_index).astype(np.float64)
             roughness = surface_roughness(state.canonical_points)
-            for ratio, graph_predictor in graph_predictors.items():
+            for key, graph_predictor in graph_predictors.items():
                 graph = graph_predictor.distances(state, item.source_index).astype(np.float64)
-                samples[ratio].append(
+                samples[key].append(
                     FusionSample(
                         shape.name,
                         shape.group,
@@ -142,6 +157,59 @@ def collect_samples(
     return samples
 
 
+def _median_ratio(members: Sequence[FusionSample]) -> float:
+    """The median over samples of each one's median graph / truth ratio (the graph's bias)."""
+    ratios = []
+    for s in members:
+        keep = (s.truth > 0) & np.isfinite(s.graph)
+        ratios.append(float(np.median(s.graph[keep] / s.truth[keep])))
+    return float(np.median(ratios))
+
+
+def choose_normal_limits(
+    by_limit: dict[float, Sequence[FusionSample]],
+) -> tuple[dict[str, float], list[FusionSample]]:
+    """Per clean-cloud setting, the normal limit whose graph (divided by its median bias at
+    that setting) has the lowest mean per-shape error, and the samples of every setting with
+    their chosen graphs (meshes ignore the limit; a noisy or cut cloud of N points takes the
+    candidate nearest the limit interpolated at N, as the fitted calibration applies it).
+
+    ``by_limit``: ``{normal_cos: samples}``, the same samples in the same order for each.
+    """
+    limits = sorted(by_limit)
+    reference = list(by_limit[limits[-1]])
+    chosen: dict[str, float] = {}
+    for setting in sorted({s.setting for s in reference if s.setting.startswith("cloud_")}):
+        index = [i for i, s in enumerate(reference) if s.setting == setting]
+
+        def error(limit: float, index: list[int] = index) -> float:
+            members = [by_limit[limit][i] for i in index]
+            bias = _median_ratio(members)
+            return float(np.mean([_error(_graph_or_network(s) / bias, s.truth) for s in members]))
+
+        chosen[setting] = min(limits, key=lambda limit: (error(limit), -limit))
+    if not chosen:
+        return chosen, reference
+    knots = sorted(
+        (float(np.log10(np.mean([s.n_points for s in reference if s.setting == setting]))), c)
+        for setting, c in chosen.items()
+    )
+    log_points, knot_limits = [x for x, _ in knots], [c for _, c in knots]
+    merged = []
+    for i, sample in enumerate(reference):
+        limit = limits[-1]
+        if not sample.mesh:
+            target = float(np.interp(np.log10(sample.n_points), log_points, knot_limits))
+            limit = min(limits, key=lambda c: (abs(c - target), -c))
+        merged.append(by_limit[limit][i])
+    return chosen, merged
+
+
+def _graph_or_network(sample: FusionSample) -> NDArray:
+    """The sample's graph rows, the network's value where the graph joins no path."""
+    return np.where(np.isfinite(sample.graph), sample.graph, sample.network)
+
+
 def _error(rows: NDArray, truth: NDArray) -> float:
     keep = truth > 0
     return geodesic_error(rows[keep], truth[keep]).mean
@@ -150,7 +218,7 @@ def _error(rows: NDArray, truth: NDArray) -> float:
 def sample_error(sample: FusionSample, calibration: FusionCalibration | None, what: str) -> float:
     """The sample's mean error (GT mean 100) of ``what``: ``"network"``, ``"graph"`` (raw,
     unreachable pairs given the network's value) or ``"fused"``."""
-    graph = np.where(np.isfinite(sample.graph), sample.graph, sample.network)
+    graph = _graph_or_network(sample)
     if what == "network":
         return _error(sample.network, sample.truth)
     if what == "graph":
@@ -176,39 +244,37 @@ def fit_fusion(
     prune_ratio: float = DEFAULT_PRUNE_RATIO,
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
+    normal_cos: dict[str, float] | None = None,
 ) -> FusionCalibration:
     """Bias knots and gates fitted on ``samples`` (see the module docstring). Without mesh
-    samples the mesh bias is 1 and the mesh gate gives the network all the weight."""
+    samples the mesh bias is 1 and the mesh gate gives the network all the weight.
+    ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
+    built with (:func:`choose_normal_limits`), or ``None``: no normal limit."""
     from scipy.optimize import minimize
-
-    def median_ratio(members: Sequence[FusionSample]) -> float:
-        ratios = []
-        for s in members:
-            keep = (s.truth > 0) & np.isfinite(s.graph)
-            ratios.append(float(np.median(s.graph[keep] / s.truth[keep])))
-        return float(np.median(ratios))
 
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
-    knots: dict[str, tuple[float, float]] = {}
+    knots: dict[str, tuple[float, float, float]] = {}
     for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
         members = [s for s in clouds if s.setting == setting]
         knots[setting] = (
             float(np.log10(np.mean([s.n_points for s in members]))),
-            median_ratio(members),
+            _median_ratio(members),
+            1.0 if normal_cos is None else normal_cos[setting],
         )
     ordered = sorted(knots.values())
     base = FusionCalibration(
         k,
         prune_ratio,
-        tuple(x for x, _ in ordered),
-        tuple(b for _, b in ordered),
+        tuple(x for x, _, _ in ordered),
+        tuple(b for _, b, _ in ordered),
         (0.0, 0.0, 0.0, 0.0),
-        mesh_bias=median_ratio(meshes) if meshes else 1.0,
+        mesh_bias=_median_ratio(meshes) if meshes else 1.0,
         mesh_gate=0.0 if meshes else 60.0,
         bundle_hash=bundle_hash,
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
+        normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
     )
 
     def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
@@ -290,7 +356,10 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 
 __all__ = [
     "CALIBRATION_SETTINGS",
+    "NORMAL_COS_CANDIDATES",
     "FusionSample",
+    "GraphVariant",
+    "choose_normal_limits",
     "collect_samples",
     "fit_fusion",
     "fusion_summary",

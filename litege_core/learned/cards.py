@@ -267,7 +267,15 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"Dijkstra: on a mesh over chords between vertices at most {MESH_RINGS} edges "
             f"apart, on a point cloud over its k = {data['k']} nearest-neighbour graph whose "
             f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
-            f"exceeds {data['prune_ratio']} × the chord); the graphs' biases and the blend "
+            f"exceeds {data['prune_ratio']} × the chord)"
+            + (
+                " and whose chords along the surface normal are cut (normal limits "
+                + ", ".join(f"{c:g}" for c in data["normal_cos"])
+                + " from sparse to dense)"
+                if data.get("normal_cos")
+                else ""
+            )
+            + "; the graphs' biases and the blend "
             "weights (on a cloud a sigmoid of the shape's OOD z-score, log10 of its point count "
             "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "
             f"{shapes} only, never on the real dev set. Constants, fit errors and the date are "

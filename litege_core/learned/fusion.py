@@ -12,7 +12,12 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                (canonical frame) after cutting every edge whose predicted geodesic exceeds
                ``prune_ratio`` × its chord (the network vetoes shortcuts between touching
                parts; the veto is the bundle's small head where the calibration says so: it
-               costs one head evaluation per edge, ~8 N for N points)
+               costs one head evaluation per edge, ~8 N for N points) and, where the
+               calibration has normal limits, every edge whose chord runs along the surface
+               normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
+               between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
+               in log10 N from calibration knots: looser on sparse clouds, whose chords bend
+               with the surface)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = sigmoid(mesh_gate) on a mesh; for a cloud
@@ -53,8 +58,10 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 3
-"""Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity)."""
+FUSION_FORMAT = 4
+"""Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
+``normal_cos`` (a format-3 file reads as one without normal limits)."""
+READABLE_FORMATS = (3, FUSION_FORMAT)
 
 FUSIONS = ("none", "graph")
 """Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
@@ -89,6 +96,8 @@ class FusionCalibration:
         veto_head: the head whose edge predictions prune the graph: ``"small"`` (the
             bundle's distilled head, ~18× cheaper per pair: what the shipped calibrations use)
             or ``"full"``; whatever head answers the queries.
+        normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
+            ``|n · ĉ| > c`` at either end), or empty: no normal limit.
     """
 
     k: int
@@ -101,6 +110,7 @@ class FusionCalibration:
     bundle_hash: str
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
+    normal_cos: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -120,6 +130,10 @@ class FusionCalibration:
             raise ArtifactError(f"fusion mesh_bias must be positive, got {self.mesh_bias!r}")
         if not math.isfinite(self.mesh_gate):
             raise ArtifactError(f"fusion mesh_gate must be finite, got {self.mesh_gate!r}")
+        limits = np.asarray(self.normal_cos, dtype=np.float64)
+        valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
+        if limits.size and not valid:
+            raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
         """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
@@ -127,6 +141,12 @@ class FusionCalibration:
         if mesh:
             return self.mesh_bias
         return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
+
+    def normal_limit(self, n_points: int) -> float:
+        """The normal limit ``c`` of a cloud of ``n_points`` (clamped to the knots; 1: none)."""
+        if not self.normal_cos:
+            return 1.0
+        return float(np.interp(np.log10(n_points), self.bias_log10_points, self.normal_cos))
 
     def network_weight(
         self, z_score: float, n_points: int, roughness: float, mesh: bool = False
@@ -146,9 +166,9 @@ class FusionCalibration:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> FusionCalibration:
-        if (data.get("kind"), data.get("format_version")) != (FUSION_KIND, FUSION_FORMAT):
+        if data.get("kind") != FUSION_KIND or data.get("format_version") not in READABLE_FORMATS:
             raise ArtifactError(
-                f"{FUSION_CONFIG} is not a graph fusion of format {FUSION_FORMAT}; fit it again "
+                f"{FUSION_CONFIG} is not a graph fusion of format {READABLE_FORMATS}; fit it again "
                 "(scripts/calibrate_fusion.py)"
             )
         try:
@@ -163,6 +183,7 @@ class FusionCalibration:
                 bundle_hash=str(data["bundle_hash"]),
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
+                normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -208,8 +229,11 @@ def pruned_knn_graph(
     prune_ratio: float,
     edge_geodesics: EdgeGeodesics | None,
     neighbours: tuple[NDArray, NDArray] | None = None,
+    normals: NDArray | None = None,
+    normal_cos: float = 1.0,
 ) -> sp.csr_array:
-    """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts.
+    """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts
+    and, with ``normals``, without the chords that run along the surface normal.
 
     Args:
         points: ``(N, 3)`` float64 (canonical frame).
@@ -218,6 +242,9 @@ def pruned_knn_graph(
         edge_geodesics: predicted geodesics of ``(i, j)`` pairs, or ``None`` (no pruning).
         neighbours: :func:`~litege_core.engines.graph.knn_neighbours` of ``points`` for
             ``k`` or more, if already known.
+        normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`), or ``None``.
+        normal_cos: cut an edge whose unit chord ``ĉ`` has ``|n · ĉ| > normal_cos`` at either
+            end (1: keep every edge).
 
     Returns:
         ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
@@ -228,10 +255,22 @@ def pruned_knn_graph(
     from litege_core.engines.graph import knn_graph
 
     graph = knn_graph(points, k, neighbours)
-    if edge_geodesics is None or graph.nnz == 0:
+    cut_normals = normals is not None and normal_cos < 1.0
+    if (edge_geodesics is None and not cut_normals) or graph.nnz == 0:
         return graph
     rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
-    keep = edge_geodesics(rows, graph.indices) <= prune_ratio * graph.data
+    keep = np.ones(graph.nnz, dtype=bool)
+    if edge_geodesics is not None:
+        keep &= edge_geodesics(rows, graph.indices) <= prune_ratio * graph.data
+    if cut_normals:
+        assert normals is not None
+        chords = points[graph.indices] - points[rows]
+        chords /= np.maximum(graph.data, 1e-300)[:, None]  # zero chords: cosines 0, kept
+        along = np.maximum(
+            np.abs(np.einsum("ei,ei->e", normals[rows], chords)),
+            np.abs(np.einsum("ei,ei->e", normals[graph.indices], chords)),
+        )
+        keep &= along <= normal_cos
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
     return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
 
@@ -308,36 +347,49 @@ def _with_free_nodes(
     return sp.vstack([sp.hstack([graph, chords], format="csr"), empty], format="csr")
 
 
-def surface_roughness(
+def local_surface(
     points: NDArray, k: int = ROUGHNESS_NEIGHBOURS, nearest: NDArray | None = None
-) -> float:
-    """How far the points are from a smooth surface: the median over points of
-    ``sqrt(λ_min / λ_max)`` of the covariance of each point's ``k`` nearest points (itself
-    included).
+) -> tuple[NDArray, NDArray]:
+    """Each point's neighbourhood shape from the covariance of its ``k`` nearest points
+    (itself included): ``(N,)`` ``sqrt(λ_min / λ_max)`` (flatness; scale-free) and ``(N, 3)``
+    unit normals (the ``λ_min`` eigenvector, unoriented).
 
-    Scale-free, ~0.05–0.15 on clean surface samples (curvature within a neighbourhood),
-    higher with noise. ``points``: ``(N, 3)`` float64; ``nearest``: the indices of
-    :func:`~litege_core.engines.graph.knn_neighbours` ``(points, k)`` if already known.
+    ``points``: ``(N, 3)`` float64; ``nearest``: the indices of
+    :func:`~litege_core.engines.graph.knn_neighbours` ``(points, k)`` if already known. Fewer
+    than 4 points: ratios 0 and normals 0.
     """
     from litege_core.engines.graph import knn_neighbours
 
     n = points.shape[0]
     count = min(k, n)
+    ratios, normals = np.zeros(n), np.zeros((n, 3))
     if count < 4:
-        return 0.0
+        return ratios, normals
     if nearest is None:  # the same search as a k = 16 fusion graph's: same ties, same answer
         nearest = knn_neighbours(points, k)[1]
     nearest = nearest[:, :count]
-    ratios = np.empty(n)
     for start in range(0, n, ROUGHNESS_CHUNK):
         local = points[nearest[start : start + ROUGHNESS_CHUNK]]  # (C, k, 3)
         local = local - local.mean(axis=1, keepdims=True)
         covariance = np.einsum("cki,ckj->cij", local, local)
-        eigenvalues = np.linalg.eigvalsh(covariance)  # ascending
+        eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending
         ratios[start : start + ROUGHNESS_CHUNK] = np.sqrt(
             np.clip(eigenvalues[:, 0], 0.0, None) / np.maximum(eigenvalues[:, 2], 1e-300)
         )
-    return float(np.median(ratios))
+        normals[start : start + ROUGHNESS_CHUNK] = eigenvectors[:, :, 0]
+    return ratios, normals
+
+
+def surface_roughness(
+    points: NDArray, k: int = ROUGHNESS_NEIGHBOURS, nearest: NDArray | None = None
+) -> float:
+    """How far the points are from a smooth surface: the median over points of
+    ``sqrt(λ_min / λ_max)`` of :func:`local_surface`.
+
+    Scale-free, ~0.05–0.15 on clean surface samples (curvature within a neighbourhood),
+    higher with noise. ``points``: ``(N, 3)`` float64; ``nearest``: as :func:`local_surface`.
+    """
+    return float(np.median(local_surface(points, k, nearest)[0]))
 
 
 def fuse(
@@ -367,6 +419,7 @@ __all__ = [
     "fuse",
     "graph_rows",
     "load_fusion",
+    "local_surface",
     "pruned_knn_graph",
     "save_fusion",
     "surface_roughness",

@@ -81,8 +81,8 @@ from litege_core.learned.fusion import (
     fuse,
     graph_rows,
     load_fusion,
+    local_surface,
     pruned_knn_graph,
-    surface_roughness,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -666,21 +666,22 @@ class Predictor:
         return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness, mesh)
 
     def _cloud_graph(self, state: ShapeState) -> tuple[Any, float]:
-        """The network-pruned k-NN graph of a cloud's canonical points and its surface
-        roughness, both kept with ``state``."""
+        """The network-pruned (and normal-pruned, where the calibration says so) k-NN graph of
+        a cloud's canonical points and its surface roughness, both kept with ``state``."""
         assert self.fusion is not None
         fusion = self.fusion
-        key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
+        normal_cos = fusion.normal_limit(state.n_points)
+        key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}.{normal_cos}"
         points = state.canonical_points
-        graph, roughness = state._lazy.get(key), state._lazy.get("fusion.roughness")
-        if graph is None or roughness is None:  # one neighbour search serves both (k = 16)
+        graph, surface = state._lazy.get(key), state._lazy.get("fusion.surface")
+        if graph is None or surface is None:  # one neighbour search serves both (k = 16)
             from litege_core.engines.graph import knn_neighbours  # scipy: on first use
 
             neighbours = knn_neighbours(points, fusion.k)
-            if roughness is None:
+            if surface is None:
                 shared = fusion.k == ROUGHNESS_NEIGHBOURS  # the shipped calibrations
-                roughness = surface_roughness(points, nearest=neighbours[1] if shared else None)
-                state._lazy["fusion.roughness"] = roughness
+                flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
+                surface = state._lazy["fusion.surface"] = (float(np.median(flatness)), normals)
             if graph is None:
                 graph = pruned_knn_graph(
                     points,
@@ -688,9 +689,11 @@ class Predictor:
                     fusion.prune_ratio,
                     lambda i, j: self._veto._pair_distances(state, i, j),
                     neighbours,
+                    normals=surface[1],
+                    normal_cos=normal_cos,
                 )
                 state._lazy[key] = graph
-        return graph, roughness
+        return graph, surface[0]
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
         """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical).

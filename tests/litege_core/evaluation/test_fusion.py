@@ -9,6 +9,7 @@ import pytest
 
 from litege_core.evaluation.fusion import (
     FusionSample,
+    choose_normal_limits,
     fit_fusion,
     fusion_summary,
     fusion_table,
@@ -117,15 +118,16 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
     shapes = [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
     predictor = Predictor(load_bundle(toy_bundle_dir_with_ood))
-    by_ratio = collect_samples(
+    by_variant = collect_samples(
         predictor,
         shapes,
         ("mesh", "cloud_300"),
         k=8,
         prune_ratios=(3.0, 1e9),  # untrained: 3 × chord cuts some edges
+        normal_limits=(0.3, 1.0),
     )
-    assert sorted(by_ratio) == [3.0, 1e9]
-    strict, loose = by_ratio[3.0], by_ratio[1e9]
+    assert sorted(by_variant) == [(3.0, 0.3), (3.0, 1.0), (1e9, 0.3), (1e9, 1.0)]
+    strict, loose = by_variant[(3.0, 1.0)], by_variant[(1e9, 1.0)]
     assert [(s.setting, s.mesh) for s in strict] == [("mesh", True), ("cloud_300", False)]
     for a, b in zip(strict, loose, strict=True):
         np.testing.assert_array_equal(a.network, b.network)
@@ -137,3 +139,61 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     assert joined.mean() > 0.5
     assert np.all(strict[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
     assert np.any(strict[1].graph[joined] > loose[1].graph[joined] + 1e-6)
+
+    # the normal limit only cuts edges too: a cloud's paths lengthen, a mesh's stay
+    normal = by_variant[(1e9, 0.3)]
+    np.testing.assert_array_equal(normal[0].graph, loose[0].graph)
+    joined = normal[1].graph != normal[1].network
+    assert np.all(normal[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
+    assert np.any(normal[1].graph[joined] > loose[1].graph[joined] + 1e-6)
+
+
+def _limit_samples(limit: float, rng_seed: int = 0) -> list[FusionSample]:
+    """Samples as one normal limit would give them: at 2000 points the limit 0.7 cuts the
+    shortcuts that leave the graph 10 % short, at 300 points it cuts surface edges (+15 %);
+    a 2000-point noisy cloud follows the 2000-point clean one; a mesh ignores the limit."""
+    rng = np.random.default_rng(rng_seed)
+    cut = limit < 1.0
+    samples = []
+    for setting, n_points, factor in (
+        ("mesh", 900, 1.0),
+        ("cloud_2000", 2000, 1.0 if cut else 0.9),
+        ("cloud_300", 300, 1.15 if cut else 1.0),
+        ("noise_0.01", 2000, 1.0 if cut else 0.9),
+    ):
+        for i in range(4):
+            truth = rng.uniform(10.0, 200.0, size=(3, 40))
+            graph = truth * factor * rng.normal(1.0, 0.02 * (1 + (i % 2)), truth.shape)
+            graph[:, : (i % 2) * 20] *= 0.8 if factor != 1.0 else 1.0  # the bias is uneven
+            network = truth * rng.normal(1.0, 0.1, truth.shape)
+            samples.append(
+                FusionSample(
+                    f"s{i}",
+                    "toy",
+                    setting,
+                    setting == "mesh",
+                    n_points,
+                    0.0,
+                    0.1,
+                    network,
+                    graph,
+                    truth,
+                )
+            )
+    return samples
+
+
+def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
+    by_limit = {limit: _limit_samples(limit) for limit in (0.7, 1.0)}
+    chosen, merged = choose_normal_limits(by_limit)
+    assert chosen == {"cloud_2000": 0.7, "cloud_300": 1.0}
+    settings = [s.setting for s in merged]
+    assert settings == [s.setting for s in by_limit[1.0]]
+    for sample, plain, cut in zip(merged, by_limit[1.0], by_limit[0.7], strict=True):
+        expected = cut if sample.setting in ("cloud_2000", "noise_0.01") else plain
+        assert sample is expected
+    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, normal_cos=chosen)
+    assert calibration.bias_log10_points == pytest.approx((np.log10(300), np.log10(2000)))
+    assert calibration.normal_cos == (1.0, 0.7)
+    assert calibration.normal_limit(2000) == pytest.approx(0.7)
+    assert fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5).normal_cos == ()

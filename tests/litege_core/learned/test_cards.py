@@ -33,6 +33,12 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
     assert "Quaternius (CC0)" in section and "@tomkranis (CC BY 4.0)" in section
     assert '"Cat" by billyd' in section and "YahooJAPAN" in section  # CC BY calibration meshes
     assert "head-small" not in section
+    # normal limits are named where the calibration has them
+    for limits in ([0.9, 0.8, 0.7, 0.7, 0.6], []):
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "normal_cos": limits}))
+        named = "normal limits 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
+        assert named == bool(limits)
+    (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")
     write_sidecar_section(tmp_path)

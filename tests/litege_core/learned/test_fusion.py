@@ -61,6 +61,9 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"mesh_bias": float("nan")},
         {"mesh_gate": float("inf")},
         {"veto_head": "tiny"},
+        {"normal_cos": (0.7, 0.8)},
+        {"normal_cos": (0.7, 0.0, 0.8)},
+        {"normal_cos": (0.7, 1.2, 0.8)},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -74,6 +77,14 @@ def test_bias_interpolates_in_log_points_and_clamps() -> None:
     assert calibration.graph_bias(10**3.25) == pytest.approx(1.015)
     assert calibration.graph_bias(50) == pytest.approx(0.98)
     assert calibration.graph_bias(10**6) == pytest.approx(1.02)
+
+
+def test_normal_limit_interpolates_in_log_points_and_defaults_to_none() -> None:
+    assert _calibration().normal_limit(1000) == 1.0
+    calibration = _calibration(normal_cos=(0.9, 0.7, 0.6))
+    assert calibration.normal_limit(1000) == pytest.approx(0.7)
+    assert calibration.normal_limit(10**3.25) == pytest.approx(0.65)
+    assert calibration.normal_limit(50) == pytest.approx(0.9)
 
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
@@ -108,6 +119,21 @@ def test_roughness_grows_with_noise_and_ignores_scale(monkeypatch) -> None:
     monkeypatch.setattr(fusion, "ROUGHNESS_CHUNK", 1000)
     assert surface_roughness(sphere) == pytest.approx(clean)
     assert surface_roughness(sphere[:3]) == 0.0
+
+
+def test_local_normals_are_perpendicular_to_the_surface() -> None:
+    from litege_core.learned.fusion import local_surface
+
+    rng = np.random.default_rng(1)
+    directions = rng.normal(size=(2000, 3))
+    sphere = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    flatness, normals = local_surface(sphere)
+    assert flatness.shape == (2000,) and normals.shape == (2000, 3)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
+    # unoriented: along the radius up to sign
+    assert np.quantile(np.abs(np.einsum("ni,ni->n", normals, sphere)), 0.01) > 0.99
+    flatness, normals = local_surface(sphere[:3])
+    assert not flatness.any() and not normals.any()
 
 
 def test_json_roundtrip_and_sidecar(tmp_path) -> None:
@@ -171,6 +197,40 @@ def test_pruning_cuts_the_shortcut_between_touching_parts() -> None:
     assert dijkstra(pruned, directed=False, indices=tips[0])[tips[1]] > 1.9
     # no pruning equals the plain symmetric kNN graph
     assert (plain != knn_graph(points, 4)).nnz == 0
+
+
+def _sheets(gap: float = 0.04, spacing: float = 0.05) -> np.ndarray:
+    """Two parallel square grids ``gap`` apart (closer than their own spacing): kNN joins each
+    point to the one across and to the diagonal ones across (chords 51° off the sheets)."""
+    t = np.arange(0.0, 1.0 + 1e-9, spacing)
+    x, y = (a.reshape(-1) for a in np.meshgrid(t, t))
+    sheet = np.column_stack([x, y, np.zeros_like(x)])
+    return np.concatenate([sheet, sheet + np.array([0.0, 0.0, gap])])
+
+
+def test_the_normal_limit_cuts_the_chords_between_two_sheets() -> None:
+    from litege_core.learned.fusion import local_surface
+
+    points = _sheets()
+    n = points.shape[0] // 2
+    _, normals = local_surface(points)
+
+    def across(graph) -> np.ndarray:
+        coo = graph.tocoo()
+        return (coo.row < n) != (coo.col < n)
+
+    plain = pruned_knn_graph(points, 8, 1.6, None)
+    cut = pruned_knn_graph(points, 8, 1.6, None, normals=normals, normal_cos=0.5)
+    assert across(plain).sum() > n  # each point joins the one across and diagonal ones
+    # a few diagonal chords at the grid's corners, whose normals tilt, survive; no straight one
+    assert across(cut).sum() < 0.02 * across(plain).sum()
+    coo = cut.tocoo()
+    assert not np.any(np.abs(coo.row - coo.col) == n)
+    # every edge within a sheet is kept (its chord is perpendicular to the normal)
+    assert cut.nnz - across(cut).sum() == plain.nnz - across(plain).sum()
+    # without normals, or with the limit 1, the graph is the plain one
+    same = pruned_knn_graph(points, 8, 1.6, None, normals=normals, normal_cos=1.0)
+    assert (same != plain).nnz == 0
 
 
 def test_graph_rows_of_free_points_on_nodes_equal_the_indexed_rows() -> None:
@@ -291,6 +351,25 @@ def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> N
     expected /= calibration.graph_bias(state.n_points) * state.transform.scale
     np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
     assert np.all(rows[np.arange(3), sources] == 0.0)
+
+
+def test_graph_only_fusion_applies_the_normal_limit(bundle_dir, blob) -> None:
+    from litege_core.learned.fusion import local_surface
+
+    bundle = load_bundle(bundle_dir)
+    calibration = _graph_only(bundle.content_hash, prune_ratio=1e9)
+    calibration = dataclasses.replace(calibration, normal_cos=(0.3, 0.3, 0.3))
+    predictor = Predictor(bundle, fusion=calibration)
+    state = predictor.register(_cloud(blob(3)))
+    sources = np.array([0, 17, 200])
+    rows = predictor.distances(state, sources)
+    points = state.canonical_points
+    graph = pruned_knn_graph(points, 8, 1e9, None, normals=local_surface(points)[1], normal_cos=0.3)
+    assert graph.nnz < knn_graph(points, 8).nnz  # the limit cuts some chords of the blob
+    expected = dijkstra(graph, directed=False, indices=sources)
+    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(rows[finite], expected[finite], rtol=1e-5, atol=1e-5)
 
 
 def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None:
