@@ -269,9 +269,10 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
             f"exceeds {data['prune_ratio']} × the chord)"
             + (
-                " and whose chords along the surface normal are cut (normal limits "
+                " and whose chords that run along the surface normal are cut (where |n · ĉ| "
+                "exceeds "
                 + ", ".join(f"{c:g}" for c in data["normal_cos"])
-                + " from sparse to dense)"
+                + " from sparse to dense clouds; 1 cuts none)"
                 if data.get("normal_cos")
                 else ""
             )

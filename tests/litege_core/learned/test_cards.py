@@ -36,7 +36,7 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
     # normal limits are named where the calibration has them
     for limits in ([0.9, 0.8, 0.7, 0.7, 0.6], []):
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "normal_cos": limits}))
-        named = "normal limits 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
+        named = "exceeds 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
         assert named == bool(limits)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
