@@ -11,7 +11,10 @@ be corrected from them; one that only the real dev sets show cannot (never fit o
 
 ``--by-ratio`` splits the mesh error by each pair's geodesic / Euclidean ratio (and a real set by
 class); ``--stretch-from DATASET`` fits an affine stretch of the detours on a calibration set and
-shows every group's error with it (BENCHMARKS "winding-bias").
+shows every group's error with it (BENCHMARKS "winding-bias"). ``--graph-limits 1,0.8,0.6`` adds
+the same two errors for the graph of the bundle's fusion on each cloud setting (its veto, each
+normal limit, divided by its graph bias; per class of a real set): shortcuts between parts that
+touch make it short (BENCHMARKS "fusion-normal-limits").
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from litege_core.evaluation.fusion import FusionSample, collect_samples
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
     EvalInput,
@@ -41,6 +45,7 @@ from litege_core.evaluation.geodesic import (
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
+from litege_core.learned.fusion import FusionCalibration, load_fusion
 from litege_core.learned.predictor import Predictor
 from litege_core.shape import Shape
 
@@ -55,6 +60,20 @@ def predicted_inputs(
         state = predictor.register(item.shape)
         rows = predictor.distances(state, item.source_index)
         yield item, rows, state.ood_score, float(item.gt.mean()) / 100.0
+
+
+def graph_row(samples: list[FusionSample], calibration: FusionCalibration) -> tuple[float, float]:
+    """``(mean |error|, mean signed error)`` of the fusion's graph over ``samples`` (per-shape
+    means, GT mean 100 per shape): rows divided by the calibration's graph bias at each input's
+    point count, the network's value where the graph joins no path (as the fusion reads them)."""
+    absolute, signed = [], []
+    for sample in samples:
+        graph = sample.graph / calibration.graph_bias(sample.n_points, sample.mesh)
+        residual = np.where(np.isfinite(graph), graph, sample.network) - sample.truth
+        scale = float(sample.truth.mean()) / 100.0
+        absolute.append(float(np.abs(residual).mean()) / scale)
+        signed.append(float(residual.mean()) / scale)
+    return float(np.mean(absolute)), float(np.mean(signed))
 
 
 def signed_row(predictor: Predictor, shapes: list[EvalShape], setting: str) -> tuple[float, ...]:
@@ -164,6 +183,12 @@ def main() -> None:
     parser.add_argument(
         "--by-ratio", action="store_true", help="also split the mesh error by geodesic/Euclidean"
     )
+    parser.add_argument(
+        "--graph-limits",
+        default=None,
+        metavar="C,C,...",
+        help="also the errors of the fusion's cloud graph with each of these normal limits",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     bundle = load_model(args.model)
@@ -191,6 +216,7 @@ def main() -> None:
         + f" --sets {args.sets} --synthetic {args.synthetic} --settings {args.settings}"
         + (f" --stretch-from {args.stretch_from}" if args.stretch_from else "")
         + (" --by-ratio" if args.by_ratio else "")
+        + (f" --graph-limits {args.graph_limits}" if args.graph_limits else "")
         + "`\n"
     )
     print("| shapes | n | setting | mean abs error | mean signed error | median z |")
@@ -239,6 +265,49 @@ def main() -> None:
                     for share, signed, absolute in ratio_rows(predictor, chosen)
                 ]
                 print(f"| {label} | " + " | ".join(cells) + " |")
+    if args.graph_limits:
+        print_graph_table(predictor, groups, args)
+
+
+def print_graph_table(
+    predictor: Predictor, groups: dict[str, list[EvalShape]], args: argparse.Namespace
+) -> None:
+    """The ``--graph-limits`` table: the fusion graph's errors per group (and class), cloud
+    setting and normal limit."""
+    calibration = load_fusion(predictor.bundle.path, predictor.bundle.content_hash, args.model)
+    limits = [float(c) for c in args.graph_limits.split(",")]
+    settings = [s for s in args.settings.split(",") if s != "mesh"]
+    print(
+        f"\nThe fusion's cloud graph (k = {calibration.k}, edges cut above "
+        f"{calibration.prune_ratio} × chord by the {calibration.veto_head} head, then chords "
+        "with |n·ĉ| above each normal limit; rows / the fitted graph bias): mean |error| / mean "
+        "signed error (GT mean 100 per shape)\n"
+    )
+    print("| shapes | setting | " + " | ".join(f"limit {c:g}" for c in limits) + " |")
+    print("|---|---|" + "---:|" * len(limits))
+    for name, shapes in groups.items():
+        by_limit = collect_samples(
+            predictor,
+            shapes,
+            settings,
+            k=calibration.k,
+            prune_ratios=(calibration.prune_ratio,),
+            normal_limits=limits,
+            veto_head=calibration.veto_head,
+        )
+        for label, chosen in by_class(name, shapes).items():
+            names = {shape.name for shape in chosen}
+            for setting in settings:
+                cells = []
+                for limit in limits:
+                    samples = [
+                        s
+                        for s in by_limit[(calibration.prune_ratio, limit)]
+                        if s.setting == setting and s.shape in names
+                    ]
+                    absolute, signed = graph_row(samples, calibration)
+                    cells.append(f"{absolute:.2f} / {signed:+.2f}")
+                print(f"| {label} | {setting} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from litege_core.evaluation.geodesic import EvalShape
@@ -59,3 +61,16 @@ def test_fit_stretch_recovers_an_affine_detour_and_stretched_error_applies_it(si
     assert np.isclose(alpha, 2.0) and np.isclose(beta, 1.5)
     assert np.isclose(signed_error.stretched_error(pairs, alpha, beta), 0.0)
     assert signed_error.stretched_error(pairs, 0.0, 1.0) > 1.0
+
+
+def test_graph_row_reads_the_graph_as_the_fusion_does(signed_error) -> None:
+    from litege_core.evaluation.fusion import FusionSample, probe_calibration
+
+    truth = np.array([[0.0, 100.0, 200.0, 300.0]])  # GT mean 150
+    network = np.array([[0.0, 90.0, 180.0, 300.0]])
+    graph = np.array([[0.0, 100.0, 120.0, np.inf]]) * 1.1  # the graph's bias 1.1, one pair cut
+    calibration = dataclasses.replace(probe_calibration("h" * 64, 8, 1.5), bias=(1.1,))
+    sample = FusionSample("cat0", "toy", "cloud_300", False, 300, 0.0, 0.1, network, graph, truth)
+    absolute, signed = signed_error.graph_row([sample, sample], calibration)
+    # after the bias: errors 0, 0, −80 and the network's 0 where the graph is cut
+    assert np.isclose(signed, -80.0 / 4 / 1.5) and np.isclose(absolute, 80.0 / 4 / 1.5)
