@@ -30,7 +30,7 @@ from litege_core.evaluation.fusion import (
     DEFAULT_K,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
-    choose_graphs,
+    choose_normal_limits,
     collect_samples,
     fit_fusion,
     fusion_summary,
@@ -75,8 +75,7 @@ def main() -> None:
         "--edge-length",
         default="chord,network",
         help="comma-separated candidates for what a kept cloud edge weighs (chord, network: the "
-        "veto head's predicted geodesic); each density keeps the one whose graph has the "
-        "lowest error, with its normal limit",
+        "veto head's predicted geodesic); tried like the prune ratios",
     )
     parser.add_argument(
         "--veto-head",
@@ -127,13 +126,10 @@ def main() -> None:
         edge_lengths=lengths,
         veto_head=veto_head,
     )
-    candidates = []  # (mean fused error, prune ratio, samples, calibration)
-    for prune_ratio in ratios:
-        chosen, samples = choose_graphs(
-            {
-                (limit, length): by_variant[(prune_ratio, limit, length)]
-                for limit, length in itertools.product(limits, lengths)
-            }
+    candidates = []  # (mean fused error, (prune ratio, edge length), samples, calibration)
+    for prune_ratio, length in itertools.product(ratios, lengths):
+        chosen, samples = choose_normal_limits(
+            {limit: by_variant[(prune_ratio, limit, length)] for limit in limits}
         )
         calibration = fit_fusion(
             samples,
@@ -142,10 +138,11 @@ def main() -> None:
             prune_ratio=prune_ratio,
             veto_head=veto_head,
             fitted_on=fitted_on,
-            graphs=chosen if (limits, lengths) != ([1.0], ["chord"]) else None,
+            normal_cos=chosen if limits != [1.0] else None,
+            edge_length=length,
         )
         error = mean_fused_error(samples, calibration)
-        candidates.append((error, prune_ratio, samples, calibration))
+        candidates.append((error, (prune_ratio, length), samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
@@ -164,21 +161,21 @@ def main() -> None:
         f"{10**x:.0f} pts: {b:.4f}"
         for x, b in zip(calibration.bias_log10_points, calibration.bias, strict=True)
     )
-    graphs = ", ".join(
-        f"{10**x:.0f} pts: {c:g}, {length}"
-        for x, c, length in zip(
-            calibration.bias_log10_points,
-            calibration.normal_cos or [1.0] * len(calibration.bias),
-            calibration.edge_lengths or ["chord"] * len(calibration.bias),
-            strict=True,
+    normal = (
+        ", ".join(
+            f"{10**x:.0f} pts: {c:g}"
+            for x, c in zip(calibration.bias_log10_points, calibration.normal_cos, strict=True)
         )
+        if calibration.normal_cos
+        else "none"
     )
     a, c_z, c_n, c_r = calibration.gate
     print(
         f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
         f"× chord (predicted by the {veto_head} head) and chords with |n·ĉ| above the normal "
-        f"limit; normal limit and edge length (chord, or the head's prediction at least the "
-        f"chord) per density: {graphs}; median graph / geodesic: {knots}; "
+        f"limit ({normal}); edges weigh their {calibration.edge_length} length"
+        f"{' (at least the chord)' if calibration.edge_length == 'network' else ''}; median "
+        f"graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
@@ -186,8 +183,11 @@ def main() -> None:
         f"sigmoid({calibration.mesh_gate:.3f})\n"
     )
     if len(candidates) > 1:
-        tried = ", ".join(f"{ratio}: {error:.3f}" for error, ratio, _, _ in candidates)
-        print(f"- prune ratio candidates (mean fused error over all calibration inputs): {tried}\n")
+        tried = ", ".join(
+            f"{ratio} × chord, {length} lengths: {error:.3f}"
+            for error, (ratio, length), _, _ in candidates
+        )
+        print(f"- graph candidates (mean fused error over all calibration inputs): {tried}\n")
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))
     if args.write:

@@ -302,7 +302,7 @@ def print_graph_table(
                 for limit in limits:
                     samples = [
                         s
-                        for s in by_limit[(calibration.prune_ratio, limit, "chord")]
+                        for s in by_limit[(calibration.prune_ratio, limit)]
                         if s.setting == setting and s.shape in names
                     ]
                     absolute, signed = graph_row(samples, calibration)

@@ -6,9 +6,9 @@ graph's rows are computed once (:func:`collect_samples`); the graph's bias knots
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
 the same median over the mesh inputs, whose graph follows the mesh's connectivity), and the
 four cloud gate constants and the mesh gate minimise the mean per-shape error of the fused
-rows (Nelder–Mead, from ``w = 1/2``). The graph of each clean-cloud knot (normal limit and edge
-length) is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
-density (:func:`choose_graphs`); noisy clouds take the graph of their point count.
+rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot is the candidate
+whose bias-corrected graph has the lowest mean per-shape error at that density
+(:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def probe_calibration(
         bundle_hash=bundle_hash,
         veto_head=veto_head,
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
-        edge_lengths=(edge_length,) if edge_length != "chord" else (),
+        edge_length=edge_length,
     )
 
 
@@ -177,52 +177,42 @@ def _median_ratio(members: Sequence[FusionSample]) -> float:
     return float(np.median(ratios))
 
 
-CloudGraph = tuple[float, str]
-"""``(normal_cos, edge_length)`` of a cloud graph at one density."""
+def choose_normal_limits(
+    by_limit: dict[float, Sequence[FusionSample]],
+) -> tuple[dict[str, float], list[FusionSample]]:
+    """Per clean-cloud setting, the normal limit whose graph (divided by its median bias at
+    that setting) has the lowest mean per-shape error, and the samples of every setting with
+    their chosen graphs (meshes ignore the limit; a noisy or cut cloud of N points takes the
+    candidate nearest the limit interpolated at N, as the fitted calibration applies it).
 
-
-def choose_graphs(
-    by_graph: dict[CloudGraph, Sequence[FusionSample]],
-) -> tuple[dict[str, CloudGraph], list[FusionSample]]:
-    """Per clean-cloud setting, the graph (normal limit, edge length) whose rows, divided by
-    their median bias at that setting, have the lowest mean per-shape error (ties: the looser
-    limit, then chords), and the samples of every setting with their chosen graphs: meshes
-    ignore both; a noisy or cut cloud of N points takes the candidate limit nearest the limit
-    interpolated at N and the edge length of the nearest knot, as the fitted calibration
-    applies them.
-
-    ``by_graph``: ``{(normal_cos, edge_length): samples}``, the same samples in the same order
-    for each.
+    ``by_limit``: ``{normal_cos: samples}``, the same samples in the same order for each.
     """
-    graphs = sorted(by_graph, key=lambda g: (-g[0], g[1] != "chord"))  # loosest, chords first
-    reference = list(by_graph[graphs[0]])
-    chosen: dict[str, CloudGraph] = {}
+    limits = sorted(by_limit)
+    reference = list(by_limit[limits[-1]])
+    chosen: dict[str, float] = {}
     for setting in sorted({s.setting for s in reference if s.setting.startswith("cloud_")}):
         index = [i for i, s in enumerate(reference) if s.setting == setting]
 
-        def error(graph: CloudGraph, index: list[int] = index) -> float:
-            members = [by_graph[graph][i] for i in index]
+        def error(limit: float, index: list[int] = index) -> float:
+            members = [by_limit[limit][i] for i in index]
             bias = _median_ratio(members)
             return float(np.mean([_error(_graph_or_network(s) / bias, s.truth) for s in members]))
 
-        chosen[setting] = min(graphs, key=error)  # min keeps the first of equal errors
+        chosen[setting] = min(limits, key=lambda limit: (error(limit), -limit))
     if not chosen:
         return chosen, reference
     knots = sorted(
-        (float(np.log10(np.mean([s.n_points for s in reference if s.setting == setting]))), g)
-        for setting, g in chosen.items()
+        (float(np.log10(np.mean([s.n_points for s in reference if s.setting == setting]))), c)
+        for setting, c in chosen.items()
     )
-    log_points = np.array([x for x, _ in knots])
-    limits = sorted({limit for limit, _ in by_graph})
+    log_points, knot_limits = [x for x, _ in knots], [c for _, c in knots]
     merged = []
     for i, sample in enumerate(reference):
-        graph = graphs[0]
+        limit = limits[-1]
         if not sample.mesh:
-            log_n = np.log10(sample.n_points)
-            target = float(np.interp(log_n, log_points, [g[0] for _, g in knots]))
+            target = float(np.interp(np.log10(sample.n_points), log_points, knot_limits))
             limit = min(limits, key=lambda c: (abs(c - target), -c))
-            graph = (limit, knots[int(np.argmin(np.abs(log_points - log_n)))][1][1])
-        merged.append(by_graph[graph][i])
+        merged.append(by_limit[limit][i])
     return chosen, merged
 
 
@@ -265,23 +255,25 @@ def fit_fusion(
     prune_ratio: float = DEFAULT_PRUNE_RATIO,
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
-    graphs: dict[str, CloudGraph] | None = None,
+    normal_cos: dict[str, float] | None = None,
+    edge_length: str = "chord",
 ) -> FusionCalibration:
     """Bias knots and gates fitted on ``samples`` (see the module docstring). Without mesh
     samples the mesh bias is 1 and the mesh gate gives the network all the weight.
-    ``graphs``: the normal limit and edge length of each clean-cloud setting the samples'
-    graphs were built with (:func:`choose_graphs`), or ``None``: no normal limit, chords."""
+    ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
+    built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``edge_length``:
+    what their cloud graphs' edges weighed."""
     from scipy.optimize import minimize
 
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
-    knots: dict[str, tuple[float, float, CloudGraph]] = {}
+    knots: dict[str, tuple[float, float, float]] = {}
     for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
         members = [s for s in clouds if s.setting == setting]
         knots[setting] = (
             float(np.log10(np.mean([s.n_points for s in members]))),
             _median_ratio(members),
-            (1.0, "chord") if graphs is None else graphs[setting],
+            1.0 if normal_cos is None else normal_cos[setting],
         )
     ordered = sorted(knots.values())
     base = FusionCalibration(
@@ -295,8 +287,8 @@ def fit_fusion(
         bundle_hash=bundle_hash,
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
-        normal_cos=() if graphs is None else tuple(g[0] for _, _, g in ordered),
-        edge_lengths=() if graphs is None else tuple(g[1] for _, _, g in ordered),
+        normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
+        edge_length=edge_length,
     )
 
     def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
@@ -379,10 +371,9 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 __all__ = [
     "CALIBRATION_SETTINGS",
     "NORMAL_COS_CANDIDATES",
-    "CloudGraph",
     "FusionSample",
     "GraphVariant",
-    "choose_graphs",
+    "choose_normal_limits",
     "collect_samples",
     "fit_fusion",
     "fusion_summary",

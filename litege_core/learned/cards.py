@@ -277,16 +277,8 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else ""
             )
             + (
-                ", a kept edge weighing the head's predicted geodesic (at least the chord) on "
-                + " and ".join(
-                    f"{10**x:.0f}"
-                    for x, length in zip(
-                        data["bias_log10_points"], data["edge_lengths"], strict=True
-                    )
-                    if length == "network"
-                )
-                + "-point clouds"
-                if "network" in data.get("edge_lengths", ())
+                ", each kept edge weighing the head's predicted geodesic (at least the chord)"
+                if data.get("edge_length") == "network"
                 else ""
             )
             + "; the graphs' biases and the blend "

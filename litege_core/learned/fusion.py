@@ -17,10 +17,9 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
                in log10 N from calibration knots: looser on sparse clouds, whose chords bend
-               with the surface); each kept edge weighs its chord or, at the densities where
-               the calibration says ``"network"`` (``edge_lengths``, nearest knot), the veto
-               head's predicted geodesic, at least the chord (between two sparse points the
-               surface bends; the chord cuts across)
+               with the surface); each kept edge weighs its chord or, where the calibration
+               says ``edge_length = "network"``, the veto head's predicted geodesic (at least
+               the chord: the surface between two sparse points bends, the chord cuts it)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = sigmoid(mesh_gate) on a mesh; for a cloud
@@ -63,7 +62,7 @@ FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
 FUSION_FORMAT = 4
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
-``normal_cos`` and ``edge_lengths`` (a format-3 file reads as one without normal limits, on
+``normal_cos`` and ``edge_length`` (a format-3 file reads as one without normal limits, on
 chords)."""
 READABLE_FORMATS = (3, FUSION_FORMAT)
 
@@ -104,8 +103,7 @@ class FusionCalibration:
             or ``"full"``; whatever head answers the queries.
         normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
             ``|n · ĉ| > c`` at either end), or empty: no normal limit.
-        edge_lengths: what a kept cloud edge weighs at each bias knot (:data:`EDGE_LENGTHS`),
-            or empty: chords.
+        edge_length: what a kept cloud edge weighs (:data:`EDGE_LENGTHS`).
     """
 
     k: int
@@ -119,7 +117,7 @@ class FusionCalibration:
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
     normal_cos: tuple[float, ...] = ()
-    edge_lengths: tuple[str, ...] = ()
+    edge_length: str = "chord"
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -143,10 +141,9 @@ class FusionCalibration:
         valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
         if limits.size and not valid:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
-        lengths = self.edge_lengths
-        if lengths and (len(lengths) != knots.size or not set(lengths) <= set(EDGE_LENGTHS)):
+        if self.edge_length not in EDGE_LENGTHS:
             raise ArtifactError(
-                f"fusion edge_lengths must be empty or one of {EDGE_LENGTHS} per knot"
+                f"fusion edge_length must be {EDGE_LENGTHS}, got {self.edge_length!r}"
             )
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
@@ -161,14 +158,6 @@ class FusionCalibration:
         if not self.normal_cos:
             return 1.0
         return float(np.interp(np.log10(n_points), self.bias_log10_points, self.normal_cos))
-
-    def edge_length(self, n_points: int) -> str:
-        """What a kept edge of a cloud of ``n_points`` weighs: the value at the nearest knot in
-        log10 N (``"chord"`` without ``edge_lengths``)."""
-        if not self.edge_lengths:
-            return "chord"
-        distance = np.abs(np.asarray(self.bias_log10_points) - np.log10(n_points))
-        return self.edge_lengths[int(np.argmin(distance))]
 
     def network_weight(
         self, z_score: float, n_points: int, roughness: float, mesh: bool = False
@@ -206,7 +195,7 @@ class FusionCalibration:
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
-                edge_lengths=tuple(str(v) for v in data.get("edge_lengths", ())),
+                edge_length=str(data.get("edge_length", "chord")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc

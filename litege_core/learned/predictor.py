@@ -671,10 +671,9 @@ class Predictor:
         assert self.fusion is not None
         fusion = self.fusion
         normal_cos = fusion.normal_limit(state.n_points)
-        edge_length = fusion.edge_length(state.n_points)
         key = (
             f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}.{normal_cos}."
-            f"{edge_length}"
+            f"{fusion.edge_length}"
         )
         points = state.canonical_points
         graph, surface = state._lazy.get(key), state._lazy.get("fusion.surface")
@@ -695,7 +694,7 @@ class Predictor:
                     neighbours,
                     normals=surface[1],
                     normal_cos=normal_cos,
-                    edge_length=edge_length,
+                    edge_length=fusion.edge_length,
                 )
                 state._lazy[key] = graph
         return graph, surface[0]

@@ -4,14 +4,12 @@ trust the graph on unusual shapes and the network on familiar ones."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from litege_core.evaluation.fusion import (
     FusionSample,
-    choose_graphs,
+    choose_normal_limits,
     fit_fusion,
     fusion_summary,
     fusion_table,
@@ -196,39 +194,19 @@ def _limit_samples(limit: float, rng_seed: int = 0) -> list[FusionSample]:
     return samples
 
 
-def test_each_density_keeps_the_graph_that_errs_least() -> None:
-    by_graph = {
-        (1.0, "chord"): _limit_samples(1.0),
-        (0.7, "chord"): _limit_samples(0.7),
-        (1.0, "network"): _limit_samples(1.0),  # the same rows: ties keep chords
-        (0.7, "network"): _limit_samples(1.0),
-    }
-    chosen, merged = choose_graphs(by_graph)
-    assert chosen == {"cloud_2000": (0.7, "chord"), "cloud_300": (1.0, "chord")}
-    assert [s.setting for s in merged] == [s.setting for s in by_graph[(1.0, "chord")]]
-    plain, cut = by_graph[(1.0, "chord")], by_graph[(0.7, "chord")]
-    for sample, a, b in zip(merged, plain, cut, strict=True):
-        assert sample is (b if sample.setting in ("cloud_2000", "noise_0.01") else a)
-    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, graphs=chosen)
+def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
+    by_limit = {limit: _limit_samples(limit) for limit in (0.7, 1.0)}
+    chosen, merged = choose_normal_limits(by_limit)
+    assert chosen == {"cloud_2000": 0.7, "cloud_300": 1.0}
+    settings = [s.setting for s in merged]
+    assert settings == [s.setting for s in by_limit[1.0]]
+    for sample, plain, cut in zip(merged, by_limit[1.0], by_limit[0.7], strict=True):
+        expected = cut if sample.setting in ("cloud_2000", "noise_0.01") else plain
+        assert sample is expected
+    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, normal_cos=chosen)
     assert calibration.bias_log10_points == pytest.approx((np.log10(300), np.log10(2000)))
     assert calibration.normal_cos == (1.0, 0.7)
-    assert calibration.edge_lengths == ("chord", "chord")
     assert calibration.normal_limit(2000) == pytest.approx(0.7)
-    plain_fit = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5)
-    assert plain_fit.normal_cos == () and plain_fit.edge_lengths == ()
-
-
-def test_a_sparse_density_may_keep_network_edge_lengths() -> None:
-    # network lengths fix the 300-point graph (its rows as the 0.7 limit's at 2000 points)
-    network = [
-        s if s.setting != "cloud_300" else dataclasses.replace(s, graph=s.truth.copy())
-        for s in _limit_samples(1.0)
-    ]
-    by_graph = {(1.0, "chord"): _limit_samples(1.0), (1.0, "network"): network}
-    chosen, merged = choose_graphs(by_graph)
-    assert chosen == {"cloud_2000": (1.0, "chord"), "cloud_300": (1.0, "network")}
-    for sample, mine in zip(merged, network, strict=True):
-        assert (sample is mine) == (sample.setting == "cloud_300")
-    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, graphs=chosen)
-    assert calibration.edge_lengths == ("network", "chord")
-    assert (calibration.edge_length(300), calibration.edge_length(2000)) == ("network", "chord")
+    plain = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5)
+    assert plain.normal_cos == () and plain.edge_length == "chord"
+    assert fit_fusion(merged, "h" * 64, edge_length="network").edge_length == "network"

@@ -64,8 +64,7 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"normal_cos": (0.7, 0.8)},
         {"normal_cos": (0.7, 0.0, 0.8)},
         {"normal_cos": (0.7, 1.2, 0.8)},
-        {"edge_lengths": ("chord", "arc", "chord")},
-        {"edge_lengths": ("chord", "network")},
+        {"edge_length": "arc"},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -87,19 +86,6 @@ def test_normal_limit_interpolates_in_log_points_and_defaults_to_none() -> None:
     assert calibration.normal_limit(1000) == pytest.approx(0.7)
     assert calibration.normal_limit(10**3.25) == pytest.approx(0.65)
     assert calibration.normal_limit(50) == pytest.approx(0.9)
-
-
-def test_edge_length_is_the_nearest_knots() -> None:
-    assert _calibration().edge_length(300) == "chord"
-    calibration = _calibration(edge_lengths=("network", "network", "chord"))
-    assert [calibration.edge_length(n) for n in (50, 300, 1000, 10**3.2, 10**3.3, 10**6)] == [
-        "network",
-        "network",
-        "network",
-        "network",
-        "chord",
-        "chord",
-    ]
 
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
@@ -152,9 +138,7 @@ def test_local_normals_are_perpendicular_to_the_surface() -> None:
 
 
 def test_json_roundtrip_and_sidecar(tmp_path) -> None:
-    calibration = _calibration(
-        "a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_lengths=("network", "chord", "chord")
-    )
+    calibration = _calibration("a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_length="network")
     assert FusionCalibration.from_json(json.loads(json.dumps(calibration.to_json()))) == (
         calibration
     )
@@ -165,17 +149,14 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
 
 
 def test_a_format_3_sidecar_reads_without_normal_limits_on_chords(tmp_path) -> None:
-    save_fusion(
-        tmp_path,
-        _calibration("a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_lengths=("network",) * 3),
-    )
+    save_fusion(tmp_path, _calibration("a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_length="network"))
     data = json.loads((tmp_path / FUSION_CONFIG).read_text())
-    for key in ("normal_cos", "edge_lengths"):
+    for key in ("normal_cos", "edge_length"):
         data.pop(key)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "format_version": 3}))
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
     assert loaded == _calibration("a" * 64)
-    assert (loaded.normal_limit(2000), loaded.edge_length(2000)) == (1.0, "chord")
+    assert (loaded.normal_limit(2000), loaded.edge_length) == (1.0, "chord")
 
 
 def test_missing_foreign_and_damaged_sidecars(tmp_path) -> None:
