@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 import json
 import os
 import time
@@ -72,12 +71,6 @@ def main() -> None:
         "has the lowest error on the calibration shapes",
     )
     parser.add_argument(
-        "--edge-length",
-        default="chord,network",
-        help="comma-separated candidates for what a kept cloud edge weighs (chord, network: the "
-        "veto head's predicted geodesic); tried like the prune ratios",
-    )
-    parser.add_argument(
         "--veto-head",
         choices=("auto", "small", "full"),
         default="auto",
@@ -115,7 +108,6 @@ def main() -> None:
     }
     ratios = sorted(float(r) for r in args.prune_ratio.split(","))
     limits = sorted(float(c) for c in args.normal_cos.split(","))
-    lengths = args.edge_length.split(",")
     by_variant = collect_samples(
         predictor,
         shapes,
@@ -123,13 +115,12 @@ def main() -> None:
         k=args.k,
         prune_ratios=ratios,
         normal_limits=limits,
-        edge_lengths=lengths,
         veto_head=veto_head,
     )
-    candidates = []  # (mean fused error, (prune ratio, edge length), samples, calibration)
-    for prune_ratio, length in itertools.product(ratios, lengths):
+    candidates = []  # (mean fused error, prune ratio, samples, calibration)
+    for prune_ratio in ratios:
         chosen, samples = choose_normal_limits(
-            {limit: by_variant[(prune_ratio, limit, length)] for limit in limits}
+            {limit: by_variant[(prune_ratio, limit)] for limit in limits}
         )
         calibration = fit_fusion(
             samples,
@@ -139,10 +130,9 @@ def main() -> None:
             veto_head=veto_head,
             fitted_on=fitted_on,
             normal_cos=chosen if limits != [1.0] else None,
-            edge_length=length,
         )
         error = mean_fused_error(samples, calibration)
-        candidates.append((error, (prune_ratio, length), samples, calibration))
+        candidates.append((error, prune_ratio, samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
@@ -155,7 +145,7 @@ def main() -> None:
         f"--model {args.model} --synthetic {args.synthetic} "
         + " ".join(f"--dataset {d}" for d in args.dataset)
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
-        + f" --normal-cos {args.normal_cos} --edge-length {args.edge_length}`"
+        + f" --normal-cos {args.normal_cos}`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
@@ -173,9 +163,7 @@ def main() -> None:
     print(
         f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
         f"× chord (predicted by the {veto_head} head) and chords with |n·ĉ| above the normal "
-        f"limit ({normal}); edges weigh their {calibration.edge_length} length"
-        f"{' (at least the chord)' if calibration.edge_length == 'network' else ''}; median "
-        f"graph / geodesic: {knots}; "
+        f"limit ({normal}); median graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
@@ -183,11 +171,8 @@ def main() -> None:
         f"sigmoid({calibration.mesh_gate:.3f})\n"
     )
     if len(candidates) > 1:
-        tried = ", ".join(
-            f"{ratio} × chord, {length} lengths: {error:.3f}"
-            for error, (ratio, length), _, _ in candidates
-        )
-        print(f"- graph candidates (mean fused error over all calibration inputs): {tried}\n")
+        tried = ", ".join(f"{ratio}: {error:.3f}" for error, ratio, _, _ in candidates)
+        print(f"- prune ratio candidates (mean fused error over all calibration inputs): {tried}\n")
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))
     if args.write:

@@ -69,12 +69,7 @@ class FusionSample:
 
 
 def probe_calibration(
-    bundle_hash: str,
-    k: int,
-    prune_ratio: float,
-    veto_head: str = "full",
-    normal_cos: float = 1.0,
-    edge_length: str = "chord",
+    bundle_hash: str, k: int, prune_ratio: float, veto_head: str = "full", normal_cos: float = 1.0
 ) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
@@ -89,12 +84,11 @@ def probe_calibration(
         bundle_hash=bundle_hash,
         veto_head=veto_head,
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
-        edge_length=edge_length,
     )
 
 
-GraphVariant = tuple[float, float, str]
-"""``(prune_ratio, normal_cos, edge_length)`` of a cloud graph."""
+GraphVariant = tuple[float, float]
+"""``(prune_ratio, normal_cos)`` of a cloud graph."""
 
 
 def collect_samples(
@@ -105,42 +99,37 @@ def collect_samples(
     k: int = DEFAULT_K,
     prune_ratios: Sequence[float] = (DEFAULT_PRUNE_RATIO,),
     normal_limits: Sequence[float] = (1.0,),
-    edge_lengths: Sequence[str] = ("chord",),
     veto_head: str = "full",
     seed: int = 0,
 ) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
-    them (``make_input(shape, setting, seed + i)``), for each veto threshold, normal limit and
-    edge length.
+    them (``make_input(shape, setting, seed + i)``), for each veto threshold and normal limit.
 
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
         shapes: calibration shapes (exact rows at unit area).
         prune_ratios: veto thresholds of the cloud graphs (the network rows are shared).
         normal_limits: normal limits of the cloud graphs (1: none).
-        edge_lengths: what the cloud graphs' edges weigh
-            (:data:`~litege_core.learned.fusion.EDGE_LENGTHS`).
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
 
     Returns:
-        ``{(prune_ratio, normal_cos, edge_length): samples}``, the samples in the same order
-        for every variant.
+        ``{(prune_ratio, normal_cos): samples}``, the samples in the same order for every
+        variant.
     """
     from litege_core.learned import Predictor
 
     bundle = predictor.bundle
     graph_predictors = {
-        (ratio, limit, length): Predictor(
+        (ratio, limit): Predictor(
             bundle,
             predictor.device,
             descriptor_lattice=predictor.descriptor_lattice,
             head=predictor.head,
-            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit, length),
+            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit),
         )
         for ratio in prune_ratios
         for limit in normal_limits
-        for length in edge_lengths
     }
     samples: dict[GraphVariant, list[FusionSample]] = {key: [] for key in graph_predictors}
     for setting in settings:
@@ -256,13 +245,11 @@ def fit_fusion(
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
     normal_cos: dict[str, float] | None = None,
-    edge_length: str = "chord",
 ) -> FusionCalibration:
     """Bias knots and gates fitted on ``samples`` (see the module docstring). Without mesh
     samples the mesh bias is 1 and the mesh gate gives the network all the weight.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
-    built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``edge_length``:
-    what their cloud graphs' edges weighed."""
+    built with (:func:`choose_normal_limits`), or ``None``: no normal limit."""
     from scipy.optimize import minimize
 
     clouds = [s for s in samples if not s.mesh]
@@ -288,7 +275,6 @@ def fit_fusion(
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
         normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
-        edge_length=edge_length,
     )
 
     def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:

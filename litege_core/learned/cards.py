@@ -276,11 +276,6 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 if data.get("normal_cos")
                 else ""
             )
-            + (
-                ", each kept edge weighing the head's predicted geodesic (at least the chord)"
-                if data.get("edge_length") == "network"
-                else ""
-            )
             + "; the graphs' biases and the blend "
             "weights (on a cloud a sigmoid of the shape's OOD z-score, log10 of its point count "
             "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "

@@ -17,9 +17,7 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
                in log10 N from calibration knots: looser on sparse clouds, whose chords bend
-               with the surface); each kept edge weighs its chord or, where the calibration
-               says ``edge_length = "network"``, the veto head's predicted geodesic (at least
-               the chord: the surface between two sparse points bends, the chord cuts it)
+               with the surface)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = sigmoid(mesh_gate) on a mesh; for a cloud
@@ -62,15 +60,12 @@ FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
 FUSION_FORMAT = 4
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
-``normal_cos`` and ``edge_length`` (a format-3 file reads as one without normal limits, on
-chords)."""
+``normal_cos`` (a format-3 file reads as one without normal limits)."""
 READABLE_FORMATS = (3, FUSION_FORMAT)
 
 FUSIONS = ("none", "graph")
 """Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
 VETO_HEADS = ("full", "small")
-EDGE_LENGTHS = ("chord", "network")
-"""What a kept cloud edge weighs: its chord, or the veto head's predicted geodesic (≥ chord)."""
 MESH_RINGS = 2
 """Mesh edges between two vertices the graph of a mesh input joins by a chord
 (:func:`~litege_core.engines.graph.mesh_ring_graph`): on the real dev meshes and the calibration
@@ -103,7 +98,6 @@ class FusionCalibration:
             or ``"full"``; whatever head answers the queries.
         normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
             ``|n · ĉ| > c`` at either end), or empty: no normal limit.
-        edge_length: what a kept cloud edge weighs (:data:`EDGE_LENGTHS`).
     """
 
     k: int
@@ -117,7 +111,6 @@ class FusionCalibration:
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
     normal_cos: tuple[float, ...] = ()
-    edge_length: str = "chord"
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -141,10 +134,6 @@ class FusionCalibration:
         valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
         if limits.size and not valid:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
-        if self.edge_length not in EDGE_LENGTHS:
-            raise ArtifactError(
-                f"fusion edge_length must be {EDGE_LENGTHS}, got {self.edge_length!r}"
-            )
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
         """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
@@ -195,7 +184,6 @@ class FusionCalibration:
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
-                edge_length=str(data.get("edge_length", "chord")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -243,7 +231,6 @@ def pruned_knn_graph(
     neighbours: tuple[NDArray, NDArray] | None = None,
     normals: NDArray | None = None,
     normal_cos: float = 1.0,
-    edge_length: str = "chord",
 ) -> sp.csr_array:
     """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts
     and, with ``normals``, without the chords that run along the surface normal.
@@ -258,11 +245,9 @@ def pruned_knn_graph(
         normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`), or ``None``.
         normal_cos: cut an edge whose unit chord ``ĉ`` has ``|n · ĉ| > normal_cos`` at either
             end (1: keep every edge).
-        edge_length: ``"chord"``, or ``"network"``: a kept edge weighs
-            ``max(chord, edge_geodesics)`` (chords where ``edge_geodesics`` is ``None``).
 
     Returns:
-        ``(N, N)`` upper-triangular CSR of edge lengths (:func:`~litege_core.engines.graph.
+        ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
         edge_graph`).
     """
     import scipy.sparse as sp
@@ -275,12 +260,8 @@ def pruned_knn_graph(
         return graph
     rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
     keep = np.ones(graph.nnz, dtype=bool)
-    lengths = graph.data
     if edge_geodesics is not None:
-        predicted = edge_geodesics(rows, graph.indices)
-        keep &= predicted <= prune_ratio * graph.data
-        if edge_length == "network":
-            lengths = np.maximum(predicted, graph.data)
+        keep &= edge_geodesics(rows, graph.indices) <= prune_ratio * graph.data
     if cut_normals:
         assert normals is not None
         chords = points[graph.indices] - points[rows]
@@ -291,7 +272,7 @@ def pruned_knn_graph(
         )
         keep &= along <= normal_cos
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
-    return sp.csr_array((lengths[keep], graph.indices[keep], indptr), shape=graph.shape)
+    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
 
 
 def graph_rows(
@@ -431,7 +412,6 @@ def fuse(
 
 
 __all__ = [
-    "EDGE_LENGTHS",
     "FUSIONS",
     "FUSION_CONFIG",
     "MESH_RINGS",

@@ -671,10 +671,7 @@ class Predictor:
         assert self.fusion is not None
         fusion = self.fusion
         normal_cos = fusion.normal_limit(state.n_points)
-        key = (
-            f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}.{normal_cos}."
-            f"{fusion.edge_length}"
-        )
+        key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}.{normal_cos}"
         points = state.canonical_points
         graph, surface = state._lazy.get(key), state._lazy.get("fusion.surface")
         if graph is None or surface is None:  # one neighbour search serves both (k = 16)
@@ -694,7 +691,6 @@ class Predictor:
                     neighbours,
                     normals=surface[1],
                     normal_cos=normal_cos,
-                    edge_length=fusion.edge_length,
                 )
                 state._lazy[key] = graph
         return graph, surface[0]

@@ -125,15 +125,9 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
         k=8,
         prune_ratios=(3.0, 1e9),  # untrained: 3 × chord cuts some edges
         normal_limits=(0.3, 1.0),
-        edge_lengths=("chord", "network"),
     )
-    assert sorted(by_variant) == [
-        (ratio, limit, length)
-        for ratio in (3.0, 1e9)
-        for limit in (0.3, 1.0)
-        for length in ("chord", "network")
-    ]
-    strict, loose = by_variant[(3.0, 1.0, "chord")], by_variant[(1e9, 1.0, "chord")]
+    assert sorted(by_variant) == [(3.0, 0.3), (3.0, 1.0), (1e9, 0.3), (1e9, 1.0)]
+    strict, loose = by_variant[(3.0, 1.0)], by_variant[(1e9, 1.0)]
     assert [(s.setting, s.mesh) for s in strict] == [("mesh", True), ("cloud_300", False)]
     for a, b in zip(strict, loose, strict=True):
         np.testing.assert_array_equal(a.network, b.network)
@@ -147,16 +141,11 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     assert np.any(strict[1].graph[joined] > loose[1].graph[joined] + 1e-6)
 
     # the normal limit only cuts edges too: a cloud's paths lengthen, a mesh's stay
-    normal = by_variant[(1e9, 0.3, "chord")]
+    normal = by_variant[(1e9, 0.3)]
     np.testing.assert_array_equal(normal[0].graph, loose[0].graph)
     joined = normal[1].graph != normal[1].network
     assert np.all(normal[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
     assert np.any(normal[1].graph[joined] > loose[1].graph[joined] + 1e-6)
-    # edges weighing the network's geodesic (at least the chord) lengthen a cloud's paths too
-    network = by_variant[(1e9, 1.0, "network")]
-    np.testing.assert_array_equal(network[0].graph, loose[0].graph)
-    joined = network[1].graph != network[1].network
-    assert np.all(network[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
 
 
 def _limit_samples(limit: float, rng_seed: int = 0) -> list[FusionSample]:
@@ -207,6 +196,4 @@ def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
     assert calibration.bias_log10_points == pytest.approx((np.log10(300), np.log10(2000)))
     assert calibration.normal_cos == (1.0, 0.7)
     assert calibration.normal_limit(2000) == pytest.approx(0.7)
-    plain = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5)
-    assert plain.normal_cos == () and plain.edge_length == "chord"
-    assert fit_fusion(merged, "h" * 64, edge_length="network").edge_length == "network"
+    assert fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5).normal_cos == ()

@@ -64,7 +64,6 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"normal_cos": (0.7, 0.8)},
         {"normal_cos": (0.7, 0.0, 0.8)},
         {"normal_cos": (0.7, 1.2, 0.8)},
-        {"edge_length": "arc"},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -138,7 +137,7 @@ def test_local_normals_are_perpendicular_to_the_surface() -> None:
 
 
 def test_json_roundtrip_and_sidecar(tmp_path) -> None:
-    calibration = _calibration("a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_length="network")
+    calibration = _calibration("a" * 64)
     assert FusionCalibration.from_json(json.loads(json.dumps(calibration.to_json()))) == (
         calibration
     )
@@ -146,17 +145,6 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
     assert loaded == calibration and loaded.fitted_on == calibration.fitted_on
-
-
-def test_a_format_3_sidecar_reads_without_normal_limits_on_chords(tmp_path) -> None:
-    save_fusion(tmp_path, _calibration("a" * 64, normal_cos=(1.0, 0.8, 0.7), edge_length="network"))
-    data = json.loads((tmp_path / FUSION_CONFIG).read_text())
-    for key in ("normal_cos", "edge_length"):
-        data.pop(key)
-    (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "format_version": 3}))
-    loaded = load_fusion(tmp_path, "a" * 64, "toy")
-    assert loaded == _calibration("a" * 64)
-    assert (loaded.normal_limit(2000), loaded.edge_length) == (1.0, "chord")
 
 
 def test_missing_foreign_and_damaged_sidecars(tmp_path) -> None:
@@ -243,24 +231,6 @@ def test_the_normal_limit_cuts_the_chords_between_two_sheets() -> None:
     # without normals, or with the limit 1, the graph is the plain one
     same = pruned_knn_graph(points, 8, 1.6, None, normals=normals, normal_cos=1.0)
     assert (same != plain).nnz == 0
-
-
-def test_network_edge_lengths_are_the_predicted_geodesics_at_least_the_chord() -> None:
-    points, arc = _hairpin()
-
-    def predicted(i, j):  # the arc length, under-estimated by 10 % on odd pairs
-        return np.abs(arc[i] - arc[j]) * np.where((i + j) % 2 == 1, 0.9, 1.0)
-
-    chords = pruned_knn_graph(points, 4, 1.6, predicted).tocoo()
-    network = pruned_knn_graph(points, 4, 1.6, predicted, edge_length="network").tocoo()
-    np.testing.assert_array_equal(network.row, chords.row)  # the same edges survive
-    np.testing.assert_array_equal(network.col, chords.col)
-    expected = np.maximum(predicted(network.row, network.col), chords.data)
-    np.testing.assert_allclose(network.data, expected)
-    assert np.any(network.data > chords.data)
-    # without predictions there is nothing to weigh but chords
-    plain = pruned_knn_graph(points, 4, 1.6, None, edge_length="network")
-    assert (plain != knn_graph(points, 4)).nnz == 0
 
 
 def test_graph_rows_of_free_points_on_nodes_equal_the_indexed_rows() -> None:
