@@ -1,15 +1,17 @@
 """Fit a geodesic bundle's graph-fusion calibration on shapes we generate (never the dev set).
 
 Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
-    [--dataset data/rigged-cal ...] [--sources 12] [--write]
+    [--dataset data/rigged-cal ...] [--sources 12] [--prune-ratio 1.3,1.6]
+    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--write]
 
 Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's category
 (generated on the fly, exact rows cached under ``--cache``) and the test split of every
 ``--dataset`` (collection datasets such as the rigged animals or MakeHuman bodies of
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
-network / pruned graph / fused errors per setting; ``--write`` stores ``fusion.json`` beside
-the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and rewrites the model
-card's sidecar section.
+network / pruned graph / fused errors per setting (each density's normal limit is the
+candidate whose graph errs least there; ``--normal-cos 1`` fits none); ``--write`` stores
+``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
+rewrites the model card's sidecar section.
 """
 
 from __future__ import annotations
