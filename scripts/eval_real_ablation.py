@@ -2,7 +2,7 @@
 
 Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL ...]
     [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
-    [--knn K ...] [--per-shape]
+    [--knn K ...] [--per-shape] [--per-shape-setting cloud_300]
 
 ``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` / ``fullhead`` (the distilled
 small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / ``bcc`` /
@@ -19,7 +19,8 @@ exact MMP rows from farthest-point sources at unit area, ground truth rescaled t
 Besides the pooled error per setting it reports the per-shape spread of each model (median,
 p90 and the worst shape of the per-shape mean errors, mesh setting) and the real / synthetic
 ratio against held-out procedural shapes of the same category; ``--per-shape`` adds each real
-shape's mesh error under every model (sorted by the first model's).
+shape's error under every model (sorted by the first model's) on ``--per-shape-setting``
+(default: the mesh).
 """
 
 from __future__ import annotations
@@ -96,7 +97,10 @@ def main() -> None:
     parser.add_argument(
         "--knn", type=int, action="append", default=[], help="extra kNN-Dijkstra rows (k)"
     )
-    parser.add_argument("--per-shape", action="store_true", help="each real shape's mesh error")
+    parser.add_argument("--per-shape", action="store_true", help="each real shape's error")
+    parser.add_argument(
+        "--per-shape-setting", default="mesh", help="the setting of the --per-shape table"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     real = REAL_SETS[args.set]
@@ -139,6 +143,11 @@ def main() -> None:
         + (" --no-baselines" if args.no_baselines else "")
         + "".join(f" --knn {k}" for k in args.knn)
         + (" --per-shape" if args.per_shape else "")
+        + (
+            f" --per-shape-setting {args.per_shape_setting}"
+            if args.per_shape_setting != "mesh"
+            else ""
+        )
         + "`\n"
     )
     print(comparison_table(pooled))
@@ -157,16 +166,25 @@ def main() -> None:
         )
 
     if args.per_shape:
-        print(per_shape_table([shape.name for shape in shapes], spread))
+        if args.per_shape_setting not in settings:
+            raise SystemExit(f"--per-shape-setting {args.per_shape_setting} is not in --settings")
+        chosen = {
+            r.method: [error for _, error in r.per_shape]
+            for r in pooled
+            if r.group == real.group
+            and r.setting == args.per_shape_setting
+            and r.method in predictors
+        }
+        print(per_shape_table([shape.name for shape in shapes], chosen, args.per_shape_setting))
 
 
-def per_shape_table(names: list[str], errors: dict[str, list[float]]) -> str:
+def per_shape_table(names: list[str], errors: dict[str, list[float]], setting: str = "mesh") -> str:
     """Markdown: one row per real shape (sorted by the first model's error, worst first), its
-    mesh error under each model."""
+    error on ``setting`` under each model."""
     labels = list(errors)
     order = np.argsort(errors[labels[0]])[::-1]
     lines = [
-        "\n| shape (mesh) | " + " | ".join(labels) + " |",
+        f"\n| shape ({setting}) | " + " | ".join(labels) + " |",
         "|---|" + "---:|" * len(labels),
     ]
     for index in order:

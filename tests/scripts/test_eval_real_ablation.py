@@ -37,3 +37,8 @@ def test_per_shape_table_sorts_by_the_first_model(eval_real_ablation):
         "| dog0 | 5.25 | 6.00 |",
         "| cat0 | 3.00 | 2.00 |",
     ]
+
+
+def test_the_per_shape_table_names_its_setting(eval_real_ablation):
+    table = eval_real_ablation.per_shape_table(["cat0"], {"old": [3.0]}, "cloud_300")
+    assert table.strip().splitlines()[0] == "| shape (cloud_300) | old |"
