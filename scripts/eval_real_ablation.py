@@ -112,6 +112,8 @@ def main() -> None:
         if (found := frame_turns_of(name)) is not None:
             turns[label or name] = found
     settings = tuple(args.settings.split(","))
+    if args.per_shape and args.per_shape_setting not in settings:
+        raise SystemExit(f"--per-shape-setting {args.per_shape_setting} is not in --settings")
     paths = real_shape_paths(args.eval_data, args.set)
     if not paths:
         print(f"no {args.set} shapes under {args.eval_data}: nothing to evaluate")
@@ -151,8 +153,9 @@ def main() -> None:
         + "`\n"
     )
     print(comparison_table(pooled))
-    print("\n| model | per-shape median (mesh) | p90 | worst shape | real / synthetic (mesh) |")
-    print("|---|---:|---:|---|---:|")
+    if spread:
+        print("\n| model | per-shape median (mesh) | p90 | worst shape | real / synthetic (mesh) |")
+        print("|---|---:|---:|---|---:|")
     by_key = {(r.group, r.setting, r.method): r.mean for r in pooled}
     synthetic_group = synthetic[0].group if synthetic else None
     for label, errors in spread.items():
@@ -166,8 +169,6 @@ def main() -> None:
         )
 
     if args.per_shape:
-        if args.per_shape_setting not in settings:
-            raise SystemExit(f"--per-shape-setting {args.per_shape_setting} is not in --settings")
         chosen = {
             r.method: [error for _, error in r.per_shape]
             for r in pooled
