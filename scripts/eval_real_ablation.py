@@ -129,11 +129,16 @@ def main() -> None:
         return {**compared(setting), **extra}
 
     pooled = evaluate_methods([*shapes, *synthetic], methods, settings)
-    spread = {  # per-shape mean errors of each model on the real meshes
-        r.method: [error for _, error in r.per_shape]
-        for r in pooled
-        if r.group == real.group and r.setting == "mesh" and r.method in predictors
-    }
+
+    def per_shape_errors(setting: str) -> dict[str, list[float]]:
+        """Each model's per-shape mean errors on the real shapes' ``setting`` inputs."""
+        return {
+            r.method: [error for _, error in r.per_shape]
+            for r in pooled
+            if r.group == real.group and r.setting == setting and r.method in predictors
+        }
+
+    spread = per_shape_errors("mesh")
     print(f"### Real-shape ablation: {real.group}\n")
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine "
@@ -169,13 +174,7 @@ def main() -> None:
         )
 
     if args.per_shape:
-        chosen = {
-            r.method: [error for _, error in r.per_shape]
-            for r in pooled
-            if r.group == real.group
-            and r.setting == args.per_shape_setting
-            and r.method in predictors
-        }
+        chosen = per_shape_errors(args.per_shape_setting)
         print(per_shape_table([shape.name for shape in shapes], chosen, args.per_shape_setting))
 
 

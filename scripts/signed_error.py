@@ -45,7 +45,7 @@ from litege_core.evaluation.geodesic import (
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
-from litege_core.learned.fusion import FusionCalibration, load_fusion
+from litege_core.learned.fusion import FusionCalibration, corrected_graph, load_fusion
 from litege_core.learned.predictor import Predictor
 from litege_core.shape import Shape
 
@@ -68,8 +68,10 @@ def graph_row(samples: list[FusionSample], calibration: FusionCalibration) -> tu
     point count, the network's value where the graph joins no path (as the fusion reads them)."""
     absolute, signed = [], []
     for sample in samples:
-        graph = sample.graph / calibration.graph_bias(sample.n_points, sample.mesh)
-        residual = np.where(np.isfinite(graph), graph, sample.network) - sample.truth
+        graph = corrected_graph(
+            sample.network, sample.graph, calibration, sample.n_points, sample.mesh
+        )
+        residual = graph - sample.truth
         scale = float(sample.truth.mean()) / 100.0
         absolute.append(float(np.abs(residual).mean()) / scale)
         signed.append(float(residual.mean()) / scale)

@@ -406,9 +406,16 @@ def fuse(
     returns float64 ``(S, T)``."""
     weight = calibration.network_weight(z_score, n, roughness, mesh)
     network = np.asarray(network, np.float64)
+    return weight * network + (1.0 - weight) * corrected_graph(network, graph, calibration, n, mesh)
+
+
+def corrected_graph(
+    network: NDArray, graph: NDArray, calibration: FusionCalibration, n: int, mesh: bool = False
+) -> NDArray:
+    """``graph / b`` as :func:`fuse` blends it: the network's value where the graph is ``inf``.
+    ``network``, ``graph``: ``(S, T)`` (same units); returns float64 ``(S, T)``."""
     corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh)
-    corrected = np.where(np.isfinite(corrected), corrected, network)
-    return weight * network + (1.0 - weight) * corrected
+    return np.where(np.isfinite(corrected), corrected, np.asarray(network, np.float64))
 
 
 __all__ = [
@@ -416,6 +423,7 @@ __all__ = [
     "FUSION_CONFIG",
     "MESH_RINGS",
     "FusionCalibration",
+    "corrected_graph",
     "fuse",
     "graph_rows",
     "load_fusion",
