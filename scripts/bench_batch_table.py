@@ -103,6 +103,7 @@ def main() -> None:
             device,
             precision=args.precision,
             descriptor_lattice=args.lattice,
+            fusion="none",
             udf_backend=udf_backend,
         )
         print(

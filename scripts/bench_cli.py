@@ -3,8 +3,8 @@
     python scripts/bench_cli.py [--runs 7]
 
 One procedural dog (seed 2,000,000, outside every training seed range), 300 surface points,
-saved as NPY, binary PLY and XYZ; each file × runtime (``numpy``: the torch-free default,
-also with the small head and the stride-2 lattice; ``torch``) and the kNN-graph Dijkstra
+saved as NPY, binary PLY and XYZ; each file × runtime (``numpy``: the torch-free default, with
+the shipped model's graph fusion (the default) and without it; ``torch``) and the kNN-graph Dijkstra
 (``--method graph``) as the classical reference, run in interleaved rounds, a fresh interpreter
 each time (imports, model loading and the query included). Prints a markdown section for
 BENCHMARKS.md.
@@ -34,16 +34,9 @@ from litege_core.variants import point_cloud
 
 FORMATS = ("npy", "ply", "xyz")
 CONFIGURATIONS = {
-    "LiteGE, numpy runtime (default)": ["--runtime", "numpy"],
-    "LiteGE, numpy runtime, small head + stride2": [
-        "--runtime",
-        "numpy",
-        "--head",
-        "small",
-        "--lattice",
-        "stride2",
-    ],
-    "LiteGE, torch runtime": ["--runtime", "torch"],
+    "LiteGE, numpy runtime (default: graph fusion)": ["--runtime", "numpy"],
+    "LiteGE, numpy runtime, network alone": ["--runtime", "numpy", "--fusion", "none"],
+    "LiteGE, torch runtime (graph fusion)": ["--runtime", "torch"],
     "kNN-graph Dijkstra": ["--method", "graph"],
 }
 

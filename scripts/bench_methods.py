@@ -294,7 +294,10 @@ def main() -> None:
     args = parser.parse_args()
     n_pairs = min(args.pairs, args.sources)
     torch.set_num_threads(1)
-    predictors = {name: Predictor(load_shipped(name)) for name in sorted(set(MODEL_OF.values()))}
+    predictors = {
+        name: Predictor(load_shipped(name), fusion="none")
+        for name in sorted(set(MODEL_OF.values()))
+    }
 
     results: list[dict[str, Any]] = []
     all_shapes = shapes(real=not args.no_real)

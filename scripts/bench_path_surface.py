@@ -71,7 +71,7 @@ def main() -> int:
         print(f"{args.data} not found: nothing to measure", file=sys.stderr)
         return 1
     torch.set_num_threads(1)
-    predictor = Predictor(load_shipped(args.model))
+    predictor = Predictor(load_shipped(args.model), fusion="none")
     print(f"# Learned paths on the surface — {date.today()}, {machine()}, 1 torch thread,")
     print(f"model {args.model}, {args.pairs} random vertex pairs per mesh (seed {args.seed})\n")
     print(

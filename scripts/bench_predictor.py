@@ -132,6 +132,7 @@ def _configured(bundle, config: dict) -> Predictor:
         bundle,
         precision=config.get("precision", "float32"),
         descriptor_lattice=config.get("lattice", "full"),
+        fusion="none",
     )
     if "folded" in config:
         predictor.folded = FoldedGeodesicNet(
@@ -267,7 +268,7 @@ def main() -> None:
         torch.set_num_threads(args.threads)
 
     bundle = load_bundle(args.bundle, args.device)
-    predictor = Predictor(bundle, args.device)
+    predictor = Predictor(bundle, args.device, fusion="none")
     sync = torch.cuda.synchronize if predictor.device.type == "cuda" else (lambda: None)
 
     dog = generate_shape("quadruped", "dog", 2_000_000)

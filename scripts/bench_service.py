@@ -197,7 +197,7 @@ def main() -> None:
         # overhead: one request at a time through HTTP vs the library in-process
         sources, targets = [17], list(range(0, 3900, 39))
         body = {"shape_id": shape_id, "sources": sources, "targets": targets}
-        predictor = Predictor(load_shipped("quadrupeds"))
+        predictor = Predictor(load_shipped("quadrupeds"))  # the service's defaults
         state = predictor.register(shape)
         library, service = [], []
         # a bare keep-alive connection, so the client's own cost stays out of the overhead

@@ -22,12 +22,15 @@ Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes �
 **1K correspondences** (5K dog → 5K cat, 1000 query vertices).
 
 Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in six configurations: the
-defaults (float32, ``head="auto"`` and ``descriptor_lattice="auto"``: for the shipped model the
-distilled small head and the UDF at the 1/8 of the voxels of the ``stride2`` lattice), the
+network alone with the default head and lattice (row ``LiteGE``: float32, ``head="auto"`` and
+``descriptor_lattice="auto"``: for the shipped model the distilled small head and the UDF at the
+1/8 of the voxels of the ``stride2`` lattice; ``fusion="none"``), the
 trained head on that lattice (``head="full"``), the trained network as trained (``head="full"``,
 ``descriptor_lattice="full"``), the trained head with ``precision="auto"`` (bfloat16 head
 product where the CPU has AMX / AVX512-BF16), and ``fusion="graph"`` (the calibrated graph
-fusion) with the defaults or the trained network;
+fusion: row ``LiteGE graph fusion`` is the library's, the CLI's and the service's default
+configuration since 2026-11-29, ``fusion="auto"`` on a shipped model) with the default head and
+lattice or the trained network;
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -382,7 +385,7 @@ def main() -> None:
     def cpu(workload: str, data_name: str, method: str) -> float:
         return statistics.median(med[(workload, data_name, method)].cpu)
 
-    auto = Predictor(bundle, precision="auto").precision
+    auto = Predictor(bundle, precision="auto", fusion="none").precision
     subset = ""
     if args.only_methods or args.only_workloads:
         subset = f' --only-methods "{args.only_methods}" --only-workloads "{args.only_workloads}"'

@@ -85,7 +85,9 @@ def main() -> None:
     torch.set_num_threads(1)
     start = time.perf_counter()
     bundle = load_model(args.model)
-    predictor = Predictor(bundle, head="full", descriptor_lattice="full")  # shipped recipe
+    predictor = Predictor(  # shipped recipe; the network alone
+        bundle, head="full", descriptor_lattice="full", fusion="none"
+    )
     veto_head = args.veto_head
     if veto_head == "auto":
         veto_head = "full" if small_head_config(bundle) is None else "small"

@@ -38,7 +38,9 @@ def main() -> None:
     parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    predictors = {name: Predictor(load_shipped(name)) for name in ("quadrupeds", "humans")}
+    predictors = {
+        name: Predictor(load_shipped(name), fusion="none") for name in ("quadrupeds", "humans")
+    }
     rows = []  # (set, own z, cross z, own error)
     for key in OWN_MODEL:
         paths = real_shape_paths(args.eval_data, key)

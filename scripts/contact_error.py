@@ -95,7 +95,9 @@ def main() -> None:
             print(f"| {key} | – | no shapes under {args.eval_data} | | | | | | | |")
             continue
         name = chosen.get(key, real.model)
-        predictor = Predictor(load_model(name), head="full", descriptor_lattice="full")
+        predictor = Predictor(
+            load_model(name), head="full", descriptor_lattice="full", fusion="none"
+        )
         shapes = real_eval_shapes(paths, real.group, args.sources, cache_dir=args.cache)
         errors, signed, contact, worst_in_contact = [], [], [], 0
         per_shape = []  # (name, error, signed, worst row error, its contact, item)

@@ -490,7 +490,9 @@ def main() -> None:
     torch.set_num_threads(1)
     start = time.perf_counter()
     cases = load_cases(args)
-    predictors = {name: Predictor(load_shipped(name)) for name in {c.model for c in cases}}
+    predictors = {
+        name: Predictor(load_shipped(name), fusion="none") for name in {c.model for c in cases}
+    }
     for c in cases:
         analyse(c, predictors[c.model], args.seed)
     figures = render_figures(cases, args.worst) if cases else []

@@ -76,7 +76,9 @@ def main() -> None:
         print(stamped, file=sys.stderr, flush=True)
 
     bundle = load_model(args.model)
-    teacher = Predictor(bundle, head="full", descriptor_lattice="full")  # the trained network
+    teacher = Predictor(  # the trained network
+        bundle, head="full", descriptor_lattice="full", fusion="none"
+    )
     config = DistillConfig(
         features=args.features,
         hidden=args.hidden,
@@ -97,7 +99,7 @@ def main() -> None:
     result = distill_small_head(
         teacher, config, category=args.category, extra_meshes=extra, log=log
     )
-    student = Predictor(bundle, head=result.head, descriptor_lattice="full")
+    student = Predictor(bundle, head=result.head, descriptor_lattice="full", fusion="none")
     category = result.settings["category"]
     start = time.monotonic()
     agreement = measure_agreement(
@@ -132,7 +134,9 @@ def main() -> None:
         for name in (SMALL_HEAD_WEIGHTS, SMALL_HEAD_CONFIG):
             shutil.copyfile(out / name, Path(bundle.path) / name)
             (Path(bundle.path) / name).chmod(0o644)
-        Predictor(load_bundle(bundle.path), head="small")  # verifies the shipped sidecar
+        Predictor(
+            load_bundle(bundle.path), head="small", fusion="none"
+        )  # verifies the shipped sidecar
         write_sidecar_section(bundle.path)
         log(f"shipped into {bundle.path} (model card's sidecar section rewritten)")
 

@@ -9,9 +9,11 @@ small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / `
 ``stride2`` (descriptor lattice); without them, the predictor's defaults (``auto``: the small
 head and the stride2 lattice for the shipped models), e.g. ``quadrupeds@fullhead+full`` (the
 trained network as trained), and ``fusion`` (the calibrated graph fusion,
-``Predictor(bundle, fusion="graph")``) and ``ttaC`` / ``ttaCxD`` (test-time augmentation: the
-distances averaged over the PCA frame and ``C`` turns of it by at most ``D`` degrees, default
-10, ``litege_core.evaluation.geodesic.frame_turns``); ``--no-baselines`` leaves out heat and kNN;
+``Predictor(bundle, fusion="graph")``; without it the network alone, ``fusion="none"``,
+although the library's default is ``auto``: the labels of earlier runs keep their meaning) and
+``ttaC`` / ``ttaCxD`` (test-time augmentation: the distances averaged over the PCA frame and
+``C`` turns of it by at most ``D`` degrees, default 10,
+``litege_core.evaluation.geodesic.frame_turns``); ``--no-baselines`` leaves out heat and kNN;
 ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):

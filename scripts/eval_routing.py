@@ -31,7 +31,7 @@ OWN_MODEL = {"tosca": "quadrupeds", "leopard": "quadrupeds", "faust": "humans"}
 
 def predictor(name_or_dir: str) -> Predictor:
     """A CPU predictor of a shipped model name or a bundle directory."""
-    return Predictor(load_model(name_or_dir))
+    return Predictor(load_model(name_or_dir), fusion="none")
 
 
 def relative_error(predicted: np.ndarray, truth: np.ndarray) -> float:

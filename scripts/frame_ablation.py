@@ -206,7 +206,7 @@ def main() -> None:
         if args.synthetic > 0:
             shapes = generated_eval_shapes(category, args.synthetic, args.sources, cache_dir=CACHE)
             groups.append((shapes[0].group, model, shapes))
-    predictors = {model: Predictor(load_shipped(model)) for _, model, _ in groups}
+    predictors = {model: Predictor(load_shipped(model), fusion="none") for _, model, _ in groups}
 
     table = [
         "| shapes | setting | " + " | ".join(COLUMNS) + " |",

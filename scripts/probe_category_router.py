@@ -99,7 +99,9 @@ class Scorer:
     """Both shipped geodesic models' OOD z-scores of a point set."""
 
     def __init__(self) -> None:
-        self.models = [Predictor(load_shipped(name)) for name in ("quadrupeds", "humans")]
+        self.models = [
+            Predictor(load_shipped(name), fusion="none") for name in ("quadrupeds", "humans")
+        ]
 
     def __call__(self, points: NDArray) -> NDArray:
         shape = Shape.from_arrays(points)

@@ -292,7 +292,7 @@ def loop_workload(slug: str, loops: int) -> None:
     torch.set_num_threads(1)
     name = next(k for k, v in SLUG.items() if v == slug)
     work = make_workloads([name])[name]
-    predictor = Predictor(load_shipped("quadrupeds"))
+    predictor = Predictor(load_shipped("quadrupeds"), fusion="none")
     for _ in range(loops):
         end_to_end(predictor, work)
 
@@ -413,7 +413,11 @@ def main() -> None:
     for config in configs:
         precision, _, lattice = config.partition("/")
         predictor = Predictor(
-            bundle, args.device, precision=precision, descriptor_lattice=lattice or "full"
+            bundle,
+            args.device,
+            precision=precision,
+            descriptor_lattice=lattice or "full",
+            fusion="none",
         )
         label = f"{predictor.precision}/{predictor.descriptor_lattice}"
         if precision == "auto":

@@ -194,7 +194,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     bundle = load_model(args.model)
-    predictor = Predictor(bundle, head="full", descriptor_lattice="full")
+    predictor = Predictor(bundle, head="full", descriptor_lattice="full", fusion="none")
     category = bundle.category
     groups = {
         f"synthetic {category}s (held-out seeds)": generated_eval_shapes(

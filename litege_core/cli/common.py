@@ -59,7 +59,7 @@ def predictor(args: argparse.Namespace) -> Predictor:
         device,
         head=getattr(args, "head", "auto"),
         descriptor_lattice=getattr(args, "lattice", "auto"),
-        fusion=getattr(args, "fusion", "none"),
+        fusion=getattr(args, "fusion", "auto"),
     )
 
 
@@ -70,7 +70,11 @@ def numpy_predictor(args: argparse.Namespace) -> NumpyPredictor:
     from litege_core.learned.manifest import DEFAULT_MODEL
     from litege_core.learned.numpy_predictor import NumpyPredictor
 
-    options = {"head": getattr(args, "head", "auto"), "lattice": getattr(args, "lattice", "auto")}
+    options = {
+        "head": getattr(args, "head", "auto"),
+        "lattice": getattr(args, "lattice", "auto"),
+        "fusion": getattr(args, "fusion", "auto"),
+    }
     if args.bundle is not None:
         return NumpyPredictor(args.bundle, **options)
     if args.model is not None and Path(args.model).is_dir():
@@ -162,23 +166,25 @@ def add_head_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-FUSIONS = ("none", "graph")
+FUSIONS = ("auto", "none", "graph")
 """The learned engine's fusions (:data:`litege_core.learned.fusion.FUSIONS`, listed here for the
 same reason as :data:`LATTICE_CHOICES`; a test keeps the two equal)."""
 
 
 def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
-    """``--fusion none|graph``: the network alone, or blended with the model's calibrated
-    graph Dijkstra (a mesh's edges, a cloud's network-pruned kNN graph;
-    :mod:`litege_core.learned.fusion`)."""
+    """``--fusion auto|none|graph``: the network blended with the model's calibrated graph
+    Dijkstra (a mesh's edges, a cloud's network-pruned kNN graph;
+    :mod:`litege_core.learned.fusion`) where the model ships a calibration, or the network
+    alone."""
     parser.add_argument(
         "--fusion",
         choices=FUSIONS,
-        default="none",
-        help="none (default: the network's distances) or graph (blend them with a calibrated "
-        "graph Dijkstra (a mesh's own edges, a cloud's kNN graph), weighted by how unusual the "
-        "shape is and how dense its points are: more accurate on real shapes far from the training "
-        "families, slower on large clouds)",
+        default="auto",
+        help="auto (default: graph where the model ships a fusion calibration, as the shipped "
+        "ones do, else none), none (the network's distances: fastest) or graph (blend them "
+        "with a calibrated graph Dijkstra (a mesh's own edges, a cloud's kNN graph), weighted "
+        "by how unusual the shape is and how dense its points are: more accurate on real "
+        "shapes; refused for a model without a calibration)",
     )
 
 

@@ -52,20 +52,12 @@ RUNTIMES = ("auto", "numpy", "torch")
 
 def _numpy_runtime(args: argparse.Namespace) -> bool:
     """Whether ``litege geodesic`` runs the torch-free :class:`~litege_core.learned.
-    numpy_predictor.NumpyPredictor`: ``--runtime numpy``, or ``auto`` (default) with options
-    it implements (CPU, no fusion; either head, any lattice). Raises :class:`InputError` for
-    ``--runtime numpy`` with options it does not implement."""
-    needs_torch = [
-        f"--{flag} {value}"
-        for flag, value, default in (
-            ("device", args.device, "cpu"),
-            ("fusion", args.fusion, "none"),
-        )
-        if value != default
-    ]
-    if args.runtime == "numpy" and needs_torch:
-        raise InputError(f"--runtime numpy does not implement {', '.join(needs_torch)}")
-    return args.runtime == "numpy" or (args.runtime == "auto" and not needs_torch)
+    numpy_predictor.NumpyPredictor`: ``--runtime numpy``, or ``auto`` (default) on a CPU (it
+    implements either head, any lattice and every fusion). Raises :class:`InputError` for
+    ``--runtime numpy`` on another device."""
+    if args.runtime == "numpy" and args.device != "cpu":
+        raise InputError(f"--runtime numpy does not implement --device {args.device}")
+    return args.runtime == "numpy" or (args.runtime == "auto" and args.device == "cpu")
 
 
 def cmd_geodesic(args: argparse.Namespace) -> int:
@@ -85,7 +77,7 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
             model=runtime.name,
             head=runtime.head,
             lattice=runtime.lattice,
-            fusion="none",
+            fusion="none" if runtime.fusion is None else "graph",
             ood_score=registered.ood_score,
         )
     elif args.method == "learned":
@@ -179,8 +171,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--runtime",
         choices=RUNTIMES,
         default="auto",
-        help="auto (default: numpy where the options allow, else torch), numpy (torch-free, "
-        "CPU, no fusion: the fastest start) or torch",
+        help="auto (default: numpy on a CPU, else torch), numpy (torch-free, CPU only: the "
+        "fastest start) or torch",
     )
     add_head_argument(geodesic)
     add_fusion_argument(geodesic)

@@ -261,9 +261,10 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"{n} {group} shapes" for group, n in (fitted.get("shapes") or {}).items()
         )
         items.append(
-            f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), "
-            '`Predictor(bundle, fusion="graph")`, `litege geodesic --fusion graph`, service '
-            "`LITEGE_GEODESIC_FUSION=graph`. The network's distances are blended with a "
+            f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), read by default "
+            '(`fusion="auto"` of `Predictor(bundle)`, `NumpyPredictor`, `litege geodesic` and the '
+            'service); `fusion="none"` / `--fusion none` / `LITEGE_GEODESIC_FUSION=none` answer '
+            "with the network alone. The network's distances are blended with a "
             f"Dijkstra: on a mesh over chords between vertices at most {MESH_RINGS} edges "
             f"apart, on a point cloud over its k = {data['k']} nearest-neighbour graph whose "
             f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "

@@ -63,8 +63,10 @@ FUSION_FORMAT = 4
 ``normal_cos`` (a format-3 file reads as one without normal limits)."""
 READABLE_FORMATS = (3, FUSION_FORMAT)
 
-FUSIONS = ("none", "graph")
-"""Values of :class:`~litege_core.learned.predictor.Predictor`'s ``fusion``."""
+FUSIONS = ("auto", "none", "graph")
+"""Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
+a calibration, else ``none``), ``none`` (the network alone) or ``graph``."""
+DEFAULT_FUSION = "auto"
 VETO_HEADS = ("full", "small")
 MESH_RINGS = 2
 """Mesh edges between two vertices the graph of a mesh input joins by a chord
@@ -223,6 +225,106 @@ def load_fusion(
     return calibration
 
 
+def resolve_fusion(
+    fusion: str, bundle_dir: str | os.PathLike | None, bundle_hash: str, name: str
+) -> FusionCalibration | None:
+    """The calibration a predictor's ``fusion`` setting selects: ``None`` for ``"none"``, and
+    for ``"auto"`` where the bundle has no ``fusion.json``; else the verified calibration.
+
+    Raises:
+        InputError: an unknown setting; ``"graph"`` on a bundle without a calibration; a
+            calibration fitted for another bundle (also under ``"auto"``: a stale file beside
+            a bundle is an error, not a silent fallback).
+        ArtifactError: a damaged file.
+    """
+    if fusion not in FUSIONS:
+        raise InputError(f"fusion must be one of {FUSIONS}, got {fusion!r}")
+    present = bundle_dir is not None and (Path(bundle_dir) / FUSION_CONFIG).is_file()
+    if fusion == "none" or (fusion == "auto" and not present):
+        return None
+    return load_fusion(bundle_dir, bundle_hash, name)
+
+
+def shape_graph(
+    points: NDArray,
+    faces: NDArray | None,
+    calibration: FusionCalibration,
+    kept: dict[str, Any],
+    edge_geodesics: EdgeGeodesics,
+    veto_key: str,
+) -> tuple[sp.csr_array, float]:
+    """The graph the fusion reads on one shape and its surface roughness, kept in ``kept``.
+
+    A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch),
+    roughness 0. A cloud: :func:`pruned_knn_graph` vetoed by ``edge_geodesics`` and, where the
+    calibration has normal limits, normal-pruned; its roughness from the same 16-NN covariance.
+
+    Args:
+        points: ``(N, 3)`` float64 canonical points.
+        faces: ``(F, 3)`` of a mesh, or ``None``.
+        calibration: the fusion's constants.
+        kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
+            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>``.
+        edge_geodesics: the veto head's predicted geodesics of point pairs (canonical units).
+        veto_key: names the veto head's predictions in the graph's key.
+    """
+    if faces is not None:
+        graph = kept.get("fusion.mesh_graph")
+        if graph is None:
+            from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
+
+            graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
+        return graph, 0.0
+    normal_cos = calibration.normal_limit(points.shape[0])
+    k, ratio = calibration.k, calibration.prune_ratio
+    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}"
+    graph, surface = kept.get(key), kept.get("fusion.surface")
+    if graph is None or surface is None:  # one neighbour search serves both (k = 16)
+        from litege_core.engines.graph import knn_neighbours  # scipy: on first use
+
+        neighbours = knn_neighbours(points, k)
+        if surface is None:
+            shared = k == ROUGHNESS_NEIGHBOURS  # the shipped calibrations
+            flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
+            surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
+        if graph is None:
+            graph = kept[key] = pruned_knn_graph(
+                points, k, ratio, edge_geodesics, neighbours, surface[1], normal_cos
+            )
+    return graph, surface[0]
+
+
+def fused_distances(
+    network: NDArray,
+    calibration: FusionCalibration,
+    points: NDArray,
+    faces: NDArray | None,
+    src: tuple[NDArray | None, NDArray],
+    dst: tuple[NDArray | None, NDArray],
+    ood_score: float,
+    kept: dict[str, Any],
+    edge_geodesics: EdgeGeodesics,
+    veto_key: str,
+) -> NDArray:
+    """``network`` ``(S, T)`` (canonical units) blended with the graph distances of the query
+    points: :func:`shape_graph`, :func:`graph_rows`, then :func:`fuse`; float64 ``(S, T)``.
+
+    ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
+    ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
+    KD-tree of ``points``, ``fusion.tree``, when free points join)."""
+    graph, roughness = shape_graph(points, faces, calibration, kept, edge_geodesics, veto_key)
+    tree = None
+    if src[0] is None or dst[0] is None:  # free points join through a KD-tree
+        tree = kept.get("fusion.tree")
+        if tree is None:
+            from scipy.spatial import cKDTree
+
+            tree = kept["fusion.tree"] = cKDTree(points)
+    rows = graph_rows(graph, points, src, dst, calibration.k, tree)
+    mesh = faces is not None
+    return fuse(network, rows, calibration, ood_score, points.shape[0], roughness, mesh)
+
+
 def pruned_knn_graph(
     points: NDArray,
     k: int,
@@ -286,19 +388,56 @@ def graph_rows(
     """``(S, T)`` graph distances between query points (``inf`` where no path joins them).
 
     A query is ``(indices, canonical)``: its node indices, or ``None`` with its ``(Q, 3)``
-    canonical coordinates for points that are not nodes (they join the graph through chords to
-    their ``k`` nearest points). Dijkstra runs from the smaller side. ``tree``: a
-    ``scipy.spatial.cKDTree`` of ``points`` if the caller keeps one (built here otherwise).
-    The free points are appended to ``graph`` as new nodes (a block of chord edges beside the
-    unchanged CSR), so a query never rebuilds the shape's own edges.
+    canonical coordinates for points that are not nodes. Such a free point joins the graph
+    through chords to its ``k`` nearest points, and only as an end of its own paths: no path
+    passes through another query point, so a row does not depend on what else a request asks
+    (a request split into blocks gets the same answers). Dijkstra runs from the smaller side.
+    ``tree``: a ``scipy.spatial.cKDTree`` of ``points`` if the caller keeps one (built here
+    otherwise). The cached ``graph`` is never changed.
     """
     from litege_core.engines.graph import dijkstra_rows
 
+    count = [q[1].shape[0] if q[0] is None else np.asarray(q[0]).size for q in (src, dst)]
+    flip = count[0] > count[1]  # Dijkstra from the smaller side
+    near, far = (dst, src) if flip else (src, dst)
+    if near[0] is not None and far[0] is not None:  # nodes only: the graph as it is
+        near_ids, far_ids = (np.asarray(q[0], dtype=np.int64) for q in (near, far))
+        unique, order = np.unique(near_ids, return_inverse=True)
+        rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far_ids]
+    else:
+        from scipy.sparse.csgraph import dijkstra
+
+        augmented, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree)
+        unique, order = np.unique(near_ids, return_inverse=True)
+        found = dijkstra(augmented, directed=True, indices=unique)
+        rows = np.atleast_2d(np.asarray(found, dtype=np.float64))[order.reshape(-1)][:, far_ids]
+    return rows.T if flip else rows
+
+
+def _with_free_points(
+    graph: sp.csr_array,
+    points: NDArray,
+    near: tuple[NDArray | None, NDArray],
+    far: tuple[NDArray | None, NDArray],
+    k: int,
+    tree: Any,
+) -> tuple[sp.csr_array, NDArray, NDArray]:
+    """The directed graph of :func:`graph_rows` with free query points, and the node ids of the
+    ``near`` and ``far`` queries in it.
+
+    ``graph`` (upper-triangular ``(n, n)`` CSR, as :func:`~litege_core.engines.graph.edge_graph`
+    builds it) becomes both directions of every edge; each free ``near`` point a new node with
+    chords *out* to its ``k`` nearest points, each free ``far`` point one with chords *in* from
+    them. Paths from near nodes then end at far nodes and never pass through a query point.
+    Explicit zero lengths stay edges."""
+    import scipy.sparse as sp
+
     n = points.shape[0]
+    coo = graph.tocoo()
+    rows, cols, lengths = [coo.row, coo.col], [coo.col, coo.row], [coo.data, coo.data]
     ids: list[NDArray] = []
-    chord_nodes, chord_neighbours, chord_lengths = [], [], []
     n_free = 0
-    for indices, canonical in (src, dst):
+    for side, (indices, canonical) in (("near", near), ("far", far)):
         if indices is not None:
             ids.append(np.asarray(indices, dtype=np.int64))
             continue
@@ -306,45 +445,22 @@ def graph_rows(
             from scipy.spatial import cKDTree
 
             tree = cKDTree(points)
-        count = min(k, n)
-        chords, nearest = tree.query(canonical, k=count)
-        chords, nearest = chords.reshape(len(canonical), count), nearest.reshape(len(canonical), -1)
-        nodes = np.arange(n_free, n_free + len(canonical))
+        neighbours = min(k, n)
+        chords, nearest = tree.query(canonical, k=neighbours)
+        chords = chords.reshape(len(canonical), neighbours).reshape(-1)
+        nearest = nearest.reshape(len(canonical), neighbours).reshape(-1)
+        nodes = n + n_free + np.arange(len(canonical))
         n_free += len(canonical)
-        chord_nodes.append(np.repeat(nodes, count))
-        chord_neighbours.append(nearest.reshape(-1))
-        chord_lengths.append(chords.reshape(-1))
-        ids.append(nodes + n)
-    if n_free:
-        graph = _with_free_nodes(
-            graph,
-            np.concatenate(chord_neighbours),
-            np.concatenate(chord_nodes),
-            np.concatenate(chord_lengths),
-            n_free,
-        )
-    sources, targets = ids
-    flip = sources.size > targets.size  # Dijkstra from the smaller side
-    near, far = (targets, sources) if flip else (sources, targets)
-    unique, order = np.unique(near, return_inverse=True)
-    rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far]
-    return rows.T if flip else rows
-
-
-def _with_free_nodes(
-    graph: sp.csr_array, neighbours: NDArray, free: NDArray, lengths: NDArray, n_free: int
-) -> sp.csr_array:
-    """``graph`` (upper-triangular ``(n, n)`` CSR, as :func:`~litege_core.engines.graph.edge_graph`
-    builds it) with ``n_free`` new nodes ``n + f`` joined to node ``neighbours[e]`` by an edge
-    of length ``lengths[e]`` for ``f = free[e]``: the block ``[[graph, C], [0, 0]]``, still
-    upper-triangular (every new node's index exceeds its neighbours'); explicit zero lengths
-    stay edges. The new nodes are never joined to each other."""
-    import scipy.sparse as sp
-
-    n = graph.shape[0]
-    chords = sp.coo_array((lengths, (neighbours, free)), shape=(n, n_free))
-    empty = sp.csr_array((n_free, n + n_free), dtype=np.float64)
-    return sp.vstack([sp.hstack([graph, chords], format="csr"), empty], format="csr")
+        free = np.repeat(nodes, neighbours)
+        rows.append(free if side == "near" else nearest)
+        cols.append(nearest if side == "near" else free)
+        lengths.append(chords)
+        ids.append(nodes)
+    size = n + n_free
+    augmented = sp.csr_array(
+        (np.concatenate(lengths), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
+    )
+    return augmented, ids[0], ids[1]
 
 
 def local_surface(
@@ -419,16 +535,20 @@ def corrected_graph(
 
 
 __all__ = [
+    "DEFAULT_FUSION",
     "FUSIONS",
     "FUSION_CONFIG",
     "MESH_RINGS",
     "FusionCalibration",
     "corrected_graph",
     "fuse",
+    "fused_distances",
     "graph_rows",
     "load_fusion",
     "local_surface",
     "pruned_knn_graph",
+    "resolve_fusion",
     "save_fusion",
+    "shape_graph",
     "surface_roughness",
 ]

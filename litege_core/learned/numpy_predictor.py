@@ -16,17 +16,19 @@ and divides by the canonicalization scale. Pairs whose points coincide get an ex
 
 Scope: the trained (full) head or the bundle's distilled small head (``head="small"``,
 :mod:`litege_core.nets.small_head`, folded the same way), float32, any descriptor lattice
-(:data:`~litege_core.descriptor.basis.VOXEL_LATTICES`), no graph fusion, integer-index queries.
-Everything else (reduced precision, fusion, xyz queries, paths, GPUs) is the torch
-:class:`~litege_core.learned.Predictor`'s; the two agree to float32 rounding
+(:data:`~litege_core.descriptor.basis.VOXEL_LATTICES`), the graph fusion
+(:mod:`litege_core.learned.fusion`, the same functions as the torch predictor's; numpy and scipy
+only), integer-index queries. Everything else (reduced precision, xyz queries, paths, GPUs) is
+the torch :class:`~litege_core.learned.Predictor`'s; the two agree to float32 rounding
 (``tests/litege_core/learned/test_numpy_predictor.py``).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +38,12 @@ from litege_core.descriptor.basis import AUTO_LATTICE, LATTICE_CHOICES
 from litege_core.descriptor.udf import compute_udf
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned.describe import shape_samples
+from litege_core.learned.fusion import (
+    DEFAULT_FUSION,
+    EdgeGeodesics,
+    fused_distances,
+    resolve_fusion,
+)
 from litege_core.learned.manifest import (
     AUTO_HEAD,
     GEODESIC,
@@ -276,6 +284,7 @@ class NumpyShapeState:
             the bundle has no statistics).
         shape_bias: ``(n,)`` float32 per-shape bias of the point MLP (point features are
             computed per query, for the points it names).
+        faces: ``(F, 3)`` of a mesh, ``None`` for a cloud (the graph fusion's graph).
     """
 
     shape_id: str
@@ -286,6 +295,9 @@ class NumpyShapeState:
     residual: float
     ood_score: float
     shape_bias: NDArray
+    faces: NDArray | None = None
+    _kept: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """What the graph fusion computes once per shape (its graph, the veto's features)."""
 
 
 class NumpyPredictor:
@@ -299,11 +311,17 @@ class NumpyPredictor:
         lattice: the informative voxels the UDF is evaluated at (``"auto"``, ``"full"``,
             ``"bcc"``, ``"stride2"``), as the torch predictor's ``descriptor_lattice``;
             ``lattice`` holds the resolved name.
+        fusion: ``"auto"`` (default), ``"none"`` or ``"graph"``, as the torch predictor's
+            (:mod:`litege_core.learned.fusion`): the same calibration, graph and blend;
+            ``fusion`` holds the calibration, or ``None``.
 
     Raises:
-        InputError: an unknown head or lattice; ``head="small"`` on a bundle without one.
-        ArtifactError: damaged or inconsistent bundle files (sidecar included), or a pipeline
-            the predictors do not implement.
+        InputError: an unknown head, lattice or fusion; ``head="small"`` on a bundle without
+            one; ``fusion="graph"`` on a bundle without a calibration, or one fitted for
+            another bundle.
+        ArtifactError: damaged or inconsistent bundle files (sidecars included), a pipeline
+            the predictors do not implement, or a fusion on a bundle without residual
+            statistics.
     """
 
     def __init__(
@@ -312,6 +330,7 @@ class NumpyPredictor:
         *,
         head: str = AUTO_HEAD,
         lattice: str = AUTO_LATTICE,
+        fusion: str = DEFAULT_FUSION,
     ) -> None:
         if head not in HEAD_CHOICES:
             raise InputError(f"head must be one of {HEAD_CHOICES}, got {head!r}")
@@ -340,6 +359,16 @@ class NumpyPredictor:
         if self.head == "small":
             self._net = self._small_head(directory, weights)
         self._ood = residual_statistics(self.name, manifest)
+        self.fusion = resolve_fusion(fusion, directory, self.content_hash, self.name)
+        if self.fusion is not None and self._ood is None:
+            raise ArtifactError(
+                f"bundle {self.name!r} has no residual statistics: graph fusion needs its "
+                "OOD z-score"
+            )
+        self._veto: FoldedNumpyNet | FoldedNumpySmallHead = self._net
+        if self.fusion is not None and self.fusion.veto_head != self.head:
+            veto_small = self.fusion.veto_head == "small"
+            self._veto = self._small_head(directory, weights) if veto_small else self.net
         self._descriptor = basis.lattice_projection(self.lattice)
         self._centers = self._descriptor.centers.astype(np.float64)  # (|S|, 3)
 
@@ -364,9 +393,10 @@ class NumpyPredictor:
         return cls(SHIPPED_DIR / name, **options)
 
     def __repr__(self) -> str:
+        fusion = "" if self.fusion is None else ", fusion='graph'"
         return (
             f"NumpyPredictor(bundle={self.name!r}, hash={self.content_hash[:12]}, "
-            f"head={self.head!r}, lattice={self.lattice!r})"
+            f"head={self.head!r}, lattice={self.lattice!r}{fusion})"
         )
 
     # ----------------------------------------------------------------- registration
@@ -392,8 +422,9 @@ class NumpyPredictor:
         samples = shape_samples(shape, int(self.pipeline.n_mesh_samples), seed)
         transform = canonicalize_bbox(samples)
         descriptor, residual = self.describe(transform.apply(samples))
-        canonical = transform.apply(shape.vertices).astype(np.float32)
-        return NumpyShapeState(
+        points = transform.apply(shape.vertices)  # float64, as the torch state's
+        canonical = points.astype(np.float32)
+        state = NumpyShapeState(
             shape_id=shape.content_hash,
             bundle_hash=self.content_hash,
             n_points=shape.n_points,
@@ -402,7 +433,11 @@ class NumpyPredictor:
             residual=residual,
             ood_score=residual if self._ood is None else (residual - self._ood[0]) / self._ood[1],
             shape_bias=self.net.shape_bias(descriptor),
+            faces=shape.faces,
         )
+        if self.fusion is not None:  # the fusion's graph reads float64 points
+            state._kept["fusion.points"] = points
+        return state
 
     # ----------------------------------------------------------------- queries
 
@@ -442,7 +477,6 @@ class NumpyPredictor:
         x_src, x_dst = state.canonical[src], state.canonical[dst]
         f_src = self._net.point_features(x_src, state.shape_bias)
         f_dst = self._net.point_features(x_dst, state.shape_bias)
-        scale = np.float32(self.pipeline.target_scale)
         for i0 in range(0, src.shape[0], rows):
             f_s, x_s = f_src[i0 : i0 + rows], x_src[i0 : i0 + rows]
             for j0 in range(0, n_dst, PAIR_CHUNK):
@@ -450,12 +484,49 @@ class NumpyPredictor:
                 diff = f_s[:, None, :] - f_t[None, :, :]  # (s, t, 2n)
                 head = self._net.head(diff.reshape(-1, diff.shape[-1])).reshape(diff.shape[:2])
                 euclidean = np.linalg.norm(x_s[:, None, :] - x_t[None, :, :], axis=-1)
-                block = head / scale
-                if self.pipeline.residual:
-                    block += euclidean
-                block[euclidean == 0] = 0.0
-                out[i0 : i0 + rows, j0 : j0 + PAIR_CHUNK] = block
+                out[i0 : i0 + rows, j0 : j0 + PAIR_CHUNK] = self._finish(head, euclidean)
+        if self.fusion is not None:
+            out = fused_distances(
+                out,
+                self.fusion,
+                state._kept.get("fusion.points", state.canonical.astype(np.float64)),
+                state.faces,
+                (src, x_src),
+                (dst, x_dst),
+                state.ood_score,
+                state._kept,
+                self._edge_geodesics(state),
+                f"numpy.{'small' if isinstance(self._veto, FoldedNumpySmallHead) else 'full'}",
+            )
         return (out.astype(np.float64) / state.transform.scale).astype(np.float32)
+
+    def _finish(self, head: NDArray, euclidean: NDArray) -> NDArray:
+        """Head outputs → distances in canonical units (residual pipelines add the chord;
+        coincident points get an exact 0). Both arrays of the same shape, float32."""
+        block = head / np.float32(self.pipeline.target_scale)
+        if self.pipeline.residual:
+            block += euclidean
+        block[euclidean == 0] = 0.0
+        return block
+
+    def _edge_geodesics(self, state: NumpyShapeState) -> EdgeGeodesics:
+        """The fusion veto's predicted geodesics of point pairs (canonical units, float64),
+        from a feature table of every point kept with ``state``."""
+
+        def edges(i: NDArray, j: NDArray) -> NDArray:
+            table = state._kept.get("fusion.veto_features")
+            if table is None:
+                features = self._veto.point_features(state.canonical, state.shape_bias)
+                table = state._kept["fusion.veto_features"] = features
+            out = np.empty(i.shape[0])
+            for start in range(0, i.shape[0], PAIR_CHUNK):
+                a, b = i[start : start + PAIR_CHUNK], j[start : start + PAIR_CHUNK]
+                head = self._veto.head(table[a] - table[b])
+                euclidean = np.linalg.norm(state.canonical[a] - state.canonical[b], axis=-1)
+                out[start : start + a.shape[0]] = self._finish(head, euclidean)
+            return out
+
+        return edges
 
 
 __all__ = [

@@ -74,15 +74,10 @@ from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.fusion import (
-    FUSIONS,
-    MESH_RINGS,
-    ROUGHNESS_NEIGHBOURS,
+    DEFAULT_FUSION,
     FusionCalibration,
-    fuse,
-    graph_rows,
-    load_fusion,
-    local_surface,
-    pruned_knn_graph,
+    fused_distances,
+    resolve_fusion,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -152,14 +147,16 @@ class Predictor:
             taken as the small head as it is (a fresh distillation; no teacher check). With
             the small head, distances, distance fields, batches and paths all use it (a
             path then follows the small head's distance, and its ``predicted_distance``
-            equals :meth:`distances`); ``precision`` applies to the full head only (the
-            small head runs float32). Registrations (records, states) do not depend on the
+            equals :meth:`distances` without fusion); ``precision`` applies to the full head
+            only (the small head runs float32). Registrations (records, states) do not depend on the
             head: a state may be queried by a full-head and a small-head predictor of the
             same bundle, each building its own feature table.
-        fusion: ``"none"`` (default: the network's distances) or ``"graph"`` (opt-in: the
-            network blended with a calibrated, network-pruned kNN-graph Dijkstra on the
-            shape's points, weighted per shape by its OOD z-score, point count and roughness;
-            :mod:`litege_core.learned.fusion`, ``fusion.json`` beside the bundle files), or a
+        fusion: ``"auto"`` (default: ``"graph"`` where the bundle ships a calibration, as
+            the shipped ones do, else ``"none"``), ``"none"`` (the network's distances) or
+            ``"graph"`` (the network blended with a calibrated graph Dijkstra: a mesh's own
+            edges, a cloud's network-pruned kNN graph; weighted per shape by its OOD z-score,
+            point count and roughness; :mod:`litege_core.learned.fusion`, ``fusion.json``
+            beside the bundle files), or a
             :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
             calibration; its bundle hash must still match). Needs the bundle's residual
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
@@ -184,7 +181,7 @@ class Predictor:
         precision: str = DEFAULT_PRECISION,
         descriptor_lattice: str = AUTO_LATTICE,
         head: str | SmallHead = AUTO_HEAD,
-        fusion: str | FusionCalibration = "none",
+        fusion: str | FusionCalibration = DEFAULT_FUSION,
         udf_backend: str = "auto",
     ) -> None:
         pipeline = bundle.pipeline
@@ -234,6 +231,7 @@ class Predictor:
                 precision=precision,
                 descriptor_lattice=descriptor_lattice,
                 head=self.fusion.veto_head,
+                fusion="none",
                 udf_backend=udf_backend,
             )
 
@@ -243,11 +241,7 @@ class Predictor:
             if fusion.bundle_hash != bundle.content_hash:
                 raise InputError(f"this fusion calibration is not for bundle {bundle.name!r}")
             return fusion
-        if fusion not in FUSIONS:
-            raise InputError(f"fusion must be one of {FUSIONS}, got {fusion!r}")
-        if fusion == "none":
-            return None
-        return load_fusion(bundle.path, bundle.content_hash, bundle.name)
+        return resolve_fusion(fusion, bundle.path, bundle.content_hash, bundle.name)
 
     def __repr__(self) -> str:
         head = "" if self.head == "full" else f", head={self.head!r}"
@@ -636,64 +630,18 @@ class Predictor:
     ) -> NDArray:
         """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
         assert self.fusion is not None
-        fusion = self.fusion
-        points, faces = state.canonical_points, state.faces
-        mesh = faces is not None
-        if faces is not None:  # the mesh's connectivity: no shortcut between touching parts
-            graph, roughness = state._lazy.get("fusion.mesh_graph"), 0.0
-            if graph is None:
-                from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
-
-                graph = mesh_ring_graph(points, faces, MESH_RINGS)
-                state._lazy["fusion.mesh_graph"] = graph
-        else:
-            graph, roughness = self._cloud_graph(state)
-        tree = None
-        if src.indices is None or dst.indices is None:  # free points join through a KD-tree
-            tree = state._lazy.get("fusion.tree")
-            if tree is None:
-                from scipy.spatial import cKDTree
-
-                tree = state._lazy["fusion.tree"] = cKDTree(points)
-        rows = graph_rows(
-            graph,
-            points,
+        return fused_distances(
+            network,
+            self.fusion,
+            state.canonical_points,
+            state.faces,
             (src.indices, src.canonical),
             (dst.indices, dst.canonical),
-            fusion.k,
-            tree,
+            state.ood_score,
+            state._lazy,
+            lambda i, j: self._veto._pair_distances(state, i, j),
+            self._veto._table_key,
         )
-        return fuse(network, rows, fusion, state.ood_score, state.n_points, roughness, mesh)
-
-    def _cloud_graph(self, state: ShapeState) -> tuple[Any, float]:
-        """The network-pruned (and normal-pruned, where the calibration says so) k-NN graph of
-        a cloud's canonical points and its surface roughness, both kept with ``state``."""
-        assert self.fusion is not None
-        fusion = self.fusion
-        normal_cos = fusion.normal_limit(state.n_points)
-        key = f"fusion.graph.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}.{normal_cos}"
-        points = state.canonical_points
-        graph, surface = state._lazy.get(key), state._lazy.get("fusion.surface")
-        if graph is None or surface is None:  # one neighbour search serves both (k = 16)
-            from litege_core.engines.graph import knn_neighbours  # scipy: on first use
-
-            neighbours = knn_neighbours(points, fusion.k)
-            if surface is None:
-                shared = fusion.k == ROUGHNESS_NEIGHBOURS  # the shipped calibrations
-                flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
-                surface = state._lazy["fusion.surface"] = (float(np.median(flatness)), normals)
-            if graph is None:
-                graph = pruned_knn_graph(
-                    points,
-                    fusion.k,
-                    fusion.prune_ratio,
-                    lambda i, j: self._veto._pair_distances(state, i, j),
-                    neighbours,
-                    normals=surface[1],
-                    normal_cos=normal_cos,
-                )
-                state._lazy[key] = graph
-        return graph, surface[0]
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
         """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical).

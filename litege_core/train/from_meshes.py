@@ -361,7 +361,7 @@ def measure_step_rate(prepared: Any, steps: int = PROBE_STEPS) -> float:
 def _predictor(reference: str | Path, device: Any) -> Any:
     from litege_core.learned import Predictor, load_model
 
-    return Predictor(load_model(reference, device), device)
+    return Predictor(load_model(reference, device), device, fusion="none")
 
 
 def _reference_names(options: FolderTrainOptions) -> list[str]:
@@ -519,7 +519,7 @@ def train_from_meshes(options: FolderTrainOptions) -> dict[str, Any]:
 
     new_results = evaluate_methods(
         shapes,
-        comparison_methods({new_label: Predictor(bundle, device)}, baselines=False),
+        comparison_methods({new_label: Predictor(bundle, device, fusion="none")}, baselines=False),
         settings,
         seed=options.seed,
     )

@@ -36,7 +36,7 @@ def main() -> None:
         shape = generate_shape("quadruped", names[i % len(names)], 2_000_000 + i)
         clouds.append(Shape.from_arrays(point_cloud(shape.vertices, shape.faces, 2000, i).points))
     device = "cuda" if torch.cuda.is_available() else "cpu"
-    predictor = Predictor(load_shipped("quadrupeds", device), device)
+    predictor = Predictor(load_shipped("quadrupeds", device), device, fusion="none")
     rows = batch_query_table(predictor, clouds, counts=(1, 8, 64), runs=9, memory=False)
     timings = [(int(row["shapes"]), round(row["median_ms"], 2)) for row in rows]
     print(label, litege_core.__file__, device, timings, flush=True)

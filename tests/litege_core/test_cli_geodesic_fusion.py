@@ -23,6 +23,9 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
     args = ["geodesic", str(mesh_file), "--sources", "0,7", "--bundle", str(directory)]
     assert main([*args, "--fusion", "graph", "-o", str(out)]) == 2
     assert "no graph-fusion calibration" in capsys.readouterr().err and not out.exists()
+    plain_out = tmp_path / "plain.npy"
+    assert main([*args, "-o", str(plain_out)]) == 0  # auto: no calibration, the network alone
+    assert json.loads(capsys.readouterr().out)["fusion"] == "none"
 
     bundle = load_bundle(directory)
     save_fusion(
@@ -31,15 +34,18 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
             8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0, 0.0), 1.0, 0.0, bundle.content_hash
         ),
     )
-    assert main([*args, "--fusion", "graph", "-o", str(out)]) == 0
-    assert json.loads(capsys.readouterr().out)["fusion"] == "graph"
     fused = Predictor(load_bundle(directory), fusion="graph")
     expected = fused.distances(fused.register(load_shape(mesh_file)), [0, 7])
-    np.testing.assert_array_equal(np.load(out), expected)
-    plain_out = tmp_path / "plain.npy"
-    assert main([*args, "-o", str(plain_out)]) == 0
+    for option in (["--fusion", "graph"], [], ["--runtime", "torch"]):  # auto: graph now
+        assert main([*args, *option, "-o", str(out)]) == 0
+        report = json.loads(capsys.readouterr().out)
+        assert report["fusion"] == "graph"
+        assert report["runtime"] == ("torch" if option == ["--runtime", "torch"] else "numpy")
+        np.testing.assert_allclose(np.load(out), expected, rtol=1e-5, atol=1e-6)
+    assert main([*args, "--fusion", "none", "-o", str(out)]) == 0
     assert json.loads(capsys.readouterr().out)["fusion"] == "none"
-    assert not np.allclose(np.load(plain_out), np.load(out))
+    np.testing.assert_array_equal(np.load(out), np.load(plain_out))
+    assert not np.allclose(np.load(plain_out), expected)
 
 
 def test_the_fusion_option_is_the_predictor_option() -> None:

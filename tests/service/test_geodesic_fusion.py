@@ -1,7 +1,8 @@
-"""``LITEGE_GEODESIC_FUSION=graph`` (issue 14) over real HTTP: the service answers learned
-geodesics with the shipped model's graph fusion, exactly as the library does, says so on
-``/readyz``, and keeps paths on the network's field; a model without a calibration refuses to
-start the service."""
+"""``LITEGE_GEODESIC_FUSION`` (issue 14) over real HTTP: by default (``auto``) and with ``graph``
+the service answers learned geodesics with the shipped model's graph fusion, exactly as the
+library does, says so on ``/readyz``, and keeps paths on the network's field; under ``graph`` a
+model without a calibration refuses to start the service, under ``auto`` it answers with the
+network alone."""
 
 from __future__ import annotations
 
@@ -28,20 +29,20 @@ def dog() -> Shape:
     return Shape.from_arrays(generated.vertices, generated.faces)
 
 
-@pytest.fixture(scope="module")
-def fused_service(live_service_factory):
-    return live_service_factory(geodesic_fusion="graph")
+@pytest.fixture(scope="module", params=["auto", "graph"])
+def fused_service(request, live_service_factory):
+    return live_service_factory(geodesic_fusion=request.param)
 
 
-def test_the_setting_defaults_to_the_network_alone() -> None:
-    assert Settings().geodesic_fusion == "none"
+def test_the_setting_defaults_to_the_shipped_calibrations() -> None:
+    assert Settings().geodesic_fusion == "auto"
     with pytest.raises(ValueError):
         Settings(geodesic_fusion="average")
 
 
 def test_fused_answers_are_the_library_answers(fused_service, dog) -> None:
     library = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"), fusion="graph")
-    plain = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"))
+    plain = Predictor(load_shipped(TEST_MODEL), torch.device("cpu"), fusion="none")
     state = library.register(dog)
     sources = [0, 250, 1000]
     with LiteGEClient(fused_service.base_url) as client:
@@ -62,3 +63,18 @@ def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:
     monkeypatch.setattr(fusion, "FUSION_CONFIG", "missing-fusion.json")
     with pytest.raises(InputError, match="no graph-fusion calibration"):
         asyncio.run(Runtime.start(service_settings(geodesic_fusion="graph")))
+
+
+def test_auto_answers_with_the_network_where_a_model_has_no_calibration(monkeypatch) -> None:
+    import litege_core.learned.fusion as fusion
+
+    monkeypatch.setattr(fusion, "FUSION_CONFIG", "missing-fusion.json")
+
+    async def fusion_of_the_loaded_model() -> str:
+        runtime = await Runtime.start(service_settings(geodesic_fusion="auto"))
+        try:
+            return runtime.readiness().detail["models"][TEST_MODEL]["fusion"]
+        finally:
+            await runtime.close()
+
+    assert asyncio.run(fusion_of_the_loaded_model()) == "none"

@@ -38,14 +38,20 @@ def test_the_settings_default_to_each_models_own_speed_configuration() -> None:
 def test_fast_answers_are_the_library_answers_and_records_stay_apart(
     live_service_factory, private_redis, dog
 ) -> None:
+    # the network alone, where the head and the lattice show (a mesh's fused answer is mostly
+    # its graph's)
     fast = live_service_factory(
-        geodesic_head="small", descriptor_lattice="stride2", redis_url=private_redis.url
+        geodesic_head="small",
+        descriptor_lattice="stride2",
+        geodesic_fusion="none",
+        redis_url=private_redis.url,
     )
+    cpu = torch.device("cpu")
     library = Predictor(
-        load_shipped(TEST_MODEL), torch.device("cpu"), head="small", descriptor_lattice="stride2"
+        load_shipped(TEST_MODEL), cpu, head="small", descriptor_lattice="stride2", fusion="none"
     )
     full = Predictor(
-        load_shipped(TEST_MODEL), torch.device("cpu"), head="full", descriptor_lattice="full"
+        load_shipped(TEST_MODEL), cpu, head="full", descriptor_lattice="full", fusion="none"
     )
     sources = [0, 300, 1200]
     with LiteGEClient(fast.base_url) as client:
@@ -64,7 +70,10 @@ def test_fast_answers_are_the_library_answers_and_records_stay_apart(
     assert not keys.exists(artifact_key(shape_id, bundle_hash, "record"))
     # a full-lattice service on the same Redis computes its own record from the geometry
     plain = live_service_factory(
-        geodesic_head="full", descriptor_lattice="full", redis_url=private_redis.url
+        geodesic_head="full",
+        descriptor_lattice="full",
+        geodesic_fusion="none",
+        redis_url=private_redis.url,
     )
     with LiteGEClient(plain.base_url) as client:
         np.testing.assert_allclose(

@@ -16,6 +16,7 @@ from litege_core.engines.graph import knn_graph, mesh_ring_graph
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import (
+    DEFAULT_FUSION,
     FUSION_CONFIG,
     MESH_RINGS,
     FusionCalibration,
@@ -23,6 +24,7 @@ from litege_core.learned.fusion import (
     graph_rows,
     load_fusion,
     pruned_knn_graph,
+    resolve_fusion,
     save_fusion,
 )
 from litege_core.shape import Shape
@@ -258,28 +260,23 @@ def test_a_free_point_joins_through_its_nearest_chords() -> None:
 
 
 def _reference_free_rows(graph, points, src_points, dst_points, k):
-    """Slow reference: every free point appended by rebuilding the whole edge graph."""
+    """Slow reference, one pair at a time: the shortest chord from the source to one of its k
+    nearest points, graph path, chord from one of the target's k nearest points."""
     from scipy.spatial import cKDTree
 
-    from litege_core.engines.graph import edge_graph
-
-    n = points.shape[0]
-    coo = graph.tocoo()
-    rows, cols, weights = [coo.row], [coo.col], [coo.data]
-    nodes = []
-    for block in (src_points, dst_points):
-        chords, nearest = cKDTree(points).query(block, k=k)
-        ids = n + sum(len(b) for b in nodes) + np.arange(len(block))
-        rows.append(np.repeat(ids, k))
-        cols.append(nearest.reshape(-1))
-        weights.append(chords.reshape(-1))
-        nodes.append(ids)
-    edges = np.column_stack([np.concatenate(rows), np.concatenate(cols)])
-    full = edge_graph(n + sum(len(b) for b in nodes), edges, np.concatenate(weights))
-    return dijkstra(full, directed=False, indices=nodes[0])[:, nodes[1]]
+    tree = cKDTree(points)
+    src_chords, src_nearest = tree.query(src_points, k=k)
+    dst_chords, dst_nearest = tree.query(dst_points, k=k)
+    out = np.empty((len(src_points), len(dst_points)))
+    for i in range(len(src_points)):
+        inner = dijkstra(graph, directed=False, indices=src_nearest[i])  # (k, n)
+        for j in range(len(dst_points)):
+            through = inner[:, dst_nearest[j]] + dst_chords[j][None, :]
+            out[i, j] = np.min(src_chords[i][:, None] + through)
+    return out
 
 
-def test_free_points_join_the_cached_graph_as_the_rebuilt_graph_does() -> None:
+def test_free_points_join_the_cached_graph_as_the_pairwise_reference_does() -> None:
     from scipy.spatial import cKDTree
 
     rng = np.random.default_rng(3)
@@ -295,6 +292,41 @@ def test_free_points_join_the_cached_graph_as_the_rebuilt_graph_does() -> None:
     )
     np.testing.assert_array_equal(kept_tree, rows)
     assert graph.shape == (400, 400)  # the cached graph itself is left as it was
+    # free sources against indexed targets (and the transpose): the same reference
+    dst = np.arange(0, 400, 9)
+    indexed = graph_rows(graph, points, (None, src_points), (dst, points[dst]), 8)
+    np.testing.assert_allclose(
+        indexed, _reference_free_rows(graph, points, src_points, points[dst], 8)
+    )
+    np.testing.assert_allclose(
+        graph_rows(graph, points, (dst, points[dst]), (None, src_points), 8), indexed.T
+    )
+
+
+def test_a_row_does_not_depend_on_the_other_query_points() -> None:
+    """A free query point is never a step of another point's path: a request split into blocks
+    gets the answers of the whole request."""
+    from litege_core.engines.graph import edge_graph
+
+    points = np.array([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0]])
+    graph = edge_graph(3, np.array([[0, 1]]), np.array([1.0]))  # 0 — 1 only: 2 is cut off
+    bridge = np.array([[2.0, 0.0, 0.0]])  # a free point between nodes 1 and 2
+    sources = np.vstack([points[[0]] + [0.0, 1e-3, 0.0], bridge])
+    whole = graph_rows(graph, points, (None, sources), (np.array([2]), points[[2]]), 2)
+    alone = graph_rows(graph, points, (None, sources[:1]), (np.array([2]), points[[2]]), 2)
+    assert np.isinf(alone[0, 0]) and np.isinf(whole[0, 0])  # not through the bridge point
+    assert whole[1, 0] == pytest.approx(1.0)  # the bridge's own chord to node 2
+
+    rng = np.random.default_rng(5)
+    cloud = rng.normal(size=(300, 3))
+    cloud_graph = pruned_knn_graph(cloud, 6, 1.6, None)
+    free_src, free_dst = rng.normal(size=(10, 3)), rng.normal(size=(40, 3))
+    full = graph_rows(cloud_graph, cloud, (None, free_src), (None, free_dst), 6)
+    blocks = [
+        graph_rows(cloud_graph, cloud, (None, free_src[i : i + 3]), (None, free_dst), 6)
+        for i in range(0, 10, 3)
+    ]
+    np.testing.assert_array_equal(np.vstack(blocks), full)
 
 
 def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails() -> None:
@@ -499,6 +531,25 @@ def test_fusion_options_are_checked(bundle_dir, toy_predictor, tmp_path) -> None
     shutil.copytree(bundle_dir, copy)
     save_fusion(copy, _calibration(bundle.content_hash))
     assert Predictor(load_bundle(copy), fusion="graph").fusion == _calibration(bundle.content_hash)
+
+
+def test_auto_fuses_exactly_where_the_bundle_ships_a_calibration(bundle_dir, tmp_path) -> None:
+    bundle = load_bundle(bundle_dir)
+    assert DEFAULT_FUSION == "auto"
+    assert Predictor(bundle).fusion is None  # no fusion.json: the network alone
+    assert resolve_fusion("auto", None, bundle.content_hash, "toy") is None
+    copy = tmp_path / "toy"
+    shutil.copytree(bundle_dir, copy)
+    save_fusion(copy, _calibration(bundle.content_hash))
+    calibrated = load_bundle(copy)
+    assert Predictor(calibrated).fusion == _calibration(bundle.content_hash)
+    assert Predictor(calibrated, fusion="none").fusion is None
+    # a stale calibration beside a bundle is an error under auto too, not a silent fallback
+    save_fusion(copy, _calibration("0" * 64))
+    with pytest.raises(InputError, match="fitted for bundle"):
+        Predictor(load_bundle(copy))
+    with pytest.raises(InputError, match="fusion must be one of"):
+        resolve_fusion("always", copy, bundle.content_hash, "toy")
 
 
 def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, blob, tmp_path):

@@ -170,6 +170,25 @@ def test_shipped_models_match(scaled_blob, name):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * float(want.max()))
 
 
+@pytest.mark.parametrize("name", shipped_bundles())
+@pytest.mark.parametrize("n_points", [300, 2000])
+def test_shipped_fusion_equals_the_torch_predictor(scaled_blob, name, n_points):
+    """The default (``fusion="auto"``: the shipped calibration) on a cloud and on a mesh: the
+    same veto, graph, normal limit and blend as the torch predictor."""
+    mesh = scaled_blob(2, subdivisions=4)
+    rng = np.random.default_rng(n_points)
+    cloud = Shape.from_arrays(mesh.vertices[rng.choice(mesh.n_points, n_points, replace=False)])
+    runtime, reference = NumpyPredictor.shipped(name), Predictor(load_shipped(name))
+    assert runtime.fusion is not None and runtime.fusion == reference.fusion
+    network = NumpyPredictor.shipped(name, fusion="none")
+    for shape in (cloud, mesh):
+        got = runtime.distances(runtime.register(shape), [0, 7, 150], "all")
+        want = reference.distances(reference.register(shape), [0, 7, 150], "all")
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(want.max()))
+        alone = network.distances(network.register(shape), [0, 7, 150], "all")
+        assert np.abs(alone - got).mean() > 1e-3 * float(want.mean())  # the blend did act
+
+
 def test_errors_at_the_boundary(bundle_dir, scaled_blob, tmp_path):
     runtime = NumpyPredictor(bundle_dir)
     state = runtime.register(scaled_blob(0, subdivisions=2))
