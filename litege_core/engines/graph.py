@@ -39,15 +39,20 @@ def edge_graph(n: int, edges: NDArray, weights: NDArray) -> sp.csr_array:
     low = np.minimum(edges[:, 0], edges[:, 1]).astype(np.int64)
     high = np.maximum(edges[:, 0], edges[:, 1]).astype(np.int64)
     keep = low != high
-    low, high, weights = low[keep], high[keep], np.asarray(weights, np.float64)[keep]
-    by_weight = np.argsort(weights, kind="stable")
-    pairs = (low * max(n, 1) + high)[by_weight]  # one int64 key per unordered pair
-    _, first = np.unique(pairs, return_index=True)  # sorted pairs, lightest edge of each
-    chosen = by_weight[first]
-    low, high, weights = low[chosen], high[chosen], weights[chosen]
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(indptr, low + 1, 1)
-    return sp.csr_array((weights, high, np.cumsum(indptr)), shape=(n, n))
+    if not keep.any():
+        return sp.csr_array((n, n), dtype=np.float64)
+    weights = np.asarray(weights, np.float64)[keep]
+    pairs = low[keep] * max(n, 1) + high[keep]  # one int64 key per unordered pair
+    order = np.argsort(pairs)
+    pairs, weights = pairs[order], weights[order]
+    first = np.empty(pairs.size, dtype=bool)
+    first[0] = True
+    np.not_equal(pairs[1:], pairs[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    lightest = np.minimum.reduceat(weights, starts)  # the lightest edge of each pair
+    low, high = np.divmod(pairs[starts], max(n, 1))
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(low, minlength=n))])
+    return sp.csr_array((lightest, high, indptr), shape=(n, n))
 
 
 def dijkstra_rows(graph: sp.csr_array, sources: NDArray) -> NDArray:

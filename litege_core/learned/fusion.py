@@ -362,8 +362,6 @@ def pruned_knn_graph(
         return graph
     rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
     keep = np.ones(graph.nnz, dtype=bool)
-    if edge_geodesics is not None:
-        keep &= edge_geodesics(rows, graph.indices) <= prune_ratio * graph.data
     if cut_normals:
         assert normals is not None
         chords = points[graph.indices] - points[rows]
@@ -373,6 +371,11 @@ def pruned_knn_graph(
             np.abs(np.einsum("ei,ei->e", normals[graph.indices], chords)),
         )
         keep &= along <= normal_cos
+    if edge_geodesics is not None:  # the network only on the edges the normals leave
+        left = np.flatnonzero(keep)
+        keep[left] = edge_geodesics(rows[left], graph.indices[left]) <= (
+            prune_ratio * graph.data[left]
+        )
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
     return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
 
@@ -487,7 +490,7 @@ def local_surface(
     for start in range(0, n, ROUGHNESS_CHUNK):
         local = points[nearest[start : start + ROUGHNESS_CHUNK]]  # (C, k, 3)
         local = local - local.mean(axis=1, keepdims=True)
-        covariance = np.einsum("cki,ckj->cij", local, local)
+        covariance = np.matmul(local.transpose(0, 2, 1), local)  # (C, 3, 3)
         eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending
         ratios[start : start + ROUGHNESS_CHUNK] = np.sqrt(
             np.clip(eigenvalues[:, 0], 0.0, None) / np.maximum(eigenvalues[:, 2], 1e-300)
