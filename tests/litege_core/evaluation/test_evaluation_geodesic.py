@@ -202,3 +202,34 @@ def test_eval_geodesic_cli_evaluates_any_predictor_configuration(toy_predictor, 
     bundle = str(toy_predictor.bundle.path)
     code = main(["eval", "geodesic", "--bundle", bundle, "--fusion", "graph", "--real", "tosca"])
     assert code == 2 and "no graph-fusion calibration" in capsys.readouterr().err
+
+
+def test_eval_geodesic_cli_gives_each_real_set_its_categorys_model(monkeypatch, capsys):
+    """Without ``--model`` / ``--bundle`` TOSCA goes to ``quadrupeds`` and FAUST to ``humans``;
+    a named model answers both."""
+    import litege_core.evaluation.geodesic as geodesic
+    from litege_core.cli import main
+
+    evaluated: list[tuple[str, list[str]]] = []
+    monkeypatch.setattr(geodesic, "real_shape_paths", lambda root, key, limit: [key])
+    monkeypatch.setattr(
+        geodesic, "real_eval_shapes", lambda paths, group, sources: [f"{group}:{p}" for p in paths]
+    )
+
+    def fake_evaluate(shapes, model, settings, seed=0):
+        evaluated.append((model.bundle.name, list(shapes)))
+        return []
+
+    monkeypatch.setattr(geodesic, "evaluate", fake_evaluate)
+    monkeypatch.setattr(geodesic, "results_table", lambda results: "")
+    monkeypatch.setattr(geodesic, "spread_table", lambda results: "")
+    assert main(["eval", "geodesic", "--real", "tosca", "faust", "leopard"]) == 0
+    by_model = dict(evaluated)
+    assert set(by_model) == {"quadrupeds", "humans"}
+    assert [s.split(":")[1] for s in by_model["quadrupeds"]] == ["tosca", "leopard"]
+    assert [s.split(":")[1] for s in by_model["humans"]] == ["faust"]
+    out = capsys.readouterr().out
+    assert "bundle='quadrupeds'" in out and "bundle='humans'" in out
+    evaluated.clear()
+    assert main(["eval", "geodesic", "--model", "quadrupeds", "--real", "tosca", "faust"]) == 0
+    assert [(name, len(shapes)) for name, shapes in evaluated] == [("quadrupeds", 2)]
