@@ -24,7 +24,9 @@ _MODEL_DESCRIPTION = (
     "score for this shape (default: the service's LITEGE_DEFAULT_MODEL, 'auto' unless set)"
 )
 _METHODS_TEXT = (
-    "'learned' (default: the model's prediction), 'heat' (meshes: robust intrinsic heat "
+    "'learned' (default: the model's prediction, blended with its calibrated graph "
+    "Dijkstra where the model ships one and LITEGE_GEODESIC_FUSION is 'auto', the default, or "
+    "'graph'; paths follow the network), 'heat' (meshes: robust intrinsic heat "
     "method; point clouds: point-cloud heat method), 'exact' (meshes only: exact polyhedral "
     "geodesics, MMP; refused above LITEGE_MAX_EXACT_VERTICES vertices{extra}) or 'graph' "
     "(Dijkstra on the k-nearest-neighbour graph). Same units (the shape's input units) and "
