@@ -485,7 +485,8 @@ _SHAPE_BODY = {
                         "model": {
                             "type": "string",
                             "description": "geodesic model bundle, or 'auto' (the loaded "
-                            "model with the lowest OOD score; the default unless "
+                            "model with the lowest OOD score weighed with its "
+                            "network-to-graph agreement; the default unless "
                             "LITEGE_DEFAULT_MODEL names one)",
                         },
                     },
@@ -513,7 +514,8 @@ def _add_shape_routes(app: FastAPI) -> None:
         """Register a shape (multipart file or JSON arrays). Idempotent: the id is the content
         hash of the loaded arrays, so the same shape in any format is registered once.
         ``model: auto`` (the default while several models are loaded) scores the shape under
-        every loaded model and keeps the one of lowest OOD score: ``model`` names it and
+        every loaded model and keeps the one of lowest OOD score, weighed with each model's
+        network-to-graph agreement: ``model`` names it and
         ``model_scores`` gives every model's score. A registered shape can be queried under
         any loaded model without uploading it again."""
         content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()

@@ -19,10 +19,11 @@ Model ``"auto"`` (:data:`AUTO_MODEL`; the default when the settings say so) regi
 a shape up under **every** loaded model (records found are restored, missing ones computed in
 one batch per model and written back) and answers with the model of the shape's category where
 the category router (:mod:`litege_core.learned.router`) is confident, else with the one of
-lowest OOD score (:attr:`ShapeState.ood_score`, ties to the first loaded), with every model's
-score. Records and router inputs are deterministic, so the choice is too; it is remembered
-with the chosen live state, so a later ``auto`` lookup of a live shape costs what a named one
-does.
+lowest OOD score (:attr:`ShapeState.ood_score`) weighed with how well each model's network
+agrees with its own fusion graph on the shape (:func:`~litege_core.learned.router.choose_model`;
+ties to the first loaded), with every model's score. Records, router inputs and agreements
+are deterministic, so the choice is too; it is remembered with the chosen live state, so a
+later ``auto`` lookup of a live shape costs what a named one does.
 
 The runtime calls the repository from its single compute thread;
 :meth:`ShapeRepository.shape` is also safe from other threads (the viewer).
@@ -31,13 +32,12 @@ The runtime calls the repository from its single compute thread;
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from litege_core.errors import ArtifactError, LiteGEError
 from litege_core.learned import Predictor, ShapeRecord, ShapeState
-from litege_core.learned.router import CategoryRouter, first_of_each_category
+from litege_core.learned.router import CategoryRouter, choose_model, first_of_each_category
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
@@ -257,7 +257,7 @@ class ShapeRepository:
             routed = self.router.route([shapes[s] for s in pending], by_category)
         for (shape_id, positions), by_router in zip(pending.items(), routed, strict=True):
             scores = {name: float(states[shape_id][name].ood_score) for name in names}
-            chosen = by_router or min(names, key=lambda n: _rank(scores[n]))
+            chosen = by_router or self._choose(states[shape_id], scores)
             state = states[shape_id][chosen]
             self._remember(chosen, shapes[shape_id], state, scores)
             for n, i in enumerate(positions):
@@ -266,6 +266,14 @@ class ShapeRepository:
                 if items[i][1] is not None:
                     self.metrics.registered.labels(chosen, str(created).lower()).inc()
         return [r for r in results if r is not None]
+
+    def _choose(self, states: Mapping[str, ShapeState], scores: Mapping[str, float]) -> str:
+        """The lowest OOD score, weighed with each model's network-to-graph agreement where
+        several models are loaded (:func:`~litege_core.learned.router.choose_model`)."""
+        if len(scores) < 2:
+            return next(iter(scores))
+        agreements = {name: self.predictors[name].agreement(states[name]) for name in scores}
+        return choose_model(scores, agreements)
 
     def _auto_live(self, shape_id: str) -> Registered | None:
         """The shape's remembered ``auto`` choice, when its state is live."""
@@ -428,8 +436,3 @@ class ShapeRepository:
             found = self._live.pop((model, shape_id)) is not None or found
         records = [self._record(m) for m in self.predictors]
         return self.artifacts.delete(shape_id, records, geometry=True) > 0 or found
-
-
-def _rank(score: float) -> float:
-    """Sort key of an OOD score: lower is better, a non-finite one last."""
-    return score if math.isfinite(score) else math.inf

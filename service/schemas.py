@@ -21,7 +21,8 @@ EngineName = Literal["learned", "heat", "pointcloud-heat", "exact-mmp", "knn-gra
 
 _MODEL_DESCRIPTION = (
     "geodesic model bundle, or 'auto': the loaded model with the lowest out-of-distribution "
-    "score for this shape (default: the service's LITEGE_DEFAULT_MODEL, 'auto' unless set)"
+    "score, weighed with its network-to-graph agreement, for this shape (default: the "
+    "service's LITEGE_DEFAULT_MODEL, 'auto' unless set)"
 )
 _METHODS_TEXT = (
     "'learned' (default: the model's prediction, blended with its calibrated graph "

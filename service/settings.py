@@ -28,13 +28,14 @@ class Settings(BaseSettings):
     models: Annotated[tuple[str, ...], NoDecode] = ("quadrupeds", "humans")
     default_model: str = "auto"
     """Geodesic model of a registration or query that names none: ``auto`` (every loaded model
-    scores the shape and the lowest out-of-distribution z-score wins; with one model loaded,
-    that one) or the name of a loaded model (then a query naming no model uses the first model,
-    this one first, that the shape is registered under)."""
+    scores the shape and the lowest out-of-distribution z-score, weighed with the model's
+    network-to-graph agreement, wins: ``litege_core.learned.router.choose_model``; with one
+    model loaded, that one) or the name of a loaded model (then a query naming no model uses
+    the first model, this one first, that the shape is registered under)."""
     router: str = "shipped"
     """How ``auto`` picks a model: ``shipped`` (the package's category router, where it ships
-    one: its category where it is confident, else the lowest z-score), ``none`` (the lowest
-    z-score alone) or a router directory (``scripts/train_router.py``)."""
+    one: its category where it is confident, else the rule above), ``none`` (the rule above
+    alone) or a router directory (``scripts/train_router.py``)."""
     geodesic_fusion: Literal["auto", "none", "graph"] = "auto"
     """``auto`` (default): every learned geodesic answer of a model that ships a graph-fusion
     calibration (the shipped ones do) blends the network with its calibrated graph Dijkstra (a

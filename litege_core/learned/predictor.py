@@ -60,6 +60,7 @@ calibration to compare with).
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from typing import Any, cast
 
@@ -78,6 +79,7 @@ from litege_core.learned.fusion import (
     FusionCalibration,
     fused_distances,
     resolve_fusion,
+    shape_graph,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -109,6 +111,8 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
 
+AGREEMENT_SOURCES = 4
+"""Source rows of :meth:`Predictor.agreement` (farthest points, every point as target)."""
 TABLE_FRACTION = 0.25
 """A query of more than this fraction of a shape's points builds (and keeps) the shape's whole
 feature table; smaller ones embed just their points."""
@@ -624,6 +628,40 @@ class Predictor:
             (np.asarray(out, dtype=np.float64) / state.transform.scale).astype(np.float32)
             for out, state in zip(outputs, states, strict=True)
         ]
+
+    def agreement(self, state: ShapeState, n_sources: int = AGREEMENT_SOURCES) -> float:
+        """How far the network is from the fusion's own graph on this shape: the mean
+        ``|G_network − G_graph / b|`` over the rows of ``n_sources`` farthest points (from
+        point 0; every point as target), divided by the graph's mean (unitless; pairs the graph
+        cannot join are left out). A shape of the model's category scores ~0.03–0.05, one of
+        another category ~0.06–0.12 (BENCHMARKS "routing-agreement"): the
+        ``auto`` model choice weighs it (:func:`~litege_core.learned.router.choose_model`).
+        ``nan`` without a fusion calibration. The graph is built once and kept with
+        ``state`` (the fused queries reuse it)."""
+        self.check_state(state)
+        if self.fusion is None:
+            return math.nan
+        from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
+        from litege_core.sampling import farthest_point_sampling
+
+        points = state.canonical_points
+        sources = farthest_point_sampling(points, min(n_sources, state.n_points))
+        src, dst = self._resolve_many([state, state], [sources, None], ["source", "target"])
+        network = self.evaluate_blocks([(src, dst)])[0].astype(np.float64)
+        graph, _ = shape_graph(
+            points,
+            state.faces,
+            self.fusion,
+            state._lazy,
+            lambda i, j: self._veto._pair_distances(state, i, j),
+            self._veto._table_key,
+        )
+        rows = dijkstra_rows(graph, sources)
+        rows /= self.fusion.graph_bias(state.n_points, state.faces is not None)
+        joined = np.isfinite(rows)
+        if not joined.any() or not rows[joined].mean() > 0:
+            return math.nan
+        return float(np.abs(network[joined] - rows[joined]).mean() / rows[joined].mean())
 
     def _fused(
         self, state: ShapeState, src: ResolvedPoints, dst: ResolvedPoints, network: Any

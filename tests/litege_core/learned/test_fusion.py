@@ -594,3 +594,40 @@ def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, bl
         Predictor(
             load_bundle(bundle_dir), fusion=dataclasses.replace(calibration, veto_head="small")
         )
+
+
+def test_agreement_is_the_network_against_its_own_graph(bundle_dir, blob, tmp_path) -> None:
+    from litege_core.sampling import farthest_point_sampling
+
+    bundle = load_bundle(bundle_dir)
+    shape = blob(4)
+    assert np.isnan(Predictor(bundle, fusion="none").agreement(Predictor(bundle).register(shape)))
+    calibration = _calibration(bundle.content_hash, mesh_bias=1.05)
+    fused = Predictor(bundle, fusion=calibration)
+    state = fused.register(shape)
+    score = fused.agreement(state, n_sources=3)
+    # the reference: network rows and the graph-only answer (graph / bias) from three FPS sources
+    sources = farthest_point_sampling(state.canonical_points, 3)
+    network = Predictor(bundle, fusion="none")
+    net = network.distances(network.register(shape), sources).astype(np.float64)
+    graph_only = Predictor(bundle, fusion=dataclasses.replace(calibration, mesh_gate=-60.0))
+    graph = graph_only.distances(graph_only.register(shape), sources).astype(np.float64)
+    assert score == pytest.approx(np.abs(net - graph).mean() / graph.mean(), rel=1e-4)
+    assert score > 0.0
+    assert "fusion.mesh_graph" in state._lazy  # kept for the fused queries
+
+
+def test_choose_model_weighs_the_agreement_beside_the_z_score() -> None:
+    from litege_core.learned.router import choose_model
+
+    scores = {"quadrupeds": 0.5, "humans": 0.9}
+    assert choose_model(scores) == "quadrupeds"
+    assert choose_model(scores, {"quadrupeds": 0.10, "humans": 0.03}, weight=40.0) == "humans"
+    assert choose_model(scores, {"quadrupeds": 0.10, "humans": 0.03}, weight=1.0) == "quadrupeds"
+    # an agreement missing or nan anywhere: the z-score alone
+    assert choose_model(scores, {"quadrupeds": 0.10, "humans": float("nan")}) == "quadrupeds"
+    assert choose_model(scores, {"humans": 0.03}) == "quadrupeds"
+    assert choose_model({"a": float("nan"), "b": 3.0}) == "b"  # a non-finite score ranks last
+    assert choose_model({"a": 1.0, "b": 1.0}) == "a"  # ties: the first loaded
+    with pytest.raises(InputError):
+        choose_model({})
