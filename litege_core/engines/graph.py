@@ -55,9 +55,10 @@ def edge_graph(n: int, edges: NDArray, weights: NDArray) -> sp.csr_array:
     return sp.csr_array((lightest, high, indptr), shape=(n, n))
 
 
-def dijkstra_rows(graph: sp.csr_array, sources: NDArray) -> NDArray:
-    """``(S, n)`` float64 shortest-path lengths on the undirected ``graph`` (``inf`` if cut)."""
-    rows = dijkstra(graph, directed=False, indices=sources)
+def dijkstra_rows(graph: sp.csr_array, sources: NDArray, directed: bool = False) -> NDArray:
+    """``(S, n)`` float64 shortest-path lengths on ``graph`` (``inf`` if cut): undirected, or
+    along its stored directions with ``directed``."""
+    rows = dijkstra(graph, directed=directed, indices=sources)
     return np.atleast_2d(np.asarray(rows, dtype=np.float64))
 
 

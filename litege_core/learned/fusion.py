@@ -408,12 +408,9 @@ def graph_rows(
         unique, order = np.unique(near_ids, return_inverse=True)
         rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far_ids]
     else:
-        from scipy.sparse.csgraph import dijkstra
-
         augmented, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree)
         unique, order = np.unique(near_ids, return_inverse=True)
-        found = dijkstra(augmented, directed=True, indices=unique)
-        rows = np.atleast_2d(np.asarray(found, dtype=np.float64))[order.reshape(-1)][:, far_ids]
+        rows = dijkstra_rows(augmented, unique, directed=True)[order.reshape(-1)][:, far_ids]
     return rows.T if flip else rows
 
 
