@@ -1,12 +1,14 @@
-"""How the service's ``auto`` model choice routes the real dev shapes, and what a wrong choice
-costs (issue 14).
+"""How the OOD z-score rule routes the real dev shapes, and what a wrong choice costs, for the
+networks alone (issue 14). Since 2026-11-29 the service's ``auto`` also weighs each model's
+network-to-graph agreement and answers fused: ``scripts/calibrate_routing.py`` measures that
+rule (BENCHMARKS "routing-agreement").
 
 Usage: python scripts/eval_routing.py [--quadrupeds NAME_OR_DIR] [--humans NAME_OR_DIR]
     [--sets tosca,faust] [--settings mesh,cloud_2000,cloud_300] [--sources 12]
     [--eval-data ../shared/eval-data] [--router none|shipped|DIR]
 
-``LITEGE_DEFAULT_MODEL=auto`` (the default) registers an upload under every loaded geodesic
-model and keeps the one with the lowest OOD z-score. This registers every TOSCA animal, the
+The z-score rule registers an upload under every loaded geodesic model and keeps the one
+with the lowest OOD z-score. This registers every TOSCA animal, the
 leopard and every FAUST human, as each input setting of ``litege eval geodesic`` (the mesh,
 sparse clouds, ...), under a quadrupeds and a humans bundle (shipped by default; a candidate
 bundle directory before it ships). Per set and setting: the shapes routed to the other
