@@ -5,7 +5,7 @@ keeps one. The OOD z-score alone misroutes real humans: FAUST bodies score highe
 ``humans`` than under ``quadrupeds`` (BENCHMARKS "auto-routing-cost"). A second signal needs
 no training: how far each model's network is from the model's own fusion graph on the shape
 (:meth:`Predictor.agreement`), small for a shape of the model's category.
-:func:`~litege_core.learned.router.choose_model` keeps the lowest ``z + w · agreement``.
+:func:`~litege_core.learned.routing.choose_model` keeps the lowest ``z + w · agreement``.
 
 ``w`` comes from **generated shapes only**: procedural quadrupeds and bipeds (held-out seeds),
 the static animals of ``data/folder-cal`` and the MakeHuman bodies of ``data/makehuman-cal``,
@@ -44,7 +44,7 @@ from litege_core.evaluation.geodesic import (
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_shipped
-from litege_core.learned.router import choose_model
+from litege_core.learned.routing import choose_model
 from litege_core.metrics import geodesic_error
 
 MODELS = {"quadruped": "quadrupeds", "biped": "humans"}

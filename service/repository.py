@@ -20,7 +20,7 @@ a shape up under **every** loaded model (records found are restored, missing one
 one batch per model and written back) and answers with the model of the shape's category where
 the category router (:mod:`litege_core.learned.router`) is confident, else with the one of
 lowest OOD score (:attr:`ShapeState.ood_score`) weighed with how well each model's network
-agrees with its own fusion graph on the shape (:func:`~litege_core.learned.router.choose_model`;
+agrees with its own fusion graph on the shape (:func:`~litege_core.learned.routing.choose_model`;
 ties to the first loaded), with every model's score. Records, router inputs and agreements
 are deterministic, so the choice is too; it is remembered with the chosen live state, so a
 later ``auto`` lookup of a live shape costs what a named one does.
@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 from litege_core.errors import ArtifactError, LiteGEError
 from litege_core.learned import Predictor, ShapeRecord, ShapeState
-from litege_core.learned.router import CategoryRouter, choose_model, first_of_each_category
+from litege_core.learned.router import CategoryRouter, first_of_each_category
+from litege_core.learned.routing import choose_model
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
 from service.errors import ShapeNotFoundError, UnknownModelError
@@ -269,7 +270,7 @@ class ShapeRepository:
 
     def _choose(self, states: Mapping[str, ShapeState], scores: Mapping[str, float]) -> str:
         """The lowest OOD score, weighed with each model's network-to-graph agreement where
-        several models are loaded (:func:`~litege_core.learned.router.choose_model`)."""
+        several models are loaded (:func:`~litege_core.learned.routing.choose_model`)."""
         if len(scores) < 2:
             return next(iter(scores))
         agreements = {name: self.predictors[name].agreement(states[name]) for name in scores}

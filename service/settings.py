@@ -29,7 +29,7 @@ class Settings(BaseSettings):
     default_model: str = "auto"
     """Geodesic model of a registration or query that names none: ``auto`` (every loaded model
     scores the shape and the lowest out-of-distribution z-score, weighed with the model's
-    network-to-graph agreement, wins: ``litege_core.learned.router.choose_model``; with one
+    network-to-graph agreement, wins: ``litege_core.learned.routing.choose_model``; with one
     model loaded, that one) or the name of a loaded model (then a query naming no model uses
     the first model, this one first, that the shape is registered under)."""
     router: str = "shipped"

@@ -60,6 +60,18 @@ def _numpy_runtime(args: argparse.Namespace) -> bool:
     return args.runtime == "numpy" or (args.runtime == "auto" and args.device == "cpu")
 
 
+AUTO_MODEL = "auto"
+"""``--model auto``: every shipped model registers the shape and
+:func:`~litege_core.learned.routing.choose_model` picks one (as the service's ``auto``)."""
+
+
+def _auto_models() -> list[str]:
+    """The shipped geodesic models, the default one first (it wins ties)."""
+    from litege_core.learned.manifest import DEFAULT_MODEL, shipped_bundles
+
+    return sorted(shipped_bundles(), key=lambda name: name != DEFAULT_MODEL)
+
+
 def cmd_geodesic(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -67,31 +79,36 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
     targets = None if args.targets.strip() == "all" else parse_indices(args.targets, "targets")
     shape = load_shape(args.file, kind=args.kind)
     report: dict[str, Any] = {"file": str(args.file), "method": args.method}
-    if args.method == "learned" and _numpy_runtime(args):
-        runtime = numpy_predictor(args)
-        registered = runtime.register(shape, seed=args.seed)
-        distances = runtime.distances(registered, sources, targets)
+    if args.method == "learned":
+        numpy_runtime = _numpy_runtime(args)
+        make = numpy_predictor if numpy_runtime else predictor
+        runtimes: dict[str, Any] = {}  # model → runtime (one, or every shipped one for auto)
+        if args.model == AUTO_MODEL and args.bundle is None:
+            for name in _auto_models():
+                runtimes[name] = make(argparse.Namespace(**{**vars(args), "model": name}))
+        else:
+            runtimes[args.model or ""] = make(args)
+        states = {name: r.register(shape, seed=args.seed) for name, r in runtimes.items()}
+        chosen = next(iter(runtimes))
+        if len(runtimes) > 1:
+            from litege_core.learned.routing import choose_model
+
+            scores = {name: float(state.ood_score) for name, state in states.items()}
+            agreements = {name: runtimes[name].agreement(states[name]) for name in runtimes}
+            chosen = choose_model(scores, agreements)
+            report["model_scores"] = scores
+        runtime, state = runtimes[chosen], states[chosen]
+        distances = np.asarray(runtime.distances(state, sources, targets), dtype=np.float32)
         report.update(
             engine="learned",
-            runtime="numpy",
-            model=runtime.name,
+            runtime="numpy" if numpy_runtime else "torch",
+            model=runtime.name if numpy_runtime else runtime.bundle.name,
             head=runtime.head,
-            lattice=runtime.lattice,
             fusion="none" if runtime.fusion is None else "graph",
-            ood_score=registered.ood_score,
-        )
-    elif args.method == "learned":
-        model = predictor(args)
-        state = model.register(shape, seed=args.seed)
-        distances = model.distances(state, sources, targets).astype(np.float32)
-        report.update(
-            engine="learned",
-            runtime="torch",
-            model=model.bundle.name,
-            head=model.head,
-            fusion="none" if model.fusion is None else "graph",
             ood_score=state.ood_score,
         )
+        if numpy_runtime:
+            report["lattice"] = runtime.lattice
     else:
         solver = _classical(args, shape)
         distances = solver.distances(sources, targets)
@@ -162,7 +179,12 @@ def register(commands: argparse._SubParsersAction) -> None:
     info.set_defaults(handler=cmd_info)
 
     geodesic = commands.add_parser(
-        "geodesic", help="geodesic distances, float32 (S, T), in the input's units"
+        "geodesic",
+        help="geodesic distances, float32 (S, T), in the input's units",
+        description="Geodesic distances, float32 (S, T), in the input's units. --model auto: "
+        "every shipped model registers the shape and the one of lowest OOD score, weighed with "
+        "its network-to-graph agreement, answers (as the service's auto); the report names it "
+        "and gives every model_scores.",
     )
     add_model_arguments(geodesic)
     geodesic.add_argument("--sources", required=True, help="comma-separated indices: 0,17,42")

@@ -25,6 +25,7 @@ the torch :class:`~litege_core.learned.Predictor`'s; the two agree to float32 ro
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,7 @@ from litege_core.learned.fusion import (
     EdgeGeodesics,
     fused_distances,
     resolve_fusion,
+    shape_graph,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -59,6 +61,7 @@ from litege_core.learned.manifest import (
     shipped_bundles,
     verified_small_head,
 )
+from litege_core.learned.routing import AGREEMENT_SOURCES, graph_agreement
 from litege_core.query import parse_query
 from litege_core.shape import Shape
 
@@ -471,6 +474,59 @@ class NumpyPredictor:
             raise InputError("this shape state was not registered with this bundle")
         src = self._indices(state, sources, "source")
         dst = self._indices(state, targets, "target")
+        out = self._network(state, src, dst)
+        if self.fusion is not None:
+            out = fused_distances(
+                out,
+                self.fusion,
+                self._fusion_points(state),
+                state.faces,
+                (src, state.canonical[src]),
+                (dst, state.canonical[dst]),
+                state.ood_score,
+                state._kept,
+                self._edge_geodesics(state),
+                self._veto_key,
+            )
+        return (out.astype(np.float64) / state.transform.scale).astype(np.float32)
+
+    def agreement(self, state: NumpyShapeState, n_sources: int = AGREEMENT_SOURCES) -> float:
+        """How far the network is from the fusion's own graph on this shape (unitless; ``nan``
+        without a fusion calibration): as :meth:`~litege_core.learned.Predictor.agreement`,
+        which it equals to float32 rounding. The graph is kept with ``state``."""
+        if not isinstance(state, NumpyShapeState) or state.bundle_hash != self.content_hash:
+            raise InputError("this shape state was not registered with this bundle")
+        if self.fusion is None:
+            return math.nan
+        from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
+        from litege_core.sampling import farthest_point_sampling
+
+        points = self._fusion_points(state)
+        sources = farthest_point_sampling(points, min(n_sources, state.n_points))
+        network = self._network(state, sources, np.arange(state.n_points))
+        graph, _ = shape_graph(
+            points,
+            state.faces,
+            self.fusion,
+            state._kept,
+            self._edge_geodesics(state),
+            self._veto_key,
+        )
+        bias = self.fusion.graph_bias(state.n_points, state.faces is not None)
+        return graph_agreement(network, dijkstra_rows(graph, sources), bias)
+
+    @property
+    def _veto_key(self) -> str:
+        return f"numpy.{'small' if isinstance(self._veto, FoldedNumpySmallHead) else 'full'}"
+
+    @staticmethod
+    def _fusion_points(state: NumpyShapeState) -> NDArray:
+        """``(N, 3)`` float64 canonical points the fusion's graph reads."""
+        points = state._kept.get("fusion.points")
+        return state.canonical.astype(np.float64) if points is None else points
+
+    def _network(self, state: NumpyShapeState, src: NDArray, dst: NDArray) -> NDArray:
+        """``(S, T)`` float32 network distances between point indices, canonical units."""
         n_dst = dst.shape[0]
         rows = max(1, PAIR_CHUNK // n_dst)
         out = np.empty((src.shape[0], n_dst), dtype=np.float32)
@@ -485,20 +541,7 @@ class NumpyPredictor:
                 head = self._net.head(diff.reshape(-1, diff.shape[-1])).reshape(diff.shape[:2])
                 euclidean = np.linalg.norm(x_s[:, None, :] - x_t[None, :, :], axis=-1)
                 out[i0 : i0 + rows, j0 : j0 + PAIR_CHUNK] = self._finish(head, euclidean)
-        if self.fusion is not None:
-            out = fused_distances(
-                out,
-                self.fusion,
-                state._kept.get("fusion.points", state.canonical.astype(np.float64)),
-                state.faces,
-                (src, x_src),
-                (dst, x_dst),
-                state.ood_score,
-                state._kept,
-                self._edge_geodesics(state),
-                f"numpy.{'small' if isinstance(self._veto, FoldedNumpySmallHead) else 'full'}",
-            )
-        return (out.astype(np.float64) / state.transform.scale).astype(np.float32)
+        return out
 
     def _finish(self, head: NDArray, euclidean: NDArray) -> NDArray:
         """Head outputs → distances in canonical units (residual pipelines add the chord;

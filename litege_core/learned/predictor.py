@@ -89,6 +89,7 @@ from litege_core.learned.manifest import (
     resolve_head,
 )
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
+from litege_core.learned.routing import AGREEMENT_SOURCES, graph_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
@@ -111,8 +112,6 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
 
-AGREEMENT_SOURCES = 4
-"""Source rows of :meth:`Predictor.agreement` (farthest points, every point as target)."""
 TABLE_FRACTION = 0.25
 """A query of more than this fraction of a shape's points builds (and keeps) the shape's whole
 feature table; smaller ones embed just their points."""
@@ -635,7 +634,7 @@ class Predictor:
         point 0; every point as target), divided by the graph's mean (unitless; pairs the graph
         cannot join are left out). A shape of the model's category scores ~0.03–0.05, one of
         another category ~0.06–0.12 (BENCHMARKS "routing-agreement"): the
-        ``auto`` model choice weighs it (:func:`~litege_core.learned.router.choose_model`).
+        ``auto`` model choice weighs it (:func:`~litege_core.learned.routing.choose_model`).
         ``nan`` without a fusion calibration. The graph is built once and kept with
         ``state`` (the fused queries reuse it)."""
         self.check_state(state)
@@ -656,12 +655,8 @@ class Predictor:
             lambda i, j: self._veto._pair_distances(state, i, j),
             self._veto._table_key,
         )
-        rows = dijkstra_rows(graph, sources)
-        rows /= self.fusion.graph_bias(state.n_points, state.faces is not None)
-        joined = np.isfinite(rows)
-        if not joined.any() or not rows[joined].mean() > 0:
-            return math.nan
-        return float(np.abs(network[joined] - rows[joined]).mean() / rows[joined].mean())
+        bias = self.fusion.graph_bias(state.n_points, state.faces is not None)
+        return graph_agreement(network, dijkstra_rows(graph, sources), bias)
 
     def _fused(
         self, state: ShapeState, src: ResolvedPoints, dst: ResolvedPoints, network: Any

@@ -25,7 +25,6 @@ own rule (the service: the lowest z-score).
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -202,36 +201,6 @@ class CategoryRouter:
             raise ArtifactError(f"router in {directory} is inconsistent: {exc}") from exc
 
 
-AGREEMENT_WEIGHT = 42.0
-"""Weight of a model's :meth:`~litege_core.learned.predictor.Predictor.agreement` beside its
-OOD z-score in :func:`choose_model`: the median gap in z-score between a generated shape's own
-model and the other one, over the median gap in agreement (procedural quadrupeds and bipeds,
-static animals, MakeHuman bodies; meshes, clouds of 300–2,000 points, noise), so both weigh
-alike. Fitted by ``scripts/calibrate_routing.py`` on generated shapes only (BENCHMARKS
-"routing-agreement")."""
-
-
-def choose_model(
-    scores: Mapping[str, float],
-    agreements: Mapping[str, float] | None = None,
-    weight: float = AGREEMENT_WEIGHT,
-) -> str:
-    """The ``auto`` model of a shape among ``scores`` (model → OOD z-score, in loading order):
-    the lowest ``z + weight · agreement`` where every model has a finite agreement (each
-    model's network against its own fusion graph), else the lowest z-score; a non-finite
-    score ranks last, ties go to the first model."""
-    if not scores:
-        raise InputError("no model to choose from")
-
-    def rank(value: float) -> float:
-        return value if math.isfinite(value) else math.inf
-
-    names = list(scores)
-    if agreements is not None and all(math.isfinite(agreements.get(n, math.nan)) for n in names):
-        return min(names, key=lambda n: rank(scores[n] + weight * agreements[n]))
-    return min(names, key=lambda n: rank(scores[n]))
-
-
 def first_of_each_category(categories: Mapping[str, str]) -> dict[str, str]:
     """``model name → category`` (in loading order) → ``category → the first model of it``:
     the ``models`` argument of :meth:`CategoryRouter.route`."""
@@ -251,7 +220,6 @@ def load_router(directory: str | os.PathLike | None = None) -> CategoryRouter | 
 
 
 __all__ = [
-    "AGREEMENT_WEIGHT",
     "DEFAULT_MIN_PROBABILITY",
     "ROUTER_CONFIG",
     "ROUTER_POINTS",
@@ -259,7 +227,6 @@ __all__ = [
     "SHIPPED_ROUTER",
     "CategoryRouter",
     "RouterNet",
-    "choose_model",
     "first_of_each_category",
     "load_router",
     "router_points",

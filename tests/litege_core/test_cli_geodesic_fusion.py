@@ -52,3 +52,28 @@ def test_the_fusion_option_is_the_predictor_option() -> None:
     from litege_core.cli.common import FUSIONS as CLI_FUSIONS
 
     assert CLI_FUSIONS == FUSIONS
+
+
+def test_auto_picks_the_model_of_the_shapes_category(tmp_path, capsys) -> None:
+    """``--model auto`` registers the shape under every shipped model and answers with the one
+    ``choose_model`` keeps (the numpy and the torch runtime alike)."""
+    from litege_core.learned import load_shipped
+    from litege_core.shape import Shape
+    from litege_core.synth import families, generate_shape
+    from litege_core.variants import point_cloud
+
+    for category, expected in (("quadruped", "quadrupeds"), ("biped", "humans")):
+        generated = generate_shape(category, families(category)[0], 2_000_005)
+        cloud = point_cloud(generated.vertices, generated.faces, 800, 0).points
+        path = tmp_path / f"{category}.npy"
+        np.save(path, cloud)
+        named = Predictor(load_shipped(expected))
+        want = named.distances(named.register(Shape.from_arrays(cloud)), [0, 3])
+        for runtime in ("numpy", "torch"):
+            out = tmp_path / f"{category}-{runtime}.npy"
+            argv = ["geodesic", str(path), "--sources", "0,3", "--model", "auto"]
+            assert main([*argv, "--runtime", runtime, "-o", str(out)]) == 0
+            report = json.loads(capsys.readouterr().out)
+            assert report["model"] == expected
+            assert set(report["model_scores"]) == {"quadrupeds", "humans"}
+            np.testing.assert_allclose(np.load(out), want, rtol=1e-4, atol=1e-4 * float(want.max()))

@@ -618,7 +618,7 @@ def test_agreement_is_the_network_against_its_own_graph(bundle_dir, blob, tmp_pa
 
 
 def test_choose_model_weighs_the_agreement_beside_the_z_score() -> None:
-    from litege_core.learned.router import choose_model
+    from litege_core.learned.routing import choose_model
 
     scores = {"quadrupeds": 0.5, "humans": 0.9}
     assert choose_model(scores) == "quadrupeds"

@@ -189,6 +189,19 @@ def test_shipped_fusion_equals_the_torch_predictor(scaled_blob, name, n_points):
         assert np.abs(alone - got).mean() > 1e-3 * float(want.mean())  # the blend did act
 
 
+@pytest.mark.parametrize("name", shipped_bundles())
+def test_agreement_equals_the_torch_predictors(scaled_blob, name):
+    mesh = scaled_blob(3, subdivisions=4)
+    cloud = Shape.from_arrays(mesh.vertices[::2])
+    runtime, reference = NumpyPredictor.shipped(name), Predictor(load_shipped(name))
+    for shape in (cloud, mesh):
+        got = runtime.agreement(runtime.register(shape))
+        want = reference.agreement(reference.register(shape))
+        assert got == pytest.approx(want, rel=1e-4) and want > 0
+    plain = NumpyPredictor.shipped(name, fusion="none")
+    assert np.isnan(plain.agreement(plain.register(cloud)))
+
+
 def test_errors_at_the_boundary(bundle_dir, scaled_blob, tmp_path):
     runtime = NumpyPredictor(bundle_dir)
     state = runtime.register(scaled_blob(0, subdivisions=2))

@@ -1,0 +1,75 @@
+"""Which geodesic model answers a shape when none is named (``auto``), without torch.
+
+Every loaded model registers the shape; the OOD z-score says how far the shape's descriptor is
+from the model's training shapes, and :func:`graph_agreement` how far the model's network is
+from its own fusion graph on the shape (small for a shape of the model's category: the graph
+knows the surface, the network knows its families). :func:`choose_model` weighs the two. Used
+by the service's ``auto`` (where no category router is confident) and by ``litege geodesic
+--model auto``; the predictors compute the agreement (``Predictor.agreement``,
+``NumpyPredictor.agreement``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.errors import InputError
+
+AGREEMENT_SOURCES = 4
+"""Source rows of an agreement (farthest points from point 0, every point as target)."""
+
+AGREEMENT_WEIGHT = 42.0
+"""Weight of a model's agreement beside its OOD z-score in :func:`choose_model`: the median gap
+in z-score between a generated shape's own model and the other one, over the median gap in
+agreement (procedural quadrupeds and bipeds, static animals, MakeHuman bodies; meshes, clouds
+of 300–2,000 points, noise), so both weigh alike. Fitted by ``scripts/calibrate_routing.py`` on
+generated shapes only (BENCHMARKS "routing-agreement")."""
+
+
+def graph_agreement(network: NDArray, graph: NDArray, bias: float) -> float:
+    """Mean ``|network − graph / bias|`` over the pairs the graph joins, divided by the mean of
+    ``graph / bias`` (unitless); ``nan`` where the graph joins no pair.
+
+    Args:
+        network: ``(S, N)`` the network's distances from the sources.
+        graph: ``(S, N)`` the fusion graph's Dijkstra rows (same units; ``inf``: not joined).
+        bias: the graph's calibrated over-estimate at this shape's size or mesh.
+    """
+    corrected = np.asarray(graph, dtype=np.float64) / bias
+    joined = np.isfinite(corrected)
+    if not joined.any() or not corrected[joined].mean() > 0:
+        return math.nan
+    gap = np.abs(np.asarray(network, dtype=np.float64)[joined] - corrected[joined])
+    return float(gap.mean() / corrected[joined].mean())
+
+
+def choose_model(
+    scores: Mapping[str, float],
+    agreements: Mapping[str, float] | None = None,
+    weight: float = AGREEMENT_WEIGHT,
+) -> str:
+    """The ``auto`` model of a shape among ``scores`` (model → OOD z-score, in loading order):
+    the lowest ``z + weight · agreement`` where every model has a finite agreement, else the
+    lowest z-score; a non-finite score ranks last, ties go to the first model."""
+    if not scores:
+        raise InputError("no model to choose from")
+
+    def rank(value: float) -> float:
+        return value if math.isfinite(value) else math.inf
+
+    names = list(scores)
+    if agreements is not None and all(math.isfinite(agreements.get(n, math.nan)) for n in names):
+        return min(names, key=lambda n: rank(scores[n] + weight * agreements[n]))
+    return min(names, key=lambda n: rank(scores[n]))
+
+
+__all__ = [
+    "AGREEMENT_SOURCES",
+    "AGREEMENT_WEIGHT",
+    "choose_model",
+    "graph_agreement",
+]
