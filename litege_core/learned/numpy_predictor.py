@@ -44,7 +44,6 @@ from litege_core.learned.fusion import (
     EdgeGeodesics,
     fused_distances,
     resolve_fusion,
-    shape_graph,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -61,7 +60,7 @@ from litege_core.learned.manifest import (
     shipped_bundles,
     verified_small_head,
 )
-from litege_core.learned.routing import AGREEMENT_SOURCES, graph_agreement
+from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.query import parse_query
 from litege_core.shape import Shape
 
@@ -498,22 +497,16 @@ class NumpyPredictor:
             raise InputError("this shape state was not registered with this bundle")
         if self.fusion is None:
             return math.nan
-        from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
-        from litege_core.sampling import farthest_point_sampling
-
-        points = self._fusion_points(state)
-        sources = farthest_point_sampling(points, min(n_sources, state.n_points))
-        network = self._network(state, sources, np.arange(state.n_points))
-        graph, _ = shape_graph(
-            points,
+        return shape_agreement(
+            lambda sources: self._network(state, sources, np.arange(state.n_points)),
+            self._fusion_points(state),
             state.faces,
             self.fusion,
             state._kept,
             self._edge_geodesics(state),
             self._veto_key,
+            n_sources,
         )
-        bias = self.fusion.graph_bias(state.n_points, state.faces is not None)
-        return graph_agreement(network, dijkstra_rows(graph, sources), bias)
 
     @property
     def _veto_key(self) -> str:

@@ -76,10 +76,10 @@ from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
 from litege_core.learned.fusion import (
     DEFAULT_FUSION,
+    EdgeGeodesics,
     FusionCalibration,
     fused_distances,
     resolve_fusion,
-    shape_graph,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -89,7 +89,7 @@ from litege_core.learned.manifest import (
     resolve_head,
 )
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
-from litege_core.learned.routing import AGREEMENT_SOURCES, graph_agreement
+from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
@@ -640,23 +640,25 @@ class Predictor:
         self.check_state(state)
         if self.fusion is None:
             return math.nan
-        from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
-        from litege_core.sampling import farthest_point_sampling
 
-        points = state.canonical_points
-        sources = farthest_point_sampling(points, min(n_sources, state.n_points))
-        src, dst = self._resolve_many([state, state], [sources, None], ["source", "target"])
-        network = self.evaluate_blocks([(src, dst)])[0].astype(np.float64)
-        graph, _ = shape_graph(
-            points,
+        def network_rows(sources: NDArray) -> NDArray:
+            blocks = self._resolve_many([state, state], [sources, None], ["source", "target"])
+            return self.evaluate_blocks([(blocks[0], blocks[1])])[0]
+
+        return shape_agreement(
+            network_rows,
+            state.canonical_points,
             state.faces,
             self.fusion,
             state._lazy,
-            lambda i, j: self._veto._pair_distances(state, i, j),
+            self._edge_geodesics(state),
             self._veto._table_key,
+            n_sources,
         )
-        bias = self.fusion.graph_bias(state.n_points, state.faces is not None)
-        return graph_agreement(network, dijkstra_rows(graph, sources), bias)
+
+    def _edge_geodesics(self, state: ShapeState) -> EdgeGeodesics:
+        """The fusion veto's predicted geodesics of point pairs of ``state`` (canonical)."""
+        return lambda i, j: self._veto._pair_distances(state, i, j)
 
     def _fused(
         self, state: ShapeState, src: ResolvedPoints, dst: ResolvedPoints, network: Any
@@ -672,7 +674,7 @@ class Predictor:
             (dst.indices, dst.canonical),
             state.ood_score,
             state._lazy,
-            lambda i, j: self._veto._pair_distances(state, i, j),
+            self._edge_geodesics(state),
             self._veto._table_key,
         )
 

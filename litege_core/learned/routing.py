@@ -12,12 +12,16 @@ by the service's ``auto`` (where no category router is confident) and by ``liteg
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError
+
+if TYPE_CHECKING:
+    from litege_core.learned.fusion import EdgeGeodesics, FusionCalibration
 
 AGREEMENT_SOURCES = 4
 """Source rows of an agreement (farthest points from point 0, every point as target)."""
@@ -47,6 +51,36 @@ def graph_agreement(network: NDArray, graph: NDArray, bias: float) -> float:
     return float(gap.mean() / corrected[joined].mean())
 
 
+def shape_agreement(
+    network_rows: Callable[[NDArray], NDArray],
+    points: NDArray,
+    faces: NDArray | None,
+    calibration: FusionCalibration,
+    kept: dict[str, Any],
+    edge_geodesics: EdgeGeodesics,
+    veto_key: str,
+    n_sources: int = AGREEMENT_SOURCES,
+) -> float:
+    """A predictor's agreement on one shape: :func:`graph_agreement` of the rows of
+    ``n_sources`` farthest points (from point 0; every point as target).
+
+    Args:
+        network_rows: ``sources (S,) → (S, N)`` the network's distances (canonical units).
+        points, faces, calibration, kept, edge_geodesics, veto_key: the shape and its fusion,
+            as :func:`~litege_core.learned.fusion.shape_graph` (the graph is kept in ``kept``,
+            where the fused queries find it).
+    """
+    from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
+    from litege_core.learned.fusion import shape_graph
+    from litege_core.sampling import farthest_point_sampling
+
+    sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
+    network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
+    graph, _ = shape_graph(points, faces, calibration, kept, edge_geodesics, veto_key)
+    bias = calibration.graph_bias(points.shape[0], faces is not None)
+    return graph_agreement(network, dijkstra_rows(graph, sources), bias)
+
+
 def choose_model(
     scores: Mapping[str, float],
     agreements: Mapping[str, float] | None = None,
@@ -72,4 +106,5 @@ __all__ = [
     "AGREEMENT_WEIGHT",
     "choose_model",
     "graph_agreement",
+    "shape_agreement",
 ]
