@@ -63,6 +63,11 @@ def predictor(args: argparse.Namespace) -> Predictor:
     )
 
 
+def with_model(args: argparse.Namespace, model: str) -> argparse.Namespace:
+    """``args`` with ``--model`` set to ``model`` (one command, several models)."""
+    return argparse.Namespace(**{**vars(args), "model": model})
+
+
 def numpy_predictor(args: argparse.Namespace) -> NumpyPredictor:
     """The torch-free runtime of ``--model``/``--bundle`` (see :func:`predictor`)."""
     from pathlib import Path
@@ -215,5 +220,6 @@ __all__ = [
     "print_json",
     "save_npy",
     "split_list",
+    "with_model",
     "write_json",
 ]

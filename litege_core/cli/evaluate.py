@@ -15,6 +15,7 @@ from litege_core.cli.common import (
     add_precision_argument,
     predictor,
     split_list,
+    with_model,
     write_json,
 )
 
@@ -42,9 +43,7 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
     owner_of = {key: None if named else REAL_SETS[key].model for key in args.real}
     owners = ([None] if args.dataset else []) + list(owner_of.values())
     models = {  # every model loads before any shape is read: a bad option fails fast
-        owner: predictor(
-            args if owner is None else argparse.Namespace(**{**vars(args), "model": owner})
-        )
+        owner: predictor(args if owner is None else with_model(args, owner))
         for owner in dict.fromkeys(owners or [None])
     }
     groups: dict[str | None, list] = {owner: [] for owner in models}

@@ -16,6 +16,7 @@ from litege_core.cli.common import (
     predictor,
     print_json,
     save_npy,
+    with_model,
 )
 from litege_core.errors import InputError
 from litege_core.io import load_shape
@@ -85,7 +86,7 @@ def cmd_geodesic(args: argparse.Namespace) -> int:
         runtimes: dict[str, Any] = {}  # model → runtime (one, or every shipped one for auto)
         if args.model == AUTO_MODEL and args.bundle is None:
             for name in _auto_models():
-                runtimes[name] = make(argparse.Namespace(**{**vars(args), "model": name}))
+                runtimes[name] = make(with_model(args, name))
         else:
             runtimes[args.model or ""] = make(args)
         states = {name: r.register(shape, seed=args.seed) for name, r in runtimes.items()}
