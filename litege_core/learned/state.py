@@ -184,8 +184,9 @@ class ShapeState:
     def nbytes(self) -> int:
         """Bytes held by the cached arrays and tensors, for cache accounting: including, once
         built, the canonical vertices, the feature tables (the full head's and a small head's)
-        and graph-fusion graphs (sparse). The embedding and bias count as the storage they
-        keep alive: a state registered in a batch holds views of the batch's rows."""
+        and what the graph fusion keeps (a cloud's or a mesh's graph, the normals, a k-d
+        tree). The embedding and bias count as the storage they keep alive: a state
+        registered in a batch holds views of the batch's rows."""
         storages = {
             t.untyped_storage().data_ptr(): t.untyped_storage().nbytes()
             for t in (self.shape_embedding, self.shape_bias)
@@ -194,9 +195,7 @@ class ShapeState:
             v for k, v in self._lazy.items() if k.startswith(("features", "canonical_vertices"))
         ]
         total = sum(storages.values()) + sum(t.numel() * t.element_size() for t in tensors)
-        for key, graph in self._lazy.items():
-            if key.startswith("fusion.graph"):
-                total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes
+        total += sum(_fusion_nbytes(v) for k, v in self._lazy.items() if k.startswith("fusion."))
         if "canonical_points" in self._lazy:
             total += self._lazy["canonical_points"].nbytes
         total += self.descriptor.nbytes
@@ -246,6 +245,18 @@ class ResolvedPoints:
     @property
     def count(self) -> int:
         return int(self.positions.shape[0])
+
+
+def _fusion_nbytes(value: Any) -> int:
+    """Bytes of one thing the graph fusion keeps with a state: a sparse graph, the
+    ``(roughness, normals)`` pair or a k-d tree (its points and index)."""
+    if hasattr(value, "indptr"):  # a CSR graph
+        return int(value.data.nbytes + value.indices.nbytes + value.indptr.nbytes)
+    if isinstance(value, tuple):  # (roughness, normals)
+        return int(sum(getattr(part, "nbytes", 0) for part in value))
+    if hasattr(value, "data") and hasattr(value, "indices"):  # a cKDTree
+        return int(value.data.nbytes + value.indices.nbytes)
+    return 0
 
 
 __all__ = ["OOD_Z_THRESHOLD", "ResolvedPoints", "ShapeRecord", "ShapeState"]

@@ -462,7 +462,16 @@ def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
     shape = blob(3)
     state = predictor.register(shape)
     sources = np.array([0, 17, 200])
+    before = state.nbytes
     rows = predictor.distances(state, sources)
+    ring = state._lazy["fusion.mesh_graph"]
+    graph_bytes = ring.data.nbytes + ring.indices.nbytes + ring.indptr.nbytes
+    assert state.nbytes >= before + graph_bytes  # the mesh's ring graph counts for the cache
+    counted = state.nbytes
+    inside = np.asarray(shape.vertices)[np.asarray(shape.faces)[:2]].mean(axis=1)
+    predictor.distances(state, inside)  # points inside triangles join through a k-d tree
+    tree = state._lazy["fusion.tree"]
+    assert state.nbytes >= counted + tree.data.nbytes + tree.indices.nbytes
     points, faces = state.canonical_points, np.asarray(shape.faces)
     reference = _reference_ring_graph(points, faces, MESH_RINGS)
     expected = dijkstra(reference, directed=False, indices=sources)
