@@ -62,6 +62,20 @@ def dijkstra_rows(graph: sp.csr_array, sources: NDArray, directed: bool = False)
     return np.atleast_2d(np.asarray(rows, dtype=np.float64))
 
 
+def dijkstra_tree(
+    graph: sp.csr_array, sources: NDArray, directed: bool = False
+) -> tuple[NDArray, NDArray]:
+    """:func:`dijkstra_rows` and the ``(S, n)`` int predecessors of each node on its shortest
+    path from each source (``-9999``: the source itself, or unreachable)."""
+    rows, predecessors = dijkstra(
+        graph, directed=directed, indices=sources, return_predecessors=True
+    )
+    return (
+        np.atleast_2d(np.asarray(rows, dtype=np.float64)),
+        np.atleast_2d(np.asarray(predecessors, dtype=np.int64)),
+    )
+
+
 def dijkstra_path(graph: sp.csr_array, source: int, target: int) -> tuple[float, NDArray]:
     """Shortest path between two nodes of the undirected ``graph`` (Dijkstra predecessors).
 
@@ -199,7 +213,9 @@ __all__ = [
     "KnnGraphEngine",
     "dijkstra_path",
     "dijkstra_rows",
+    "dijkstra_tree",
     "edge_graph",
     "knn_graph",
+    "knn_neighbours",
     "mesh_ring_graph",
 ]

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -52,6 +51,7 @@ from numpy.typing import NDArray
 
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import read_json_object, write_json_atomic
+from litege_core.learned.veto_graph import MAX_ROUNDS, EdgeGeodesics, LazyVetoGraph, path_edges
 
 if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports it
     import scipy.sparse as sp
@@ -76,9 +76,6 @@ ROUGHNESS_NEIGHBOURS = 16
 """Points per neighbourhood of :func:`surface_roughness` (the point itself included)."""
 ROUGHNESS_CHUNK = 65_536
 """Points per block of :func:`surface_roughness` (bounds its ``(C, k, 3)`` temporaries)."""
-
-EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
-"""``(i (E,), j (E,)) → (E,)`` predicted geodesics between point pairs (canonical units)."""
 
 
 @dataclass(frozen=True)
@@ -250,14 +247,15 @@ def shape_graph(
     faces: NDArray | None,
     calibration: FusionCalibration,
     kept: dict[str, Any],
-    edge_geodesics: EdgeGeodesics,
     veto_key: str,
-) -> tuple[sp.csr_array, float]:
+) -> tuple[sp.csr_array | LazyVetoGraph, float]:
     """The graph the fusion reads on one shape and its surface roughness, kept in ``kept``.
 
     A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch),
-    roughness 0. A cloud: :func:`pruned_knn_graph` vetoed by ``edge_geodesics`` and, where the
-    calibration has normal limits, normal-pruned; its roughness from the same 16-NN covariance.
+    roughness 0. A cloud: its k-NN graph, normal-pruned where the calibration has normal
+    limits, as a :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
+    :func:`graph_rows` runs on the edges that paths use (the rows equal those of
+    :func:`pruned_knn_graph`); its roughness from the same 16-NN covariance.
 
     Args:
         points: ``(N, 3)`` float64 canonical points.
@@ -265,8 +263,7 @@ def shape_graph(
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
             ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>``.
-        edge_geodesics: the veto head's predicted geodesics of point pairs (canonical units).
-        veto_key: names the veto head's predictions in the graph's key.
+        veto_key: names the veto head (its verdicts are kept in the graph).
     """
     if faces is not None:
         graph = kept.get("fusion.mesh_graph")
@@ -288,9 +285,8 @@ def shape_graph(
             flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:
-            graph = kept[key] = pruned_knn_graph(
-                points, k, ratio, edge_geodesics, neighbours, surface[1], normal_cos
-            )
+            unvetoed = pruned_knn_graph(points, k, ratio, None, neighbours, surface[1], normal_cos)
+            graph = kept[key] = LazyVetoGraph(unvetoed, ratio)
     return graph, surface[0]
 
 
@@ -312,7 +308,7 @@ def fused_distances(
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
     KD-tree of ``points``, ``fusion.tree``, when free points join)."""
-    graph, roughness = shape_graph(points, faces, calibration, kept, edge_geodesics, veto_key)
+    graph, roughness = shape_graph(points, faces, calibration, kept, veto_key)
     tree = None
     if src[0] is None or dst[0] is None:  # free points join through a KD-tree
         tree = kept.get("fusion.tree")
@@ -320,7 +316,7 @@ def fused_distances(
             from scipy.spatial import cKDTree
 
             tree = kept["fusion.tree"] = cKDTree(points)
-    rows = graph_rows(graph, points, src, dst, calibration.k, tree)
+    rows = graph_rows(graph, points, src, dst, calibration.k, tree, edge_geodesics)
     mesh = faces is not None
     return fuse(network, rows, calibration, ood_score, points.shape[0], roughness, mesh)
 
@@ -335,7 +331,9 @@ def pruned_knn_graph(
     normal_cos: float = 1.0,
 ) -> sp.csr_array:
     """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts
-    and, with ``normals``, without the chords that run along the surface normal.
+    and, with ``normals``, without the chords that run along the surface normal. With
+    ``edge_geodesics`` it is the eager reference of the lazy veto of :func:`graph_rows` (which
+    the fusion runs); without, the graph that veto starts from.
 
     Args:
         points: ``(N, 3)`` float64 (canonical frame).
@@ -381,12 +379,13 @@ def pruned_knn_graph(
 
 
 def graph_rows(
-    graph: sp.csr_array,
+    graph: sp.csr_array | LazyVetoGraph,
     points: NDArray,
     src: tuple[NDArray | None, NDArray],
     dst: tuple[NDArray | None, NDArray],
     k: int,
     tree: Any = None,
+    edge_geodesics: EdgeGeodesics | None = None,
 ) -> NDArray:
     """``(S, T)`` graph distances between query points (``inf`` where no path joins them).
 
@@ -397,21 +396,54 @@ def graph_rows(
     (a request split into blocks gets the same answers). Dijkstra runs from the smaller side.
     ``tree``: a ``scipy.spatial.cKDTree`` of ``points`` if the caller keeps one (built here
     otherwise). The cached ``graph`` is never changed.
+
+    A :class:`~litege_core.learned.veto_graph.LazyVetoGraph` is judged by ``edge_geodesics``
+    on the edges of the paths the query reads, round after round, until no path crosses a
+    cut edge (its module docstring): the rows of the fully vetoed graph, exactly.
     """
-    from litege_core.engines.graph import dijkstra_rows
+    if not isinstance(graph, LazyVetoGraph):
+        return _graph_rows(graph, points, src, dst, k, tree, paths=False)[0]
+    if edge_geodesics is None:
+        raise InputError("a lazily vetoed graph needs the veto's edge geodesics")
+    for _ in range(MAX_ROUNDS):
+        rows, edges = _graph_rows(graph.graph, points, src, dst, k, tree, paths=True)
+        positions = None if edges is None else graph.positions(*edges)
+        if not graph.judge(positions, edge_geodesics):
+            return rows
+    final = graph.vetoed(edge_geodesics)
+    return _graph_rows(final, points, src, dst, k, tree, paths=False)[0]
+
+
+def _graph_rows(
+    graph: sp.csr_array,
+    points: NDArray,
+    src: tuple[NDArray | None, NDArray],
+    dst: tuple[NDArray | None, NDArray],
+    k: int,
+    tree: Any,
+    paths: bool,
+) -> tuple[NDArray, tuple[NDArray, NDArray] | None]:
+    """:func:`graph_rows` on a plain graph; with ``paths``, also the edges of the shortest
+    paths it read (:func:`~litege_core.learned.veto_graph.path_edges`; ``None``: all)."""
+    from litege_core.engines.graph import dijkstra_rows, dijkstra_tree
 
     count = [q[1].shape[0] if q[0] is None else np.asarray(q[0]).size for q in (src, dst)]
     flip = count[0] > count[1]  # Dijkstra from the smaller side
     near, far = (dst, src) if flip else (src, dst)
-    if near[0] is not None and far[0] is not None:  # nodes only: the graph as it is
+    directed = not (near[0] is not None and far[0] is not None)
+    if directed:  # free points: the directed graph of _with_free_points
+        graph, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree)
+    else:  # nodes only: the graph as it is
         near_ids, far_ids = (np.asarray(q[0], dtype=np.int64) for q in (near, far))
-        unique, order = np.unique(near_ids, return_inverse=True)
-        rows = dijkstra_rows(graph, unique)[order.reshape(-1)][:, far_ids]
+    unique, order = np.unique(near_ids, return_inverse=True)
+    edges = None
+    if paths:
+        full, predecessors = dijkstra_tree(graph, unique, directed=directed)
+        edges = path_edges(predecessors, far_ids, points.shape[0])
     else:
-        augmented, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree)
-        unique, order = np.unique(near_ids, return_inverse=True)
-        rows = dijkstra_rows(augmented, unique, directed=True)[order.reshape(-1)][:, far_ids]
-    return rows.T if flip else rows
+        full = dijkstra_rows(graph, unique, directed=directed)
+    rows = full[order.reshape(-1)][:, far_ids]
+    return (rows.T if flip else rows), edges
 
 
 def _with_free_points(

@@ -547,13 +547,22 @@ class NumpyPredictor:
 
     def _edge_geodesics(self, state: NumpyShapeState) -> EdgeGeodesics:
         """The fusion veto's predicted geodesics of point pairs (canonical units, float64),
-        from a feature table of every point kept with ``state``."""
+        from a feature table kept with ``state`` whose rows are computed as pairs need them
+        (a single pair's veto reads a few dozen points, not the whole cloud)."""
 
         def edges(i: NDArray, j: NDArray) -> NDArray:
-            table = state._kept.get("fusion.veto_features")
-            if table is None:
-                features = self._veto.point_features(state.canonical, state.shape_bias)
-                table = state._kept["fusion.veto_features"] = features
+            kept = state._kept.get("fusion.veto_features")
+            if kept is None:
+                width = self._veto.point_features(state.canonical[:2], state.shape_bias)
+                table = np.zeros((state.n_points, width.shape[1]), dtype=width.dtype)
+                kept = state._kept["fusion.veto_features"] = (table, np.zeros(len(table), bool))
+            table, known = kept
+            missing = np.unique(np.concatenate([i, j])[~known[np.concatenate([i, j])]])
+            if missing.size:  # one row is computed as two (as the torch predictor does)
+                rows = np.resize(missing, max(2, missing.size))
+                features = self._veto.point_features(state.canonical[rows], state.shape_bias)
+                table[missing] = features[: missing.size]
+                known[missing] = True
             out = np.empty(i.shape[0])
             for start in range(0, i.shape[0], PAIR_CHUNK):
                 a, b = i[start : start + PAIR_CHUNK], j[start : start + PAIR_CHUNK]

@@ -681,12 +681,12 @@ class Predictor:
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:
         """``(E,)`` float64 predicted geodesics between vertex pairs ``(i, j)`` (canonical).
 
-        Uses this head's feature table of ``state`` if a query built it, else builds one
-        that is not kept (the fusion graph that needs it is kept instead)."""
+        Uses this head's feature table of ``state`` if a query built it, else the features of
+        the pairs' points only, kept with the state for the fusion's later veto rounds (a
+        single pair's veto reads a few dozen points, not the whole cloud)."""
         table = self._table(state)
         if table is None:
-            with torch.no_grad():
-                table = self._features_of(state.canonical_vertices, state.shape_bias)
+            table = self._veto_features(state, np.concatenate([i, j]))
         out = np.empty(i.shape[0])
         with torch.no_grad():
             for start in range(0, i.shape[0], self.chunk_pairs):
@@ -701,6 +701,26 @@ class Predictor:
                 )
                 out[start : start + a.shape[0]] = self._finish(head, eu).cpu().numpy()
         return out
+
+    def _veto_features(self, state: ShapeState, points: NDArray) -> torch.Tensor:
+        """``(N, F)`` head features whose rows ``points`` are computed (the others are zero
+        until a later call computes them), kept with ``state`` under ``fusion.veto.<head>``."""
+        key = f"fusion.veto.{self._table_key}"
+        kept = state._lazy.get(key)
+        if kept is None:
+            width = self._features_of(state.canonical_vertices[:2], state.shape_bias).shape[1]
+            table = torch.zeros((state.n_points, width), device=self.device)
+            kept = state._lazy[key] = (table, np.zeros(state.n_points, dtype=bool))
+        table, known = kept
+        missing = np.unique(points[~known[points]])
+        if missing.size:
+            rows = torch.from_numpy(missing).to(self.device)
+            with torch.no_grad():
+                table[rows] = self._features_of(
+                    state.canonical_vertices.index_select(0, rows), state.shape_bias
+                )
+            known[missing] = True
+        return table
 
     def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:
         out = head / self.target_scale

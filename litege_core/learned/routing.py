@@ -70,15 +70,24 @@ def shape_agreement(
             as :func:`~litege_core.learned.fusion.shape_graph` (the graph is kept in ``kept``,
             where the fused queries find it).
     """
-    from litege_core.engines.graph import dijkstra_rows  # scipy: on first use
-    from litege_core.learned.fusion import shape_graph
+    from litege_core.learned.fusion import graph_rows, shape_graph
     from litege_core.sampling import farthest_point_sampling
 
     sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
     network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
-    graph, _ = shape_graph(points, faces, calibration, kept, edge_geodesics, veto_key)
+    graph, _ = shape_graph(points, faces, calibration, kept, veto_key)
+    every = np.arange(points.shape[0])
+    rows = graph_rows(
+        graph,
+        points,
+        (sources, points[sources]),
+        (every, points),
+        calibration.k,
+        None,
+        edge_geodesics,
+    )
     bias = calibration.graph_bias(points.shape[0], faces is not None)
-    return graph_agreement(network, dijkstra_rows(graph, sources), bias)
+    return graph_agreement(network, rows, bias)
 
 
 def choose_model(

@@ -248,15 +248,25 @@ class ResolvedPoints:
 
 
 def _fusion_nbytes(value: Any) -> int:
-    """Bytes of one thing the graph fusion keeps with a state: a sparse graph, the
-    ``(roughness, normals)`` pair or a k-d tree (its points and index)."""
+    """Bytes of one thing the graph fusion keeps with a state: a sparse graph, a cloud's
+    lazily vetoed graph, the ``(roughness, normals)`` pair, the veto's feature rows or a k-d
+    tree (its points and index)."""
     if hasattr(value, "indptr"):  # a CSR graph
         return int(value.data.nbytes + value.indices.nbytes + value.indptr.nbytes)
-    if isinstance(value, tuple):  # (roughness, normals)
-        return int(sum(getattr(part, "nbytes", 0) for part in value))
+    if isinstance(value, tuple):  # (roughness, normals) or (veto features, known rows)
+        return int(sum(_array_nbytes(part) for part in value))
+    if hasattr(value, "judged"):  # a LazyVetoGraph
+        return int(value.nbytes)
     if hasattr(value, "data") and hasattr(value, "indices"):  # a cKDTree
         return int(value.data.nbytes + value.indices.nbytes)
     return 0
+
+
+def _array_nbytes(value: Any) -> int:
+    """Bytes of a numpy array or a torch tensor (0 for anything else)."""
+    if isinstance(value, torch.Tensor):
+        return value.numel() * value.element_size()
+    return int(getattr(value, "nbytes", 0))
 
 
 __all__ = ["OOD_Z_THRESHOLD", "ResolvedPoints", "ShapeRecord", "ShapeState"]

@@ -1,0 +1,155 @@
+"""A cloud's fusion graph whose network veto runs only on the edges that shortest paths use.
+
+The fusion cuts every k-NN edge whose predicted geodesic exceeds ``prune_ratio`` × its chord
+(:func:`~litege_core.learned.fusion.pruned_knn_graph`). Evaluating the veto head on every edge
+(~8 N for N points) costs more than everything else in a single-pair query on a cloud. Yet a
+query only reads the lengths of shortest paths, and a shortest path that crosses no cut edge of
+the full veto is also a shortest path of the fully vetoed graph (it is a path there, and that
+graph has fewer edges). So :func:`vetoed_rows` repeats:
+
+1. Dijkstra on the graph without the cuts found so far, keeping the predecessors;
+2. the veto on the not yet judged edges of the paths the query reads (each source's path to each
+   target for a few pairs, each source's whole shortest-path tree for a few sources, every edge
+   for many sources);
+3. stop when none of them is cut,
+
+which gives the rows of the fully vetoed graph exactly, judging a few dozen edges for one pair
+and about N for a distance field. Verdicts are kept with the shape, so later queries start from
+them. After :data:`MAX_ROUNDS` rounds every remaining edge is judged at once (a bounded cost:
+at most the full veto and that many Dijkstra runs).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
+EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
+"""``(i (E,), j (E,)) → (E,)`` predicted geodesics between point pairs (canonical units)."""
+
+MAX_ROUNDS = 8
+"""Dijkstra rounds of :func:`vetoed_rows` before every remaining edge is judged at once."""
+PATH_PAIRS = 4096
+"""Up to this many (source, target) pairs the veto judges the edges of their paths only."""
+TREE_SOURCES = 16
+"""Up to this many Dijkstra sources it judges their shortest-path trees; beyond, every edge."""
+
+_UNKNOWN, _KEEP, _CUT = 0, 1, -1
+
+
+class LazyVetoGraph:
+    """A cloud's graph before the veto (k-NN, normal limit) and the verdicts found so far.
+
+    Args:
+        graph: ``(n, n)`` upper-triangular CSR of chord lengths, indices sorted within rows
+            (as :func:`~litege_core.engines.graph.edge_graph` builds them).
+        prune_ratio: an edge is cut when its predicted geodesic exceeds this × its chord.
+    """
+
+    def __init__(self, graph: sp.csr_array, prune_ratio: float) -> None:
+        n = graph.shape[0]
+        self.prune_ratio = float(prune_ratio)
+        self._base = graph
+        self._starts = np.repeat(np.arange(n, dtype=np.int64), np.diff(graph.indptr))
+        self._keys = self._starts * max(n, 1) + graph.indices  # ascending
+        self._verdicts = np.zeros(graph.nnz, dtype=np.int8)
+        self._graph = graph
+
+    @property
+    def graph(self) -> sp.csr_array:
+        """The graph without the edges cut so far (what Dijkstra runs on)."""
+        return self._graph
+
+    @property
+    def judged(self) -> int:
+        """Edges the veto has judged so far."""
+        return int(np.count_nonzero(self._verdicts))
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self._starts, self._keys, self._verdicts)
+        total = sum(a.nbytes for a in arrays)
+        for graph in {id(self._base): self._base, id(self._graph): self._graph}.values():
+            total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes
+        return int(total)
+
+    def positions(self, a: NDArray, b: NDArray) -> NDArray:
+        """Positions in the base graph of the edges ``(a, b)`` (node pairs in either order;
+        pairs that are not edges are dropped)."""
+        n = max(self._base.shape[0], 1)
+        keys = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
+        found = np.searchsorted(self._keys, keys)
+        found = np.minimum(found, self._keys.size - 1)
+        hit = self._keys.size > 0
+        return np.unique(found[self._keys[found] == keys]) if hit else found[:0]
+
+    def judge(self, positions: NDArray | None, edge_geodesics: EdgeGeodesics) -> bool:
+        """Runs the veto on the not yet judged edges among ``positions`` (``None``: every
+        edge); ``True`` if it cut any."""
+        unknown = np.flatnonzero(self._verdicts == _UNKNOWN)
+        if positions is not None:
+            unknown = positions[self._verdicts[positions] == _UNKNOWN]
+        if unknown.size == 0:
+            return False
+        predicted = edge_geodesics(self._starts[unknown], self._base.indices[unknown])
+        cut = predicted > self.prune_ratio * self._base.data[unknown]
+        self._verdicts[unknown] = np.where(cut, _CUT, _KEEP)
+        if not cut.any():
+            return False
+        import scipy.sparse as sp
+
+        keep = self._verdicts != _CUT
+        n = self._base.shape[0]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(self._starts[keep], minlength=n))])
+        self._graph = sp.csr_array(
+            (self._base.data[keep], self._base.indices[keep], indptr), shape=self._base.shape
+        )
+        return True
+
+    def vetoed(self, edge_geodesics: EdgeGeodesics) -> sp.csr_array:
+        """The fully vetoed graph (judges every remaining edge)."""
+        self.judge(None, edge_geodesics)
+        return self._graph
+
+
+def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray] | None:
+    """The edges ``(a, b)`` (both ends below ``n_nodes``) of the shortest paths from each
+    Dijkstra source to each ``far`` node, read from scipy's ``(U, M)`` predecessors
+    (``-9999``: none): the paths themselves for up to :data:`PATH_PAIRS` pairs, each source's
+    whole tree for up to :data:`TREE_SOURCES` sources, else ``None`` (judge every edge)."""
+    sources, width = predecessors.shape
+    if sources * far.size <= PATH_PAIRS:
+        row = np.repeat(np.arange(sources), far.size)
+        node = np.tile(np.asarray(far, dtype=np.int64), sources)
+        starts, ends = [], []
+        while node.size:
+            previous = predecessors[row, node]
+            step = previous >= 0
+            starts.append(previous[step])
+            ends.append(node[step])
+            row, node = row[step], previous[step]
+        a, b = np.concatenate(starts), np.concatenate(ends)
+    elif sources <= TREE_SOURCES:
+        step = predecessors >= 0
+        a = predecessors[step]
+        b = np.broadcast_to(np.arange(width), predecessors.shape)[step]
+    else:
+        return None
+    inside = (a < n_nodes) & (b < n_nodes)
+    return a[inside], b[inside]
+
+
+__all__ = [
+    "MAX_ROUNDS",
+    "PATH_PAIRS",
+    "TREE_SOURCES",
+    "EdgeGeodesics",
+    "LazyVetoGraph",
+    "path_edges",
+]

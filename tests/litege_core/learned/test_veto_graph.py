@@ -1,0 +1,128 @@
+"""The lazily vetoed fusion graph (issue 17): its rows equal Dijkstra on the eagerly vetoed
+graph for every kind of query, it judges far fewer edges than the full veto for a few pairs, and
+its verdicts are kept for later queries."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import dijkstra
+
+from litege_core.learned import veto_graph
+from litege_core.learned.fusion import graph_rows, pruned_knn_graph
+from litege_core.learned.veto_graph import LazyVetoGraph, path_edges
+
+K, RATIO = 8, 1.3
+
+
+class CountingVeto:
+    """A veto that calls every edge whose ends' ids sum to a multiple of ``period`` a
+    shortcut (predicted 3 × the chord) and counts the edges it is asked about."""
+
+    def __init__(self, points: np.ndarray, period: int = 5) -> None:
+        self.points, self.period, self.asked = points, period, 0
+
+    def __call__(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        self.asked += i.size
+        chord = np.linalg.norm(self.points[i] - self.points[j], axis=1)
+        return np.where((i + j) % self.period == 0, 3.0, 1.0) * chord
+
+
+def _cloud(n: int = 600, seed: int = 0) -> np.ndarray:
+    directions = np.random.default_rng(seed).normal(size=(n, 3))
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True) * (1.0, 0.6, 0.4)
+
+
+def _lazy(points: np.ndarray) -> LazyVetoGraph:
+    return LazyVetoGraph(pruned_knn_graph(points, K, RATIO, None), RATIO)
+
+
+def _eager_rows(points, veto, sources, targets) -> np.ndarray:
+    graph = pruned_knn_graph(points, K, RATIO, veto)
+    return dijkstra(graph, directed=False, indices=sources)[:, targets]
+
+
+@pytest.mark.parametrize(
+    ("n_sources", "n_targets"),
+    [(1, 1), (3, 5), (1, None), (4, None), (40, None), (None, 2)],  # None: every point
+)
+def test_lazy_rows_equal_the_eagerly_vetoed_graph(n_sources, n_targets) -> None:
+    points = _cloud()
+    n = points.shape[0]
+    rng = np.random.default_rng(1)
+    sources = np.arange(n) if n_sources is None else rng.choice(n, n_sources, replace=False)
+    targets = np.arange(n) if n_targets is None else rng.choice(n, n_targets, replace=False)
+    veto = CountingVeto(points)
+    lazy = _lazy(points)
+    rows = graph_rows(lazy, points, (sources, None), (targets, None), K, None, veto)
+    assert veto.asked == lazy.judged  # each edge judged once
+    np.testing.assert_allclose(rows, _eager_rows(points, veto, sources, targets), rtol=1e-12)
+
+
+def test_one_pair_judges_a_few_edges_and_later_queries_reuse_the_verdicts() -> None:
+    points = _cloud(2000)
+    veto = CountingVeto(points)
+    lazy = _lazy(points)
+    edges = lazy.graph.nnz
+    query = (np.array([3]), None), (np.array([1500]), None)
+    first = graph_rows(lazy, points, *query, K, None, veto)
+    assert lazy.graph.nnz < edges  # the veto cut some edges of the paths
+    assert 0 < veto.asked < 0.05 * edges  # the paths' edges, not the whole graph
+    asked = veto.asked
+    again = graph_rows(lazy, points, *query, K, None, veto)
+    assert veto.asked == asked  # nothing left to judge on that path
+    np.testing.assert_array_equal(again, first)
+    np.testing.assert_allclose(first, _eager_rows(points, veto, [3], [1500]), rtol=1e-12)
+
+
+def test_free_query_points_are_vetoed_like_nodes() -> None:
+    points = _cloud()
+    rng = np.random.default_rng(2)
+    free = rng.normal(size=(3, 3)) * 0.3 + points[:3]
+    veto = CountingVeto(points)
+    lazy = _lazy(points)
+    targets = np.arange(0, points.shape[0], 7)
+    rows = graph_rows(lazy, points, (None, free), (targets, None), K, None, veto)
+    # the reference: the same free points on the eagerly vetoed graph
+    eager = pruned_knn_graph(points, K, RATIO, veto)
+    expected = graph_rows(eager, points, (None, free), (targets, None), K)
+    np.testing.assert_allclose(rows, expected, rtol=1e-12)
+
+
+def test_after_max_rounds_every_edge_is_judged(monkeypatch) -> None:
+    points = _cloud()
+    monkeypatch.setattr(veto_graph, "MAX_ROUNDS", 1)
+    monkeypatch.setattr("litege_core.learned.fusion.MAX_ROUNDS", 1)
+    veto = CountingVeto(points, period=3)
+    lazy = _lazy(points)
+    rows = graph_rows(lazy, points, (np.array([0]), None), (np.arange(600), None), K, None, veto)
+    assert lazy.judged == lazy._verdicts.size  # the first round cut edges: all were judged
+    np.testing.assert_allclose(rows, _eager_rows(points, veto, [0], np.arange(600)), rtol=1e-12)
+
+
+def test_path_edges_walks_paths_trees_or_gives_up() -> None:
+    # a path 0 - 1 - 2 - 3 from source 0, and node 4 unreachable
+    predecessors = np.array([[-9999, 0, 1, 2, -9999]])
+    a, b = path_edges(predecessors, np.array([3, 4]), 5)
+    assert sorted(zip(a.tolist(), b.tolist(), strict=True)) == [(0, 1), (1, 2), (2, 3)]
+    a, b = path_edges(predecessors, np.array([1]), 5)
+    assert list(zip(a.tolist(), b.tolist(), strict=True)) == [(0, 1)]
+    # free nodes (5 and up) are left out
+    a, b = path_edges(np.array([[-9999, 0, 1, 2, -9999, 3]]), np.array([5]), 5)
+    assert sorted(zip(a.tolist(), b.tolist(), strict=True)) == [(0, 1), (1, 2), (2, 3)]
+    many = np.tile(predecessors, (veto_graph.TREE_SOURCES + 1, 1))
+    far = np.arange(5).repeat(veto_graph.PATH_PAIRS // 5 + 1)
+    assert path_edges(many, far, 5) is None
+    a, b = path_edges(many[:2], far, 5)  # two sources, many targets: their trees
+    assert set(zip(a.tolist(), b.tolist(), strict=True)) == {(0, 1), (1, 2), (2, 3)}
+
+
+def test_positions_find_edges_in_either_order() -> None:
+    points = _cloud(50)
+    lazy = _lazy(points)
+    coo = lazy.graph.tocoo()
+    picked = np.array([0, 5, 17])
+    found = lazy.positions(coo.col[picked], coo.row[picked])  # reversed ends
+    np.testing.assert_array_equal(found, picked)
+    assert lazy.positions(np.array([0]), np.array([0])).size == 0  # no self edge
+    assert lazy.nbytes > 0
