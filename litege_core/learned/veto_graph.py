@@ -35,7 +35,7 @@ EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
 
 MAX_ROUNDS = 8
 """Dijkstra rounds of :func:`vetoed_rows` before every remaining edge is judged at once."""
-PATH_PAIRS = 4096
+PATH_PAIRS = 256
 """Up to this many (source, target) pairs the veto judges the edges of their paths only."""
 TREE_SOURCES = 16
 """Up to this many Dijkstra sources it judges their shortest-path trees; beyond, every edge."""
