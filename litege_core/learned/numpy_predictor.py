@@ -551,27 +551,36 @@ class NumpyPredictor:
         (a single pair's veto reads a few dozen points, not the whole cloud)."""
 
         def edges(i: NDArray, j: NDArray) -> NDArray:
-            kept = state._kept.get("fusion.veto_features")
-            if kept is None:
-                width = self._veto.point_features(state.canonical[:2], state.shape_bias)
-                table = np.zeros((state.n_points, width.shape[1]), dtype=width.dtype)
-                kept = state._kept["fusion.veto_features"] = (table, np.zeros(len(table), bool))
-            table, known = kept
-            missing = np.unique(np.concatenate([i, j])[~known[np.concatenate([i, j])]])
-            if missing.size:  # one row is computed as two (as the torch predictor does)
-                rows = np.resize(missing, max(2, missing.size))
-                features = self._veto.point_features(state.canonical[rows], state.shape_bias)
-                table[missing] = features[: missing.size]
-                known[missing] = True
+            table, rows = self._veto_features(state, np.concatenate([i, j]))
+            i_rows, j_rows = rows[i], rows[j]
             out = np.empty(i.shape[0])
             for start in range(0, i.shape[0], PAIR_CHUNK):
                 a, b = i[start : start + PAIR_CHUNK], j[start : start + PAIR_CHUNK]
-                head = self._veto.head(table[a] - table[b])
+                ta, tb = i_rows[start : start + PAIR_CHUNK], j_rows[start : start + PAIR_CHUNK]
+                head = self._veto.head(table[ta] - table[tb])
                 euclidean = np.linalg.norm(state.canonical[a] - state.canonical[b], axis=-1)
                 out[start : start + a.shape[0]] = self._finish(head, euclidean)
             return out
 
         return edges
+
+    def _veto_features(self, state: NumpyShapeState, points: NDArray) -> tuple[NDArray, NDArray]:
+        """Veto-head features of the points the veto has reached: ``(R, F)`` rows and the
+        ``(N,)`` row of each point (``-1``: not computed), ``points`` among the computed ones;
+        kept with ``state`` (``fusion.veto_features``), growing as the veto reaches new points."""
+        table, rows = state._kept.get("fusion.veto_features", (None, None))
+        if rows is None:
+            rows = np.full(state.n_points, -1, dtype=np.int64)
+        missing = np.unique(points[rows[points] < 0])
+        if missing.size:  # one row is computed as two (as the torch predictor does)
+            wanted = np.resize(missing, max(2, missing.size))
+            new = self._veto.point_features(state.canonical[wanted], state.shape_bias)
+            new = new[: missing.size]
+            start = 0 if table is None else table.shape[0]
+            rows[missing] = np.arange(start, start + missing.size)
+            table = new if table is None else np.concatenate([table, new])
+        state._kept["fusion.veto_features"] = (table, rows)
+        return table, rows
 
 
 __all__ = [

@@ -684,43 +684,48 @@ class Predictor:
         Uses this head's feature table of ``state`` if a query built it, else the features of
         the pairs' points only, kept with the state for the fusion's later veto rounds (a
         single pair's veto reads a few dozen points, not the whole cloud)."""
-        table = self._table(state)
+        table, ti, tj = self._table(state), i, j
         if table is None:
-            table = self._veto_features(state, np.concatenate([i, j]))
+            table, rows = self._veto_features(state, np.concatenate([i, j]))
+            ti, tj = rows[i], rows[j]
         out = np.empty(i.shape[0])
+        points = state.canonical_vertices
         with torch.no_grad():
             for start in range(0, i.shape[0], self.chunk_pairs):
                 a = torch.from_numpy(i[start : start + self.chunk_pairs]).to(self.device)
                 b = torch.from_numpy(j[start : start + self.chunk_pairs]).to(self.device)
+                ta = torch.from_numpy(ti[start : start + self.chunk_pairs]).to(self.device)
+                tb = torch.from_numpy(tj[start : start + self.chunk_pairs]).to(self.device)
                 # index_select: ~2.5x faster than advanced indexing on a CPU
-                diff = table.index_select(0, a).sub_(table.index_select(0, b))
+                diff = table.index_select(0, ta).sub_(table.index_select(0, tb))
                 head = self._net.head(diff, inplace=True)
-                points = state.canonical_vertices
                 eu = torch.linalg.vector_norm(
                     points.index_select(0, a).sub_(points.index_select(0, b)), dim=-1
                 )
                 out[start : start + a.shape[0]] = self._finish(head, eu).cpu().numpy()
         return out
 
-    def _veto_features(self, state: ShapeState, points: NDArray) -> torch.Tensor:
-        """``(N, F)`` head features whose rows ``points`` are computed (the others are zero
-        until a later call computes them), kept with ``state`` under ``fusion.veto.<head>``."""
+    def _veto_features(self, state: ShapeState, points: NDArray) -> tuple[torch.Tensor, NDArray]:
+        """Head features of the points the fusion veto has reached: ``(R, F)`` rows and the
+        ``(N,)`` row of each point of ``state`` (``-1``: not computed), ``points`` among the
+        computed ones. Kept with ``state`` under ``fusion.veto.<head>``, growing as veto rounds
+        and later queries reach new points (the whole cloud only if they reach all of it)."""
         key = f"fusion.veto.{self._table_key}"
-        kept = state._lazy.get(key)
-        if kept is None:
-            width = self._features_of(state.canonical_vertices[:2], state.shape_bias).shape[1]
-            table = torch.zeros((state.n_points, width), device=self.device)
-            kept = state._lazy[key] = (table, np.zeros(state.n_points, dtype=bool))
-        table, known = kept
-        missing = np.unique(points[~known[points]])
+        table, rows = state._lazy.get(key, (None, None))
+        if rows is None:
+            rows = np.full(state.n_points, -1, dtype=np.int64)
+        missing = np.unique(points[rows[points] < 0])
         if missing.size:
-            rows = torch.from_numpy(missing).to(self.device)
             with torch.no_grad():
-                table[rows] = self._features_of(
-                    state.canonical_vertices.index_select(0, rows), state.shape_bias
+                new = self._features_of(
+                    state.canonical_vertices[torch.from_numpy(missing).to(self.device)],
+                    state.shape_bias,
                 )
-            known[missing] = True
-        return table
+            start = 0 if table is None else table.shape[0]
+            rows[missing] = np.arange(start, start + missing.size)
+            table = new if table is None else torch.cat([table, new])
+        state._lazy[key] = (table, rows)
+        return table, rows
 
     def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:
         out = head / self.target_scale

@@ -53,13 +53,10 @@ class LazyVetoGraph:
     """
 
     def __init__(self, graph: sp.csr_array, prune_ratio: float) -> None:
-        n = graph.shape[0]
         self.prune_ratio = float(prune_ratio)
         self._base = graph
-        self._starts = np.repeat(np.arange(n, dtype=np.int64), np.diff(graph.indptr))
-        self._keys = self._starts * max(n, 1) + graph.indices  # ascending
         self._verdicts = np.zeros(graph.nnz, dtype=np.int8)
-        self._graph = graph
+        self._graph = graph  # the base without the cut edges (the base itself until a cut)
 
     @property
     def graph(self) -> sp.csr_array:
@@ -73,21 +70,26 @@ class LazyVetoGraph:
 
     @property
     def nbytes(self) -> int:
-        arrays = (self._starts, self._keys, self._verdicts)
-        total = sum(a.nbytes for a in arrays)
+        total = self._verdicts.nbytes
         for graph in {id(self._base): self._base, id(self._graph): self._graph}.values():
             total += graph.data.nbytes + graph.indices.nbytes + graph.indptr.nbytes
         return int(total)
+
+    def _starts(self) -> NDArray:
+        """``(E,)`` the first end of each base edge (its CSR row)."""
+        n = self._base.shape[0]
+        return np.repeat(np.arange(n, dtype=np.int64), np.diff(self._base.indptr))
 
     def positions(self, a: NDArray, b: NDArray) -> NDArray:
         """Positions in the base graph of the edges ``(a, b)`` (node pairs in either order;
         pairs that are not edges are dropped)."""
         n = max(self._base.shape[0], 1)
+        edges = self._starts() * n + self._base.indices  # ascending (rows, then columns)
         keys = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
-        found = np.searchsorted(self._keys, keys)
-        found = np.minimum(found, self._keys.size - 1)
-        hit = self._keys.size > 0
-        return np.unique(found[self._keys[found] == keys]) if hit else found[:0]
+        if edges.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        found = np.minimum(np.searchsorted(edges, keys), edges.size - 1)
+        return np.unique(found[edges[found] == keys])
 
     def judge(self, positions: NDArray | None, edge_geodesics: EdgeGeodesics) -> bool:
         """Runs the veto on the not yet judged edges among ``positions`` (``None``: every
@@ -97,7 +99,8 @@ class LazyVetoGraph:
             unknown = positions[self._verdicts[positions] == _UNKNOWN]
         if unknown.size == 0:
             return False
-        predicted = edge_geodesics(self._starts[unknown], self._base.indices[unknown])
+        starts = self._starts()
+        predicted = edge_geodesics(starts[unknown], self._base.indices[unknown])
         cut = predicted > self.prune_ratio * self._base.data[unknown]
         self._verdicts[unknown] = np.where(cut, _CUT, _KEEP)
         if not cut.any():
@@ -106,7 +109,7 @@ class LazyVetoGraph:
 
         keep = self._verdicts != _CUT
         n = self._base.shape[0]
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(self._starts[keep], minlength=n))])
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(starts[keep], minlength=n))])
         self._graph = sp.csr_array(
             (self._base.data[keep], self._base.indices[keep], indptr), shape=self._base.shape
         )
