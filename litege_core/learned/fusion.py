@@ -51,7 +51,13 @@ from numpy.typing import NDArray
 
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import read_json_object, write_json_atomic
-from litege_core.learned.veto_graph import MAX_ROUNDS, EdgeGeodesics, LazyVetoGraph, path_edges
+from litege_core.learned.veto_graph import (
+    LAZY_SOURCES,
+    MAX_ROUNDS,
+    EdgeGeodesics,
+    LazyVetoGraph,
+    path_edges,
+)
 
 if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports it
     import scipy.sparse as sp
@@ -405,11 +411,13 @@ def graph_rows(
         return _graph_rows(graph, points, src, dst, k, tree, paths=False)[0]
     if edge_geodesics is None:
         raise InputError("a lazily vetoed graph needs the veto's edge geodesics")
-    for _ in range(MAX_ROUNDS):
-        rows, edges = _graph_rows(graph.graph, points, src, dst, k, tree, paths=True)
-        positions = None if edges is None else graph.positions(*edges)
-        if not graph.judge(positions, edge_geodesics):
-            return rows
+    sizes = [q[1].shape[0] if q[0] is None else np.unique(q[0]).size for q in (src, dst)]
+    if min(sizes) <= LAZY_SOURCES:  # the Dijkstra runs of a round are few: judge lazily
+        for _ in range(MAX_ROUNDS):
+            rows, edges = _graph_rows(graph.graph, points, src, dst, k, tree, paths=True)
+            assert edges is not None
+            if not graph.judge(graph.positions(*edges), edge_geodesics):
+                return rows
     final = graph.vetoed(edge_geodesics)
     return _graph_rows(final, points, src, dst, k, tree, paths=False)[0]
 
@@ -424,7 +432,7 @@ def _graph_rows(
     paths: bool,
 ) -> tuple[NDArray, tuple[NDArray, NDArray] | None]:
     """:func:`graph_rows` on a plain graph; with ``paths``, also the edges of the shortest
-    paths it read (:func:`~litege_core.learned.veto_graph.path_edges`; ``None``: all)."""
+    paths it read (:func:`~litege_core.learned.veto_graph.path_edges`)."""
     from litege_core.engines.graph import dijkstra_rows, dijkstra_tree
 
     count = [q[1].shape[0] if q[0] is None else np.asarray(q[0]).size for q in (src, dst)]

@@ -9,14 +9,15 @@ graph has fewer edges). So :func:`vetoed_rows` repeats:
 
 1. Dijkstra on the graph without the cuts found so far, keeping the predecessors;
 2. the veto on the not yet judged edges of the paths the query reads (each source's path to each
-   target for a few pairs, each source's whole shortest-path tree for a few sources, every edge
-   for many sources);
+   target for a few pairs, else each source's whole shortest-path tree);
 3. stop when none of them is cut,
 
 which gives the rows of the fully vetoed graph exactly, judging a few dozen edges for one pair
-and about N for a distance field. Verdicts are kept with the shape, so later queries start from
-them. After :data:`MAX_ROUNDS` rounds every remaining edge is judged at once (a bounded cost:
-at most the full veto and that many Dijkstra runs).
+and about N for a distance field. Each round repeats the Dijkstra runs, so a query that needs
+more than :data:`LAZY_SOURCES` of them judges every edge first instead (one run each, as
+before). Verdicts are kept with the shape, so later queries start from them. After
+:data:`MAX_ROUNDS` rounds every remaining edge is judged at once (a bounded cost: at most the
+full veto and that many Dijkstra runs).
 """
 
 from __future__ import annotations
@@ -35,10 +36,13 @@ EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
 
 MAX_ROUNDS = 8
 """Dijkstra rounds of :func:`vetoed_rows` before every remaining edge is judged at once."""
+LAZY_SOURCES = 2
+"""Most Dijkstra sources of a lazily vetoed query: on a 2K cloud a round of Dijkstra costs
+~0.8 ms a source and the full veto ~5 ms, so beyond two sources judging every edge first is
+cheaper."""
 PATH_PAIRS = 256
-"""Up to this many (source, target) pairs the veto judges the edges of their paths only."""
-TREE_SOURCES = 16
-"""Up to this many Dijkstra sources it judges their shortest-path trees; beyond, every edge."""
+"""Up to this many (source, target) pairs the veto judges the edges of their paths only, beyond
+it each source's whole shortest-path tree."""
 
 _UNKNOWN, _KEEP, _CUT = 0, 1, -1
 
@@ -121,11 +125,11 @@ class LazyVetoGraph:
         return self._graph
 
 
-def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray] | None:
+def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray]:
     """The edges ``(a, b)`` (both ends below ``n_nodes``) of the shortest paths from each
     Dijkstra source to each ``far`` node, read from scipy's ``(U, M)`` predecessors
-    (``-9999``: none): the paths themselves for up to :data:`PATH_PAIRS` pairs, each source's
-    whole tree for up to :data:`TREE_SOURCES` sources, else ``None`` (judge every edge)."""
+    (``-9999``: none): the paths themselves for up to :data:`PATH_PAIRS` pairs, else each
+    source's whole tree."""
     sources, width = predecessors.shape
     if sources * far.size <= PATH_PAIRS:
         row = np.repeat(np.arange(sources), far.size)
@@ -138,20 +142,18 @@ def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArr
             ends.append(node[step])
             row, node = row[step], previous[step]
         a, b = np.concatenate(starts), np.concatenate(ends)
-    elif sources <= TREE_SOURCES:
+    else:
         step = predecessors >= 0
         a = predecessors[step]
         b = np.broadcast_to(np.arange(width), predecessors.shape)[step]
-    else:
-        return None
     inside = (a < n_nodes) & (b < n_nodes)
     return a[inside], b[inside]
 
 
 __all__ = [
+    "LAZY_SOURCES",
     "MAX_ROUNDS",
     "PATH_PAIRS",
-    "TREE_SOURCES",
     "EdgeGeodesics",
     "LazyVetoGraph",
     "path_edges",

@@ -59,6 +59,15 @@ def test_lazy_rows_equal_the_eagerly_vetoed_graph(n_sources, n_targets) -> None:
     np.testing.assert_allclose(rows, _eager_rows(points, veto, sources, targets), rtol=1e-12)
 
 
+def test_many_sources_judge_every_edge_before_one_dijkstra() -> None:
+    points = _cloud()
+    veto = CountingVeto(points)
+    lazy = _lazy(points)
+    sources = np.arange(veto_graph.LAZY_SOURCES + 1)
+    graph_rows(lazy, points, (sources, None), (np.arange(600), None), K, None, veto)
+    assert lazy.judged == lazy._verdicts.size == veto.asked
+
+
 def test_one_pair_judges_a_few_edges_and_later_queries_reuse_the_verdicts() -> None:
     points = _cloud(2000)
     veto = CountingVeto(points)
@@ -110,10 +119,8 @@ def test_path_edges_walks_paths_trees_or_gives_up() -> None:
     # free nodes (5 and up) are left out
     a, b = path_edges(np.array([[-9999, 0, 1, 2, -9999, 3]]), np.array([5]), 5)
     assert sorted(zip(a.tolist(), b.tolist(), strict=True)) == [(0, 1), (1, 2), (2, 3)]
-    many = np.tile(predecessors, (veto_graph.TREE_SOURCES + 1, 1))
     far = np.arange(5).repeat(veto_graph.PATH_PAIRS // 5 + 1)
-    assert path_edges(many, far, 5) is None
-    a, b = path_edges(many[:2], far, 5)  # two sources, many targets: their trees
+    a, b = path_edges(np.tile(predecessors, (2, 1)), far, 5)  # many pairs: the trees
     assert set(zip(a.tolist(), b.tolist(), strict=True)) == {(0, 1), (1, 2), (2, 3)}
 
 
