@@ -1,0 +1,241 @@
+"""How much of the fused cloud error is the graph's shortcuts? (issue 14, diagnosis)
+
+For every real dev shape and cloud setting this script rebuilds the fusion's cloud graph four
+ways and reports the graph error (``graph / b``) and the fused error of each:
+
+    shipped    the calibration's graph: k-NN, normal limit, the network's veto
+    no veto    k-NN and normal limit only
+    oracle     k-NN and normal limit, and every edge cut whose true geodesic exceeds
+               ``--oracle-ratio`` × its chord (a diagnosis, not a method: it reads the mesh)
+    oracle+net both vetoes
+
+The true edge geodesic is the shortest route from one cloud point through a corner of its
+triangle, the mesh's two-ring graph (:func:`~litege_core.engines.graph.mesh_ring_graph`) and
+a corner of the other point's triangle (an upper bound, within a few percent of the exact
+value at these edge lengths). Every number comes from this script::
+
+    python scripts/veto_ceiling.py --sets tosca,faust --sources 12 --cache out/exact-cache
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import dataclasses
+from datetime import UTC, datetime
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import dijkstra
+
+from litege_core.engines.graph import dijkstra_rows, knn_neighbours, mesh_ring_graph
+from litege_core.evaluation.geodesic import (
+    REAL_SETS,
+    EvalShape,
+    real_eval_shapes,
+    real_shape_paths,
+)
+from litege_core.evaluation.speed import cpu_name
+from litege_core.learned import Predictor
+from litege_core.learned.bundle import load_model
+from litege_core.learned.fusion import fuse, local_surface, pruned_knn_graph
+from litege_core.sampling import sample_surface
+from litege_core.shape import Shape
+from litege_core.variants import add_noise
+
+MID_LIMITS: list[float] = []
+VARIANTS = ["shipped", "no veto", "oracle", "oracle + net"]
+
+
+@dataclasses.dataclass
+class CloudInput:
+    points: NDArray  # (P, 3) input cloud (unit-area units)
+    faces: NDArray  # (P,) the mesh triangle each point was sampled on
+    sources: NDArray  # (R,) source indices into points
+    gt: NDArray  # (R, P)
+
+
+def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
+    """As :func:`~litege_core.evaluation.geodesic.make_input` for clouds and noise, keeping
+    each point's triangle (a source keeps one of its vertex's triangles)."""
+    n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
+    n_sources = shape.sources.size
+    samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
+    corner_gt = shape.gt[:, shape.faces[samples.face_index]]
+    sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
+    points = np.concatenate([shape.vertices[shape.sources], samples.points])
+    gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
+    if setting.startswith("noise_"):
+        points = add_noise(points, float(setting[6:]), seed)
+    source_faces = np.array([np.flatnonzero((shape.faces == v).any(1))[0] for v in shape.sources])
+    faces = np.concatenate([source_faces, samples.face_index])
+    return CloudInput(points, faces, np.arange(n_sources), gt)
+
+
+def oracle_edges(shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float):
+    """``(i, j) → (E,)`` true-ish geodesics between cloud points (unit-area units, ``inf``
+    beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph."""
+    graph = mesh_ring_graph(shape.vertices, shape.faces, 2)
+    table = dijkstra(graph, directed=False, limit=reach).astype(np.float32)  # (V, V)
+    corners = shape.faces[cloud.faces]  # (P, 3)
+    to_corner = np.linalg.norm(shape.vertices[corners] - clean[:, None], axis=-1)  # (P, 3)
+
+    def geodesics(i: NDArray, j: NDArray) -> NDArray:
+        best = np.full(i.shape[0], np.inf)
+        for a in range(3):
+            for b in range(3):
+                d = to_corner[i, a] + table[corners[i, a], corners[j, b]] + to_corner[j, b]
+                best = np.minimum(best, d)
+        return best
+
+    return geodesics
+
+
+def facing_cut(points: NDArray, normals: NDArray, limit: float):
+    """``(i, j) → (E,)`` bool: the chord runs along the two ends' mean normal (aligned to
+    one sign), ``|n̄ · ĉ| > limit``: a smooth arc's chord is perpendicular to it, a chord
+    across a gap between two sheets is not."""
+
+    def cut(i: NDArray, j: NDArray) -> NDArray:
+        sign = np.sign(np.einsum("ei,ei->e", normals[i], normals[j]))
+        sign[sign == 0] = 1.0
+        mean = normals[i] + sign[:, None] * normals[j]
+        mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+        chord = points[j] - points[i]
+        chord /= np.maximum(np.linalg.norm(chord, axis=1, keepdims=True), 1e-300)
+        return np.abs(np.einsum("ei,ei->e", mean, chord)) > limit
+
+    return cut
+
+
+def error(rows: NDArray, gt: NDArray) -> float:
+    """Mean |rows − gt| with GT mean 100 (per shape)."""
+    return float(np.mean(np.abs(rows - gt)) / np.mean(gt) * 100.0)
+
+
+def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, oracle_ratio: float):
+    cloud = cloud_input(shape, setting, seed=0)
+    clean = cloud.points
+    if setting.startswith("noise_"):  # the corners are the clean sample's
+        clean = cloud_input(shape, "cloud_2000", seed=0).points
+    state = predictor.register(Shape.from_arrays(cloud.points))
+    calibration = predictor.fusion
+    points, scale = state.canonical_points, state.transform.scale
+    n = points.shape[0]
+    k, ratio = calibration.k, calibration.prune_ratio
+    neighbours = knn_neighbours(points, k)
+    flatness, normals = local_surface(points, nearest=neighbours[1])
+    roughness = float(np.median(flatness))
+    normal_cos = calibration.normal_limit(n)
+    network = network_only.distances(state, cloud.sources).astype(np.float64)  # user units
+    reach = 8.0 * float(neighbours[0][:, -1].max()) / scale
+    truth = oracle_edges(shape, cloud, clean, reach)
+    network_veto = predictor._edge_geodesics(state)
+
+    def oracle(i, j):
+        # canonical units; scaled so that the calibration's ratio cuts at ``oracle_ratio``
+        return truth(i, j) * scale * ratio / oracle_ratio
+
+    def both(i, j):
+        return np.maximum(oracle(i, j), network_veto(i, j))
+
+    vetoes = {"shipped": network_veto, "no veto": None, "oracle": oracle, "oracle + net": both}
+    for limit in MID_LIMITS:
+        facing = facing_cut(points, normals, limit)
+        vetoes[f"mean normal {limit}"] = lambda i, j, f=facing: np.where(f(i, j), np.inf, 0.0)
+        vetoes[f"mean normal {limit} + net"] = lambda i, j, f=facing: np.where(
+            f(i, j), np.inf, network_veto(i, j)
+        )
+    weight = calibration.network_weight(state.ood_score, n, roughness)
+    out = {}
+    for name, veto in vetoes.items():
+        graph = pruned_knn_graph(points, k, ratio, veto, neighbours, normals, normal_cos)
+        rows = dijkstra_rows(graph, cloud.sources) / scale  # user units
+        corrected = rows / calibration.graph_bias(n)
+        corrected = np.where(np.isfinite(corrected), corrected, network)
+        fused = fuse(network, rows, calibration, state.ood_score, n, roughness)
+        out[name] = (error(corrected, cloud.gt), error(fused, cloud.gt))
+    out["network"] = (error(network, cloud.gt), error(network, cloud.gt))
+    return out, weight
+
+
+def print_table(shapes, results, weights, setting: str, worst: int) -> None:
+    """One setting's row (means over shapes) and its ``worst`` shapes (by the shipped fused
+    error): graph / fused error of every variant."""
+
+    def cells(rows: list[dict]) -> str:
+        return " | ".join(
+            f"{np.mean([r[v][0] for r in rows]):.2f} / {np.mean([r[v][1] for r in rows]):.2f}"
+            for v in VARIANTS
+        )
+
+    network = np.mean([r["network"][0] for r in results])
+    print(
+        f"| {setting} | {len(shapes)} | {network:.2f} | {cells(results)} "
+        f"| {np.median(weights):.2f} |",
+        flush=True,
+    )
+    for i in np.argsort([-r["shipped"][1] for r in results])[:worst]:
+        print(
+            f"| {setting}: {shapes[i].name} | | {results[i]['network'][0]:.2f} "
+            f"| {cells([results[i]])} | {weights[i]:.2f} |"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sets", default="tosca,faust")
+    parser.add_argument("--settings", default="cloud_2000,cloud_300,noise_0.01")
+    parser.add_argument("--sources", type=int, default=12)
+    parser.add_argument("--eval-root", default="../shared/eval-data")
+    parser.add_argument("--cache", default="out/exact-cache")
+    parser.add_argument("--oracle-ratio", type=float, default=3.0)
+    parser.add_argument("--limit", type=int, default=None, help="the first shapes of each set")
+    parser.add_argument("--worst", type=int, default=4)
+    parser.add_argument(
+        "--mean-normal", default="", help="mean-normal limits to try too, e.g. 0.3,0.5"
+    )
+    args = parser.parse_args()
+    for limit in filter(None, args.mean_normal.split(",")):
+        MID_LIMITS.append(float(limit))
+        VARIANTS.extend([f"mean normal {float(limit)}", f"mean normal {float(limit)} + net"])
+    for key in args.sets.split(","):
+        real = REAL_SETS[key]
+        bundle = load_model(real.model)
+        predictor = Predictor(bundle)  # the shipped defaults: fused
+        network_only = Predictor(bundle, fusion="none")
+        paths = real_shape_paths(args.eval_root, key, args.limit)
+        shapes = real_eval_shapes(paths, real.group, args.sources, args.cache)
+        print(f"\n### {real.group}, `{real.model}`: graph / fused error by cloud graph\n")
+        print(
+            f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine {cpu_name()}; "
+            f"{len(shapes)} shapes, {args.sources} FPS sources each, exact MMP rows, GT mean "
+            f"100; oracle: edges cut whose geodesic on the mesh exceeds {args.oracle_ratio} × "
+            f"the chord; w: the fusion's network weight (median); command `python "
+            f"scripts/veto_ceiling.py --sets {key} --settings {args.settings} --sources "
+            f"{args.sources} --oracle-ratio {args.oracle_ratio}"
+            + (f" --mean-normal {args.mean_normal}" if args.mean_normal else "")
+            + "`\n"
+        )
+        print(
+            "| setting | shapes | network | "
+            + " | ".join(f"{v}: graph / fused" for v in VARIANTS)
+            + " | w |"
+        )
+        print("|---|---:|---:|" + "---:|" * (len(VARIANTS) + 1))
+        for setting in args.settings.split(","):
+            results, weights = [], []
+            for shape in shapes:
+                result, weight = evaluate_shape(
+                    predictor, network_only, shape, setting, args.oracle_ratio
+                )
+                results.append(result)
+                weights.append(weight)
+            print_table(shapes, results, weights, setting, args.worst)
+
+
+if __name__ == "__main__":
+    main()
