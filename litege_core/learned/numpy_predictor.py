@@ -551,6 +551,8 @@ class NumpyPredictor:
         (a single pair's veto reads a few dozen points, not the whole cloud)."""
 
         def edges(i: NDArray, j: NDArray) -> NDArray:
+            if i.size == 0:
+                return np.empty(0)
             table, rows = self._veto_features(state, np.concatenate([i, j]))
             i_rows, j_rows = rows[i], rows[j]
             out = np.empty(i.shape[0])
@@ -577,9 +579,10 @@ class NumpyPredictor:
             new = self._veto.point_features(state.canonical[wanted], state.shape_bias)
             new = new[: missing.size]
             start = 0 if table is None else table.shape[0]
+            rows = rows.copy()  # (table, rows) stay a consistent pair for concurrent readers
             rows[missing] = np.arange(start, start + missing.size)
             table = new if table is None else np.concatenate([table, new])
-        state._kept["fusion.veto_features"] = (table, rows)
+            state._kept["fusion.veto_features"] = (table, rows)
         return table, rows
 
 

@@ -684,6 +684,8 @@ class Predictor:
         Uses this head's feature table of ``state`` if a query built it, else the features of
         the pairs' points only, kept with the state for the fusion's later veto rounds (a
         single pair's veto reads a few dozen points, not the whole cloud)."""
+        if i.size == 0:
+            return np.empty(0)
         table, ti, tj = self._table(state), i, j
         if table is None:
             table, rows = self._veto_features(state, np.concatenate([i, j]))
@@ -722,9 +724,10 @@ class Predictor:
                     state.shape_bias,
                 )
             start = 0 if table is None else table.shape[0]
+            rows = rows.copy()  # (table, rows) stay a consistent pair for concurrent readers
             rows[missing] = np.arange(start, start + missing.size)
             table = new if table is None else torch.cat([table, new])
-        state._lazy[key] = (table, rows)
+            state._lazy[key] = (table, rows)
         return table, rows
 
     def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:

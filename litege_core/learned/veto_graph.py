@@ -22,6 +22,7 @@ full veto and that many Dijkstra runs).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -61,6 +62,7 @@ class LazyVetoGraph:
         self._base = graph
         self._verdicts = np.zeros(graph.nnz, dtype=np.int8)
         self._graph = graph  # the base without the cut edges (the base itself until a cut)
+        self._lock = threading.Lock()
 
     @property
     def graph(self) -> sp.csr_array:
@@ -97,18 +99,25 @@ class LazyVetoGraph:
 
     def judge(self, positions: NDArray | None, edge_geodesics: EdgeGeodesics) -> bool:
         """Runs the veto on the not yet judged edges among ``positions`` (``None``: every
-        edge); ``True`` if it cut any."""
-        unknown = np.flatnonzero(self._verdicts == _UNKNOWN)
-        if positions is not None:
+        edge); ``True`` if any of them is cut, now or before (a path read from a snapshot that
+        another thread has cut since must be read again). Thread-safe: verdicts and the graph
+        change together under a lock, and a verdict never changes once given."""
+        if positions is None:
+            positions = np.arange(self._verdicts.size)
+        with self._lock:
             unknown = positions[self._verdicts[positions] == _UNKNOWN]
-        if unknown.size == 0:
-            return False
-        starts = self._starts()
-        predicted = edge_geodesics(starts[unknown], self._base.indices[unknown])
-        cut = predicted > self.prune_ratio * self._base.data[unknown]
-        self._verdicts[unknown] = np.where(cut, _CUT, _KEEP)
-        if not cut.any():
-            return False
+            if unknown.size:
+                starts = self._starts()
+                predicted = edge_geodesics(starts[unknown], self._base.indices[unknown])
+                cut = predicted > self.prune_ratio * self._base.data[unknown]
+                self._verdicts[unknown] = np.where(cut, _CUT, _KEEP)
+                if cut.any():
+                    self._rebuild(starts)
+            return bool(np.any(self._verdicts[positions] == _CUT))
+
+    def _rebuild(self, starts: NDArray) -> None:
+        """The graph without every edge cut so far (replaced whole: readers keep a snapshot;
+        called under the lock)."""
         import scipy.sparse as sp
 
         keep = self._verdicts != _CUT
@@ -117,12 +126,12 @@ class LazyVetoGraph:
         self._graph = sp.csr_array(
             (self._base.data[keep], self._base.indices[keep], indptr), shape=self._base.shape
         )
-        return True
 
     def vetoed(self, edge_geodesics: EdgeGeodesics) -> sp.csr_array:
         """The fully vetoed graph (judges every remaining edge)."""
         self.judge(None, edge_geodesics)
-        return self._graph
+        with self._lock:
+            return self._graph
 
 
 def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray]:

@@ -133,3 +133,28 @@ def test_positions_find_edges_in_either_order() -> None:
     np.testing.assert_array_equal(found, picked)
     assert lazy.positions(np.array([0]), np.array([0])).size == 0  # no self edge
     assert lazy.nbytes > 0
+
+
+def test_a_path_read_before_another_thread_cut_it_is_read_again() -> None:
+    """``judge`` reports a cut edge among the positions even when another caller judged it: a
+    path taken from an older snapshot of the graph is not final."""
+    points = _cloud(100)
+    veto = CountingVeto(points, period=2)
+    lazy = _lazy(points)
+    snapshot = lazy.graph
+    coo = snapshot.tocoo()
+    positions = lazy.positions(coo.row, coo.col)
+    assert lazy.judge(positions, veto)  # this caller cuts some edges
+    asked = veto.asked
+    assert lazy.judge(positions, veto)  # a second caller on the old snapshot: still cut
+    assert veto.asked == asked  # without judging anything again
+    assert lazy.graph.nnz < snapshot.nnz
+
+
+def test_the_predictors_veto_nothing_when_asked_about_no_edge(toy_predictor) -> None:
+    from litege_core.shape import Shape
+
+    predictor = toy_predictor
+    state = predictor.register(Shape.from_arrays(_cloud(300)))
+    empty = np.zeros(0, dtype=np.int64)
+    assert predictor._pair_distances(state, empty, empty).shape == (0,)
