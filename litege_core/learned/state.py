@@ -253,7 +253,7 @@ def _fusion_nbytes(value: Any) -> int:
     tree (its points and index)."""
     if hasattr(value, "indptr"):  # a CSR graph
         return int(value.data.nbytes + value.indices.nbytes + value.indptr.nbytes)
-    if isinstance(value, tuple):  # (roughness, normals) or (veto features, known rows)
+    if isinstance(value, tuple):  # (roughness, normals) or (veto features, each point's row)
         return int(sum(_array_nbytes(part) for part in value))
     if hasattr(value, "judged"):  # a LazyVetoGraph
         return int(value.nbytes)
