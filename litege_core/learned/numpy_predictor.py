@@ -61,6 +61,7 @@ from litege_core.learned.manifest import (
     verified_small_head,
 )
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
+from litege_core.learned.veto_graph import grown_features
 from litege_core.query import parse_query
 from litege_core.shape import Shape
 
@@ -567,23 +568,19 @@ class NumpyPredictor:
         return edges
 
     def _veto_features(self, state: NumpyShapeState, points: NDArray) -> tuple[NDArray, NDArray]:
-        """Veto-head features of the points the veto has reached: ``(R, F)`` rows and the
-        ``(N,)`` row of each point (``-1``: not computed), ``points`` among the computed ones;
-        kept with ``state`` (``fusion.veto_features``), growing as the veto reaches new points."""
-        table, rows = state._kept.get("fusion.veto_features", (None, None))
-        if rows is None:
-            rows = np.full(state.n_points, -1, dtype=np.int64)
-        missing = np.unique(points[rows[points] < 0])
-        if missing.size:  # one row is computed as two (as the torch predictor does)
+        """Veto-head features of the points the veto has reached
+        (:func:`~litege_core.learned.veto_graph.grown_features`), ``points`` among them; kept
+        with ``state`` (``fusion.veto_features``), growing as the veto reaches new points."""
+
+        def compute(missing: NDArray) -> NDArray:  # one row as two, as the torch predictor
             wanted = np.resize(missing, max(2, missing.size))
-            new = self._veto.point_features(state.canonical[wanted], state.shape_bias)
-            new = new[: missing.size]
-            start = 0 if table is None else table.shape[0]
-            rows = rows.copy()  # (table, rows) stay a consistent pair for concurrent readers
-            rows[missing] = np.arange(start, start + missing.size)
-            table = new if table is None else np.concatenate([table, new])
-            state._kept["fusion.veto_features"] = (table, rows)
-        return table, rows
+            features = self._veto.point_features(state.canonical[wanted], state.shape_bias)
+            return features[: missing.size]
+
+        kept = state._kept["fusion.veto_features"] = grown_features(
+            state._kept.get("fusion.veto_features"), state.n_points, points, compute, np.concatenate
+        )
+        return kept
 
 
 __all__ = [

@@ -91,6 +91,7 @@ from litege_core.learned.manifest import (
 from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
+from litege_core.learned.veto_graph import grown_features
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
@@ -708,27 +709,21 @@ class Predictor:
         return out
 
     def _veto_features(self, state: ShapeState, points: NDArray) -> tuple[torch.Tensor, NDArray]:
-        """Head features of the points the fusion veto has reached: ``(R, F)`` rows and the
-        ``(N,)`` row of each point of ``state`` (``-1``: not computed), ``points`` among the
-        computed ones. Kept with ``state`` under ``fusion.veto.<head>``, growing as veto rounds
-        and later queries reach new points (the whole cloud only if they reach all of it)."""
+        """Head features of the points the fusion veto has reached
+        (:func:`~litege_core.learned.veto_graph.grown_features`), ``points`` among them; kept
+        with ``state`` under ``fusion.veto.<head>``, growing as veto rounds and later queries
+        reach new points (the whole cloud only if they reach all of it)."""
         key = f"fusion.veto.{self._table_key}"
-        table, rows = state._lazy.get(key, (None, None))
-        if rows is None:
-            rows = np.full(state.n_points, -1, dtype=np.int64)
-        missing = np.unique(points[rows[points] < 0])
-        if missing.size:
+
+        def compute(missing: NDArray) -> torch.Tensor:
+            positions = state.canonical_vertices[torch.from_numpy(missing).to(self.device)]
             with torch.no_grad():
-                new = self._features_of(
-                    state.canonical_vertices[torch.from_numpy(missing).to(self.device)],
-                    state.shape_bias,
-                )
-            start = 0 if table is None else table.shape[0]
-            rows = rows.copy()  # (table, rows) stay a consistent pair for concurrent readers
-            rows[missing] = np.arange(start, start + missing.size)
-            table = new if table is None else torch.cat([table, new])
-            state._lazy[key] = (table, rows)
-        return table, rows
+                return self._features_of(positions, state.shape_bias)
+
+        kept = state._lazy[key] = grown_features(
+            state._lazy.get(key), state.n_points, points, compute, torch.cat
+        )
+        return kept
 
     def _finish(self, head: torch.Tensor, euclidean: torch.Tensor) -> torch.Tensor:
         out = head / self.target_scale

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -134,6 +134,30 @@ class LazyVetoGraph:
             return self._graph
 
 
+def grown_features(
+    kept: tuple[Any, NDArray] | None,
+    n_points: int,
+    points: NDArray,
+    compute: Callable[[NDArray], Any],
+    concatenate: Callable[[list[Any]], Any],
+) -> tuple[Any, NDArray]:
+    """The veto head's features of the points a veto has reached, grown to cover ``points``:
+    ``(table (R, F), rows (n_points,))`` with ``rows[p]`` the table row of point ``p`` (``-1``:
+    not computed). ``kept``: the pair from the previous call, or ``None``; ``compute``: the
+    features of ``(M,)`` point indices, ``(M, F)``; ``concatenate``: joins tables (numpy's or
+    torch's). A new pair is returned whenever rows are added, never the old one changed, so a
+    caller that stores it keeps ``(table, rows)`` consistent for concurrent readers."""
+    table, rows = kept if kept is not None else (None, np.full(n_points, -1, dtype=np.int64))
+    missing = np.unique(points[rows[points] < 0])
+    if missing.size:
+        start = 0 if table is None else table.shape[0]
+        rows = rows.copy()
+        rows[missing] = np.arange(start, start + missing.size)
+        new = compute(missing)
+        table = new if table is None else concatenate([table, new])
+    return table, rows
+
+
 def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray]:
     """The edges ``(a, b)`` (both ends below ``n_nodes``) of the shortest paths from each
     Dijkstra source to each ``far`` node, read from scipy's ``(U, M)`` predecessors
@@ -165,5 +189,6 @@ __all__ = [
     "PATH_PAIRS",
     "EdgeGeodesics",
     "LazyVetoGraph",
+    "grown_features",
     "path_edges",
 ]
