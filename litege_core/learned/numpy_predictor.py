@@ -525,8 +525,8 @@ class NumpyPredictor:
         rows = max(1, PAIR_CHUNK // n_dst)
         out = np.empty((src.shape[0], n_dst), dtype=np.float32)
         x_src, x_dst = state.canonical[src], state.canonical[dst]
-        f_src = self._net.point_features(x_src, state.shape_bias)
-        f_dst = self._net.point_features(x_dst, state.shape_bias)
+        f_dst = self._point_features(state, dst)  # first: a field's table in one batch
+        f_src = self._point_features(state, src)
         for i0 in range(0, src.shape[0], rows):
             f_s, x_s = f_src[i0 : i0 + rows], x_src[i0 : i0 + rows]
             for j0 in range(0, n_dst, PAIR_CHUNK):
@@ -536,6 +536,16 @@ class NumpyPredictor:
                 euclidean = np.linalg.norm(x_s[:, None, :] - x_t[None, :, :], axis=-1)
                 out[i0 : i0 + rows, j0 : j0 + PAIR_CHUNK] = self._finish(head, euclidean)
         return out
+
+    def _point_features(self, state: NumpyShapeState, indices: NDArray) -> NDArray:
+        """``(len(indices), F)`` the network's point features of ``indices``. On a cloud whose
+        fusion vetoes with the network's own head (the shipped calibrations) they are read
+        from the veto's table (:meth:`_veto_features`), grown to cover them: a distance
+        field's features then serve its veto rounds too, computed once."""
+        if self.fusion is None or self._veto is not self._net or state.faces is not None:
+            return self._net.point_features(state.canonical[indices], state.shape_bias)
+        table, rows = self._veto_features(state, indices)
+        return table[rows[indices]]
 
     def _finish(self, head: NDArray, euclidean: NDArray) -> NDArray:
         """Head outputs → distances in canonical units (residual pipelines add the chord;

@@ -5,19 +5,22 @@ The fusion cuts every k-NN edge whose predicted geodesic exceeds ``prune_ratio``
 (~8 N for N points) costs more than everything else in a single-pair query on a cloud. Yet a
 query only reads the lengths of shortest paths, and a shortest path that crosses no cut edge of
 the full veto is also a shortest path of the fully vetoed graph (it is a path there, and that
-graph has fewer edges). So :func:`vetoed_rows` repeats:
+graph has fewer edges). So :func:`~litege_core.learned.fusion.graph_rows` repeats:
 
 1. Dijkstra on the graph without the cuts found so far, keeping the predecessors;
 2. the veto on the not yet judged edges of the paths the query reads (each source's path to each
    target for a few pairs, else each source's whole shortest-path tree);
-3. stop when none of them is cut,
+3. stop when none of them is cut; else, for whole trees, also the veto on the edges around the
+   subtrees below the cut edges (:meth:`LazyVetoGraph.judge_below_cuts`), where the next
+   round's trees re-route,
 
 which gives the rows of the fully vetoed graph exactly, judging a few dozen edges for one pair
-and about N for a distance field. Each round repeats the Dijkstra runs, so a query that needs
-more than :data:`LAZY_SOURCES` of them judges every edge first instead (one run each, as
-before). Verdicts are kept with the shape, so later queries start from them. After
-:data:`MAX_ROUNDS` rounds every remaining edge is judged at once (a bounded cost: at most the
-full veto and that many Dijkstra runs).
+and about N for a distance field, in two rounds where a tree crosses cut edges (without step 3's
+second veto: one more round per edge cut on the new paths, up to eight). Each round repeats the
+Dijkstra runs, so a query that needs more than :data:`LAZY_SOURCES` of them judges every edge
+first instead (one run each, as before). Verdicts are kept with the shape, so later queries
+start from them. After :data:`MAX_ROUNDS` rounds every remaining edge is judged at once (a
+bounded cost: at most the full veto and that many Dijkstra runs).
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litege_core.arrays import distinct_indices
+
 if TYPE_CHECKING:
     import scipy.sparse as sp
 
@@ -36,7 +41,8 @@ EdgeGeodesics = Callable[[NDArray, NDArray], NDArray]
 """``(i (E,), j (E,)) → (E,)`` predicted geodesics between point pairs (canonical units)."""
 
 MAX_ROUNDS = 8
-"""Dijkstra rounds of :func:`vetoed_rows` before every remaining edge is judged at once."""
+"""Dijkstra rounds of :func:`~litege_core.learned.fusion.graph_rows` before every remaining
+edge is judged at once."""
 LAZY_SOURCES = 2
 """Most Dijkstra sources of a lazily vetoed query: on a 2K cloud a round of Dijkstra costs
 ~0.8 ms a source and the full veto ~5 ms, so beyond two sources judging every edge first is
@@ -91,11 +97,12 @@ class LazyVetoGraph:
         pairs that are not edges are dropped)."""
         n = max(self._base.shape[0], 1)
         edges = self._starts() * n + self._base.indices  # ascending (rows, then columns)
-        keys = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
         if edges.size == 0:
             return np.zeros(0, dtype=np.int64)
+        keys = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
+        keys.sort()  # sorted needles: searchsorted reuses each answer as the next one's start
         found = np.minimum(np.searchsorted(edges, keys), edges.size - 1)
-        return np.unique(found[edges[found] == keys])
+        return distinct_indices(found[edges[found] == keys], edges.size)
 
     def judge(self, positions: NDArray | None, edge_geodesics: EdgeGeodesics) -> bool:
         """Runs the veto on the not yet judged edges among ``positions`` (``None``: every
@@ -122,10 +129,29 @@ class LazyVetoGraph:
 
         keep = self._verdicts != _CUT
         n = self._base.shape[0]
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(starts[keep], minlength=n))])
+        cut = np.bincount(starts[~keep], minlength=n)  # few: cheaper than counting kept
+        indptr = self._base.indptr - np.concatenate([[0], np.cumsum(cut)])
         self._graph = sp.csr_array(
             (self._base.data[keep], self._base.indices[keep], indptr), shape=self._base.shape
         )
+
+    def judge_below_cuts(
+        self, predecessors: NDArray, positions: NDArray, edge_geodesics: EdgeGeodesics
+    ) -> None:
+        """After a round whose shortest-path trees crossed cut edges: runs the veto on the not
+        yet judged edges with an end in a subtree below a cut edge among ``positions`` (the
+        trees' edges), where the next round's trees re-route. Their new paths then cross
+        judged edges only, so the next round is usually the last, instead of one round per
+        edge cut on the way (a heuristic: what it judges never changes an answer).
+
+        ``predecessors``: ``(U, M)`` of the round's Dijkstra (``M >= n``: free points last).
+        """
+        cut = positions[self._verdicts[positions] == _CUT]
+        if cut.size == 0:
+            return
+        starts, ends = self._starts(), self._base.indices
+        below = subtrees_below(predecessors, starts[cut], ends[cut])[: self._base.shape[0]]
+        self.judge(np.flatnonzero(below[starts] | below[ends]), edge_geodesics)
 
     def vetoed(self, edge_geodesics: EdgeGeodesics) -> sp.csr_array:
         """The fully vetoed graph (judges every remaining edge)."""
@@ -148,7 +174,7 @@ def grown_features(
     torch's). A new pair is returned whenever rows are added, never the old one changed, so a
     caller that stores it keeps ``(table, rows)`` consistent for concurrent readers."""
     table, rows = kept if kept is not None else (None, np.full(n_points, -1, dtype=np.int64))
-    missing = np.unique(points[rows[points] < 0])
+    missing = distinct_indices(points[rows[points] < 0], n_points)
     if missing.size:
         start = 0 if table is None else table.shape[0]
         rows = rows.copy()
@@ -158,13 +184,61 @@ def grown_features(
     return table, rows
 
 
+def subtrees_below(predecessors: NDArray, a: NDArray, b: NDArray) -> NDArray:
+    """``(M,)`` whether a node lies, in the shortest-path tree of any Dijkstra source, below
+    one of the edges ``(a, b)`` (``(C,)`` node pairs in either order; an edge that is not a
+    tree edge marks nothing). ``predecessors``: scipy's ``(U, M)`` (``-9999``: none).
+
+    By pointer jumping: each node learns whether an ancestor twice as far up is marked, so
+    ``log2`` of the trees' depth vectorized steps (:func:`subtrees_below_reference` walks
+    each node's path)."""
+    sources, width = predecessors.shape
+    marked = np.zeros((sources, width), dtype=bool)  # the child end of each tree edge (a, b)
+    for parent, child in ((a, b), (b, a)):
+        row, edge = np.nonzero(predecessors[:, child] == parent)
+        marked[row, child[edge]] = True
+    inside = marked.reshape(-1)  # flat (U·M,): one tree after the other
+    up = np.asarray(predecessors, dtype=np.int64).reshape(-1)
+    up = np.where(up >= 0, up + np.repeat(np.arange(sources) * width, width), -1)
+    node = np.flatnonzero(up >= 0)
+    while node.size:  # invariant: inside[v] covers v and its ancestors below up[v]
+        ancestor = up[node]
+        inside[node] |= inside[ancestor]
+        up[node] = up[ancestor]
+        node = node[up[node] >= 0]
+    return np.asarray(marked.any(axis=0))
+
+
+def subtrees_below_reference(predecessors: NDArray, a: NDArray, b: NDArray) -> NDArray:
+    """:func:`subtrees_below` by walking every node's path to its source (the slow
+    reference)."""
+    sources, width = predecessors.shape
+    tree_edges = {(int(x), int(y)) for x, y in zip(a, b, strict=True)}
+    tree_edges |= {(y, x) for x, y in tree_edges}
+    inside = np.zeros(width, dtype=bool)
+    for row in range(sources):
+        for node in range(width):
+            walk = node
+            while predecessors[row, walk] >= 0 and not inside[node]:
+                parent = int(predecessors[row, walk])
+                inside[node] = (parent, walk) in tree_edges
+                walk = parent
+    return inside
+
+
+def reads_trees(n_sources: int, n_far: int) -> bool:
+    """Whether :func:`path_edges` reads each source's whole shortest-path tree (more than
+    :data:`PATH_PAIRS` pairs) rather than the pairs' paths."""
+    return n_sources * n_far > PATH_PAIRS
+
+
 def path_edges(predecessors: NDArray, far: NDArray, n_nodes: int) -> tuple[NDArray, NDArray]:
     """The edges ``(a, b)`` (both ends below ``n_nodes``) of the shortest paths from each
     Dijkstra source to each ``far`` node, read from scipy's ``(U, M)`` predecessors
     (``-9999``: none): the paths themselves for up to :data:`PATH_PAIRS` pairs, else each
     source's whole tree."""
     sources, width = predecessors.shape
-    if sources * far.size <= PATH_PAIRS:
+    if not reads_trees(sources, far.size):
         row = np.repeat(np.arange(sources), far.size)
         node = np.tile(np.asarray(far, dtype=np.int64), sources)
         starts, ends = [], []
@@ -191,4 +265,7 @@ __all__ = [
     "LazyVetoGraph",
     "grown_features",
     "path_edges",
+    "reads_trees",
+    "subtrees_below",
+    "subtrees_below_reference",
 ]

@@ -5,7 +5,8 @@ import pytest
 import scipy.sparse as sp
 
 from litege_core.engines import EdgeDijkstraEngine, KnnGraphEngine, compute_distances
-from litege_core.engines.graph import edge_graph, knn_graph
+from litege_core.engines import graph as graph_module
+from litege_core.engines.graph import edge_graph, knn_graph, run_minima
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 
@@ -69,6 +70,34 @@ def test_edge_graph_keeps_shortest_repeat_and_drops_loops():
     assert isinstance(graph, sp.csr_array)
     assert graph.nnz == 2
     assert graph[0, 1] == 2.0 and graph[1, 2] == 0.0
+
+
+@pytest.mark.parametrize("longest", [1, 2, 5, graph_module.RUN_LOOP_MAX + 3])
+def test_run_minima_equal_reduceat(longest):
+    rng = np.random.default_rng(longest)
+    sizes = rng.integers(1, longest + 1, 300)
+    sizes[7] = longest
+    values = rng.normal(size=int(sizes.sum()))
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    np.testing.assert_array_equal(run_minima(values, starts), np.minimum.reduceat(values, starts))
+
+
+def test_edge_graph_equals_a_pairwise_reference():
+    rng = np.random.default_rng(5)
+    n = 40
+    edges = rng.integers(0, n, (600, 2))  # repeats in both orders, self-loops
+    weights = rng.integers(0, 5, 600).astype(float)  # ties and zero lengths
+    lightest: dict[tuple[int, int], float] = {}
+    for (i, j), w in zip(edges.tolist(), weights.tolist(), strict=True):
+        if i != j:
+            key = (min(i, j), max(i, j))
+            lightest[key] = min(w, lightest.get(key, np.inf))
+    graph = edge_graph(n, edges, weights)
+    assert graph.has_sorted_indices
+    coo = graph.tocoo()
+    pairs = zip(coo.row.tolist(), coo.col.tolist(), strict=True)
+    found = dict(zip(pairs, coo.data.tolist(), strict=True))
+    assert found == lightest  # explicit zeros kept
 
 
 def test_edge_dijkstra_on_a_square_and_components(two_spheres):

@@ -10,7 +10,12 @@ from scipy.sparse.csgraph import dijkstra
 
 from litege_core.learned import veto_graph
 from litege_core.learned.fusion import graph_rows, pruned_knn_graph
-from litege_core.learned.veto_graph import LazyVetoGraph, path_edges
+from litege_core.learned.veto_graph import (
+    LazyVetoGraph,
+    path_edges,
+    subtrees_below,
+    subtrees_below_reference,
+)
 
 K, RATIO = 8, 1.3
 
@@ -122,6 +127,45 @@ def test_path_edges_walks_paths_trees_or_gives_up() -> None:
     far = np.arange(5).repeat(veto_graph.PATH_PAIRS // 5 + 1)
     a, b = path_edges(np.tile(predecessors, (2, 1)), far, 5)  # many pairs: the trees
     assert set(zip(a.tolist(), b.tolist(), strict=True)) == {(0, 1), (1, 2), (2, 3)}
+
+
+def test_subtrees_below_cut_tree_edges_equal_the_walking_reference() -> None:
+    points = _cloud(300)
+    graph = _lazy(points).graph
+    _, predecessors = dijkstra(graph, directed=False, indices=[0, 150], return_predecessors=True)
+    rng = np.random.default_rng(4)
+    coo = graph.tocoo()
+    picked = rng.choice(coo.nnz, 40, replace=False)  # tree edges and others, either order
+    a, b = coo.row[picked], coo.col[picked]
+    a[::2], b[::2] = b[::2].copy(), a[::2].copy()
+    below = subtrees_below(predecessors, a, b)
+    np.testing.assert_array_equal(below, subtrees_below_reference(predecessors, a, b))
+    assert 0 < below.sum() < 300
+    # a path 0 - 1 - 2 - 3 and 0 - 4: cutting 1 - 2 leaves 2 and 3 below it
+    path = np.array([[-9999, 0, 1, 2, 0]])
+    below = subtrees_below(path, np.array([2]), np.array([1]))
+    np.testing.assert_array_equal(below, [False, False, True, True, False])
+
+
+def test_a_distance_field_rerouted_past_cut_edges_takes_two_rounds(monkeypatch) -> None:
+    """A tree whose edges the veto cuts re-routes through edges judged in the same round
+    (``judge_below_cuts``): the second Dijkstra round finds nothing left to judge."""
+    from litege_core.engines import graph as engines_graph
+
+    points = _cloud()
+    veto = CountingVeto(points, period=3)
+    lazy = _lazy(points)
+    runs = []
+    tree = engines_graph.dijkstra_tree
+
+    def counted(*args, **kwargs):
+        runs.append(1)
+        return tree(*args, **kwargs)
+
+    monkeypatch.setattr(engines_graph, "dijkstra_tree", counted)
+    rows = graph_rows(lazy, points, (np.array([0]), None), (np.arange(600), None), K, None, veto)
+    assert len(runs) == 2 and veto.asked == lazy.judged < lazy._verdicts.size
+    np.testing.assert_allclose(rows, _eager_rows(points, veto, [0], np.arange(600)), rtol=1e-12)
 
 
 def test_positions_find_edges_in_either_order() -> None:
