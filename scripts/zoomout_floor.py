@@ -6,7 +6,8 @@ separates what limits the refined map (``match(refine="zoomout")``) on those pai
 pairs and queries of ``litege eval matching --settings template`` (same seed, same pool):
 
 1. **Refinement settings**: LiteGE's map refined with each ``--grid`` entry of
-   :class:`~litege_core.matching.refine.ZoomOutSettings` (``k_init:n_eigen:step``).
+   :class:`~litege_core.matching.refine.ZoomOutSettings` (``k_init:n_eigen[:step[:smoothing]]``;
+   smoothing 0: the spectral map alone, without the smooth displacement fit).
 2. **The seed**: ZoomOut started from the *ground truth* (each farthest-point sample of X
    mapped to the same template vertex of Y) at each ``--truth-k-init``, grown to ``n_eigen``.
    If it ends where LiteGE's seed ends, the seed is not what limits the refined map: ZoomOut
@@ -57,15 +58,26 @@ SETTING = "template"
 
 
 def parse_grid(text: str) -> list[ZoomOutSettings]:
-    """``"20:100,50:150:5"`` → settings (``k_init:n_eigen[:step]`` each)."""
+    """``"20:100,50:150:5,20:100:5:0"`` → settings (``k_init:n_eigen[:step[:smoothing]]``
+    each; the default smoothing where not given)."""
     grid = []
     for item in text.split(","):
-        fields = [int(v) for v in item.split(":")]
-        if len(fields) not in (2, 3):
-            raise SystemExit(f"bad --grid entry {item!r}: k_init:n_eigen[:step]")
-        step = fields[2] if len(fields) == 3 else ZoomOutSettings.step
-        grid.append(ZoomOutSettings(k_init=fields[0], n_eigen=fields[1], step=step))
+        fields = item.split(":")
+        if len(fields) not in (2, 3, 4):
+            raise SystemExit(f"bad --grid entry {item!r}: k_init:n_eigen[:step[:smoothing]]")
+        step = int(fields[2]) if len(fields) >= 3 else ZoomOutSettings.step
+        smoothing = float(fields[3]) if len(fields) == 4 else ZoomOutSettings.smoothing
+        grid.append(
+            ZoomOutSettings(
+                k_init=int(fields[0]), n_eigen=int(fields[1]), step=step, smoothing=smoothing
+            )
+        )
     return grid
+
+
+def parse_list(text: str, kind: type) -> list:
+    """``"1,2"`` → ``[kind(1), kind(2)]``; ``""`` → ``[]``."""
+    return [kind(v) for v in text.split(",") if v.strip()]
 
 
 def rerank(spectral: NDArray, network: NDArray, weight: float | None) -> NDArray:
@@ -84,7 +96,10 @@ def rerank(spectral: NDArray, network: NDArray, weight: float | None) -> NDArray
 
 
 def label(settings: ZoomOutSettings) -> str:
-    return f"k_init {settings.k_init}, n_eigen {settings.n_eigen}, step {settings.step}"
+    return (
+        f"k_init {settings.k_init}, n_eigen {settings.n_eigen}, step {settings.step}, "
+        f"smoothing {settings.smoothing:g}"
+    )
 
 
 def row(name: str, errors: Sequence[NDArray], threshold: float) -> str:
@@ -119,9 +134,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     threshold = auc_threshold(SETTING)
     default = ZoomOutSettings()
     grid = parse_grid(args.grid)
-    truth_k = [int(k) for k in args.truth_k_init.split(",")]
-    counts = [int(k) for k in args.candidates.split(",")]
-    weights = [float(w) for w in args.weights.split(",")]
+    truth_k = parse_list(args.truth_k_init, int)
+    counts = parse_list(args.candidates, int)
+    weights = parse_list(args.weights, float)
 
     found: dict[str, list[NDArray]] = {}
 
@@ -139,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         source, target = spectrum(x, default), spectrum(y, default)
         truth_seed = source.samples  # template pairs: vertex i is the same body point
         for k_init in truth_k:
-            settings = ZoomOutSettings(k_init=k_init, n_eigen=default.n_eigen)
+            settings = ZoomOutSettings(k_init=k_init, n_eigen=default.n_eigen, smoothing=0.0)
             fmap = zoomout_map(truth_seed, source, target, settings)
             add(
                 f"truth + ZoomOut (k_init {k_init}, n_eigen {default.n_eigen})",

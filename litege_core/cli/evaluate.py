@@ -164,8 +164,9 @@ def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
         type=parse_variants,
         default="auto",
         help="comma-separated LiteGE rows: a frames token (auto, tnet, judged) and any of "
-        "mirror-vote and zoomout or zoomout-hybrid, joined by '+', e.g. "
-        "'tnet,judged,judged+zoomout' (default: auto, one LiteGE row)",
+        "mirror-vote and zoomout or zoomout-hybrid (with 'unsmoothed': no smooth fit of the "
+        "refined map), joined by '+', e.g. 'tnet,judged,judged+zoomout' (default: auto, one "
+        "LiteGE row)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(

@@ -130,7 +130,7 @@ class MatchMethod(Protocol):
 
 
 VARIANT_FRAMES = ("auto", "tnet", "judged")
-VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid")
+VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid", "unsmoothed")
 
 
 @dataclass(frozen=True)
@@ -141,31 +141,37 @@ class LiteGEVariant:
         frames: ``prepare(frames=…)``: ``auto``, ``tnet`` or ``judged``.
         side: ``match(side=…)``: ``frame``, or ``network`` (token ``mirror-vote``).
         refine: ``match(refine=…)``: ``none``, ``zoomout`` or ``zoomout-hybrid`` (meshes only).
+        smoothed: the refined map's smooth displacement fit (token ``unsmoothed`` turns it off:
+            ``ZoomOutSettings(smoothing=0)``).
     """
 
     frames: str = "auto"
     side: str = "frame"
     refine: str = "none"
+    smoothed: bool = True
 
     @classmethod
     def parse(cls, text: str) -> LiteGEVariant:
         """``"judged+zoomout"``-style text: one frames token (default ``auto``), optionally
-        ``mirror-vote`` and one of ``zoomout``, ``zoomout-hybrid``, joined by ``+``."""
+        ``mirror-vote``, one of ``zoomout``, ``zoomout-hybrid`` and, with one of them,
+        ``unsmoothed``, joined by ``+``."""
         from litege_core.errors import InputError
 
         tokens = [t.strip() for t in text.split("+") if t.strip()]
         frames = [t for t in tokens if t in VARIANT_FRAMES]
         refine = [t for t in tokens if t.startswith("zoomout")]
         unknown = [t for t in tokens if t not in VARIANT_FRAMES + VARIANT_OPTIONS]
-        if unknown or len(frames) > 1 or len(refine) > 1:
+        unsmoothed = "unsmoothed" in tokens
+        if unknown or len(frames) > 1 or len(refine) > 1 or (unsmoothed and not refine):
             raise InputError(
                 f"bad LiteGE variant {text!r}: one of {list(VARIANT_FRAMES)} and any of "
-                f"{list(VARIANT_OPTIONS)}, joined by '+'"
+                f"{list(VARIANT_OPTIONS)} (unsmoothed with a refinement), joined by '+'"
             )
         return cls(
             frames=frames[0] if frames else "auto",
             side="network" if "mirror-vote" in tokens else "frame",
             refine=refine[0] if refine else "none",
+            smoothed=not unsmoothed,
         )
 
     @property
@@ -175,6 +181,8 @@ class LiteGEVariant:
             out.append("mirror-vote")
         if self.refine != "none":
             out.append(self.refine)
+            if not self.smoothed:
+                out.append("unsmoothed")
         return out
 
     @property
@@ -219,8 +227,11 @@ class LiteGEMethod:
         return prepared
 
     def match(self, x, y, queries: NDArray) -> NDArray:
+        from litege_core.matching.refine import ZoomOutSettings as RefineSettings
+
+        settings = RefineSettings() if self.variant.smoothed else RefineSettings(smoothing=0.0)
         return self.model.match(
-            x, y, queries, side=self.variant.side, refine=self.variant.refine
+            x, y, queries, side=self.variant.side, refine=self.variant.refine, zoomout=settings
         ).indices
 
 

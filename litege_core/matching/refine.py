@@ -9,7 +9,12 @@ globally right map. :func:`zoomout_refine` does the second starting from the fir
    (least squares on the samples, pyFM's ``p2p_to_FM``);
 3. ZoomOut (Melzi et al. 2019) grows it to ``n_eigen`` in steps of ``step`` on the farthest-point
    samples of both shapes;
-4. every query of X is mapped to the Y vertex nearest to it in the spectral embedding.
+4. the samples of X are mapped to the Y vertices nearest to them in the spectral embedding;
+5. a smooth displacement of X is fitted to those matches, robustly
+   (:mod:`litege_core.matching.deform`), and each query maps to the Y vertex nearest its
+   displaced position. The spectral map is right at the scale of parts but errs by a vertex or
+   two independently at neighbouring points; the fit keeps the first and averages out the
+   second (``smoothing=0`` skips it: each query maps by the spectral embedding).
 
 Where LiteGE's map is wrong at the scale of the body (a real animal in a pose far from the
 training poses), no refinement repairs it. ``refine="zoomout-hybrid"`` therefore also runs
@@ -31,13 +36,15 @@ A refined map is a few seconds per pair on a CPU (the eigenpairs dominate), not 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from litege_core.errors import InputError, MissingDependencyError
+from litege_core.matching.deform import smooth_displacement
 from litege_core.sampling import farthest_point_sampling
 
 
@@ -74,6 +81,10 @@ class ZoomOutSettings:
             functional map of ``zoomout-hybrid`` (``n_descriptors`` energies, every
             ``descriptor_step``-th kept, a ``k_fit × k_fit`` map, pyFM's energy weights).
         n_sources, n_distortion_samples: farthest points of X of the distortion check.
+        smoothing: μ of the smooth displacement fitted to the refined map (unit-area frame,
+            area² units; :func:`~litege_core.matching.deform.smooth_displacement`); 0 maps
+            each query by the spectral embedding alone.
+        smoothing_rounds: robust reweighting rounds of that fit.
     """
 
     k_init: int = 20
@@ -89,6 +100,8 @@ class ZoomOutSettings:
     w_orient: float = 1.0
     n_sources: int = 12
     n_distortion_samples: int = 300
+    smoothing: float = 3e-6
+    smoothing_rounds: int = 4
 
     def __post_init__(self) -> None:
         if not 1 <= self.k_init <= self.n_eigen:
@@ -99,6 +112,8 @@ class ZoomOutSettings:
             raise InputError(f"need 1 <= k_fit <= n_eigen, got {self.k_fit}, {self.n_eigen}")
         if min(self.n_sources, self.n_distortion_samples, self.n_descriptors) < 1:
             raise InputError("n_sources, n_distortion_samples and n_descriptors must be positive")
+        if self.smoothing < 0 or self.smoothing_rounds < 1:
+            raise InputError("smoothing must be >= 0 and smoothing_rounds positive")
 
     @property
     def n_iterations(self) -> int:
@@ -122,17 +137,22 @@ def import_pyfm() -> Any:
 class Spectrum:
     """Laplace–Beltrami eigenvectors ``(V, k)`` of a prepared mesh and its FPS samples.
 
-    ``mesh`` is the processed pyFM ``TriMesh`` (``None`` where a caller built the spectrum
-    itself; ``zoomout-hybrid`` needs it)."""
+    ``mesh`` is the processed pyFM ``TriMesh``, ``vertices`` ``(V, 3)`` the mesh's aligned
+    unit-area vertices and ``eigenvalues`` ``(k,)`` (``None`` where a caller built the spectrum
+    itself; ``zoomout-hybrid`` and the smoothing of a refined map need them)."""
 
     eigenvectors: NDArray
     samples: NDArray
     mesh: Any = None
+    vertices: NDArray | None = None
+    eigenvalues: NDArray | None = None
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the eigenvectors and samples (the pyFM mesh shares its eigenvectors)."""
-        return int(self.eigenvectors.nbytes + self.samples.nbytes)
+        """Bytes of the eigenvectors, samples and vertices (the pyFM mesh shares its
+        eigenvectors)."""
+        vertices = 0 if self.vertices is None else self.vertices.nbytes
+        return int(self.eigenvectors.nbytes + self.samples.nbytes + vertices)
 
 
 def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
@@ -153,7 +173,13 @@ def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
         k = min(settings.n_eigen, vertices.shape[0] - 2)
         mesh.process(k=k, robust=prepared.scaling == "broken_mesh", verbose=False)
         samples = farthest_point_sampling(vertices, min(settings.n_samples, vertices.shape[0]))
-        cached = Spectrum(np.asarray(mesh.eigenvectors, dtype=np.float64), samples, mesh)
+        cached = Spectrum(
+            np.asarray(mesh.eigenvectors, dtype=np.float64),
+            samples,
+            mesh,
+            vertices,
+            np.asarray(mesh.eigenvalues, dtype=np.float64),
+        )
         prepared._lazy[key] = cached
     return cached
 
@@ -300,8 +326,8 @@ class HybridResult:
 
 @dataclass(frozen=True, eq=False)
 class RefinedMap:
-    """The refined functional map of one pair (X → Y), reusable for any queries of X: a
-    correspondence stream computes it once and maps each batch with :meth:`matches`.
+    """The refined map of one pair (X → Y), reusable for any queries of X: a correspondence
+    stream computes it once and maps each batch with :meth:`matches`.
 
     Attributes:
         fmap: ``(k2, k1)`` functional map (Y → X functions, pyFM's convention).
@@ -309,11 +335,17 @@ class RefinedMap:
             (``None`` for plain ZoomOut, which starts from LiteGE's matches).
         distortion: the hybrid's check ``{"litege": float, "descriptors": float}`` (empty for
             plain ZoomOut).
+        displacement: ``(K, 3)`` coefficients, in X's eigenbasis, of the smooth displacement
+            fitted to the map (:func:`smoothed`), or ``None``: queries map by the spectral
+            embedding.
+        target_tree: k-d tree of Y's vertices (with ``displacement``).
     """
 
     fmap: NDArray
     seed: str | None = None
     distortion: dict[str, float] = field(default_factory=dict)
+    displacement: NDArray | None = None
+    target_tree: cKDTree | None = None
 
     @property
     def refinement(self) -> str:
@@ -322,11 +354,55 @@ class RefinedMap:
 
     @property
     def nbytes(self) -> int:
-        return int(self.fmap.nbytes)
+        total = self.fmap.nbytes
+        if self.displacement is not None:
+            total += self.displacement.nbytes
+        if self.target_tree is not None:
+            total += self.target_tree.data.nbytes + self.target_tree.indices.nbytes
+        return int(total)
 
     def matches(self, source: Spectrum, target: Spectrum, rows: NDArray) -> NDArray:
         """``(N,)`` int64 Y vertices of the X vertices ``rows``."""
-        return pointwise_matches(self.fmap, source, target, rows)
+        if self.displacement is None or self.target_tree is None:
+            return pointwise_matches(self.fmap, source, target, rows)
+        if source.vertices is None:
+            raise InputError("a smoothed map needs the source spectrum computed by spectrum()")
+        rows = np.asarray(rows, dtype=np.int64)
+        basis = source.eigenvectors[rows, : self.displacement.shape[0]]
+        _, found = self.target_tree.query(source.vertices[rows] + basis @ self.displacement)
+        return np.asarray(found, dtype=np.int64)
+
+
+def smoothed(
+    refined: RefinedMap, source: Spectrum, target: Spectrum, settings: ZoomOutSettings
+) -> RefinedMap:
+    """``refined`` with the smooth displacement of X fitted to its matches of X's samples
+    (``refined`` itself when ``settings.smoothing`` is 0).
+
+    Raises:
+        InputError: spectra not computed by :func:`spectrum` (no mesh, vertices or
+            eigenvalues).
+    """
+    if settings.smoothing == 0:
+        return refined
+    if (
+        source.mesh is None
+        or source.vertices is None
+        or source.eigenvalues is None
+        or target.vertices is None
+    ):
+        raise InputError("smoothing a refined map needs spectra computed by spectrum()")
+    samples = source.samples
+    images = pointwise_matches(refined.fmap, source, target, samples)
+    displacement = smooth_displacement(
+        source.eigenvectors[samples],
+        source.eigenvalues[: source.eigenvectors.shape[1]],
+        target.vertices[images] - source.vertices[samples],
+        float(source.mesh.mass.diagonal().sum()),
+        settings.smoothing,
+        settings.smoothing_rounds,
+    )
+    return replace(refined, displacement=displacement, target_tree=cKDTree(target.vertices))
 
 
 def refined_map(
@@ -349,7 +425,9 @@ def refined_map(
             distortion check (``zoomout-hybrid`` only).
     """
     if method == "zoomout":
-        return RefinedMap(zoomout_map(seed_map, source, target, settings))
+        return smoothed(
+            RefinedMap(zoomout_map(seed_map, source, target, settings)), source, target, settings
+        )
     if method != "zoomout-hybrid":
         raise InputError(f"no refined map for refine={method!r}")
     if source_heat is None or target_heat is None or source_points is None:
@@ -370,7 +448,7 @@ def refined_map(
             source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
         )
     seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
-    return RefinedMap(maps[seed], seed, distortion)
+    return smoothed(RefinedMap(maps[seed], seed, distortion), source, target, settings)
 
 
 def hybrid_refine(
@@ -419,6 +497,7 @@ __all__ = [
     "import_pyfm",
     "pointwise_matches",
     "refined_map",
+    "smoothed",
     "spectrum",
     "zoomout_map",
     "zoomout_refine",

@@ -14,10 +14,19 @@ def zoomout_floor():
 
 
 def test_grid_entries_are_refinement_settings(zoomout_floor) -> None:
-    grid = zoomout_floor.parse_grid("20:100,50:150:2")
-    assert [(s.k_init, s.n_eigen, s.step) for s in grid] == [(20, 100, 5), (50, 150, 2)]
+    grid = zoomout_floor.parse_grid("20:100,50:150:2,20:100:5:0")
+    assert [(s.k_init, s.n_eigen, s.step) for s in grid] == [
+        (20, 100, 5),
+        (50, 150, 2),
+        (20, 100, 5),
+    ]
+    assert grid[0].smoothing == grid[1].smoothing > 0 and grid[2].smoothing == 0
     with pytest.raises(SystemExit, match="k_init:n_eigen"):
         zoomout_floor.parse_grid("20")
+    assert zoomout_floor.parse_list("", int) == [] and zoomout_floor.parse_list("1,2", float) == [
+        1.0,
+        2.0,
+    ]
 
 
 def test_rerank_follows_the_network_alone_or_the_blend(zoomout_floor) -> None:

@@ -367,7 +367,10 @@ def test_litege_variants_parse_name_and_label():
     assert method_label("nn[judged]") == "NN (aligned) [judged]"
     assert method_label("zoomout") == "ZoomOut (pyFM)"
     assert LiteGEVariant.parse("judged+zoomout-hybrid").refine == "zoomout-hybrid"
-    for bad in ("tnet+judged", "pca", "judged+icp", "zoomout+zoomout-hybrid"):
+    assert LiteGEVariant.parse("judged+zoomout-hybrid").smoothed
+    raw = LiteGEVariant.parse("judged+zoomout+unsmoothed")
+    assert not raw.smoothed and raw.name == "litege[judged+zoomout+unsmoothed]"
+    for bad in ("tnet+judged", "pca", "judged+icp", "zoomout+zoomout-hybrid", "tnet+unsmoothed"):
         with pytest.raises(InputError):
             LiteGEVariant.parse(bad)
 
@@ -406,10 +409,15 @@ def test_evaluation_variants_rows_and_refinement_notes(tiny_bundle_dir):
         n_pairs=1,
         n_queries=4,
         baselines=["nn"],
-        variants=["tnet", "tnet+mirror-vote", "tnet+zoomout"],
+        variants=["tnet", "tnet+mirror-vote", "tnet+zoomout", "tnet+zoomout+unsmoothed"],
     )
     rows = {(r.setting, r.method): r for r in results}
-    for method in ("litege[tnet]", "litege[tnet+mirror-vote]", "litege[tnet+zoomout]"):
+    for method in (
+        "litege[tnet]",
+        "litege[tnet+mirror-vote]",
+        "litege[tnet+zoomout]",
+        "litege[tnet+zoomout+unsmoothed]",
+    ):
         assert rows[("template", method)].pairs == 1, method
         assert rows[("template", method)].flip_rate is not None
     assert rows[("template", "nn[tnet]")].pairs == 1

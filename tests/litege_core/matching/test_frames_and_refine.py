@@ -539,3 +539,33 @@ def test_kept_refined_maps_are_bounded_per_source(model, shapes, monkeypatch):
         )
     (kept,) = x._lazy["refined"]
     assert kept[4].n_eigen == 25  # the newest map stays
+
+
+def test_smoothing_a_refined_map_averages_its_vertex_noise(lumpy):
+    pytest.importorskip("pyFM")
+    from litege_core.matching.refine import RefinedMap, smoothed, zoomout_map
+
+    vertices, faces = lumpy
+    settings = ZoomOutSettings(k_init=12, n_eigen=12, n_samples=200, k_fit=8)
+    spec = spectrum(_Prepared(vertices, faces), settings)
+    area = float(spec.mesh.mass.diagonal().sum())
+    rng = np.random.default_rng(0)
+    seed = spec.samples.copy()
+    noisy = rng.random(seed.size) < 0.3  # 30 % of the seed matches sent to a random vertex
+    seed[noisy] = rng.integers(0, vertices.shape[0], noisy.sum())
+    plain = RefinedMap(zoomout_map(seed, spec, spec, settings))  # 12 eigenpairs, no growth
+    rows = np.arange(vertices.shape[0])
+    assert smoothed(plain, spec, spec, dataclasses.replace(settings, smoothing=0.0)) is plain
+    smooth = smoothed(plain, spec, spec, dataclasses.replace(settings, smoothing=3e-6 * area**2))
+    assert smooth.displacement is not None and smooth.nbytes > plain.nbytes
+    before = np.linalg.norm(vertices[plain.matches(spec, spec, rows)] - vertices, axis=1)
+    after = np.linalg.norm(vertices[smooth.matches(spec, spec, rows)] - vertices, axis=1)
+    assert after.mean() < 0.5 * before.mean()
+    np.testing.assert_array_equal(
+        smooth.matches(spec, spec, rows[::5]), smooth.matches(spec, spec, rows)[::5]
+    )
+    bare = Spectrum(spec.eigenvectors, spec.samples)  # no mesh, no vertices
+    with pytest.raises(InputError, match="spectrum"):
+        smoothed(plain, bare, bare, settings)
+    with pytest.raises(InputError, match="smoothing"):
+        ZoomOutSettings(smoothing=-1.0)

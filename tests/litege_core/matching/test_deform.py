@@ -1,0 +1,90 @@
+"""The smooth displacement fitted to a refined map (litege_core.matching.deform)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+from scipy.sparse.linalg import eigsh
+
+from litege_core.errors import InputError
+from litege_core.matching.deform import smooth_displacement, smooth_displacement_reference
+
+
+def _cotan_operators(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Cotangent stiffness ``(V, V)`` (positive semi-definite) and lumped areas ``(V,)``."""
+    n = len(vertices)
+    rows, cols, vals = [], [], []
+    areas = np.zeros(n)
+    for a, b, c in faces:
+        pa, pb, pc = vertices[a], vertices[b], vertices[c]
+        areas[[a, b, c]] += 0.5 * np.linalg.norm(np.cross(pb - pa, pc - pa)) / 3
+        for i, j, k in ((a, b, c), (b, c, a), (c, a, b)):
+            u, v = vertices[i] - vertices[k], vertices[j] - vertices[k]
+            cot = 0.5 * np.dot(u, v) / np.linalg.norm(np.cross(u, v))
+            rows += [i, j, i, j]
+            cols += [j, i, i, j]
+            vals += [-cot, -cot, cot, cot]
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n)), areas
+
+
+@pytest.fixture(scope="module")
+def ellipsoid():
+    """A unit-area ellipsoid's first 30 mass-orthonormal eigenpairs and its 642 vertices."""
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    vertices = np.asarray(mesh.vertices) * [1.3, 1.0, 0.8]
+    vertices /= np.sqrt(trimesh.Trimesh(vertices, mesh.faces).area)
+    stiffness, mass = _cotan_operators(vertices, np.asarray(mesh.faces))
+    eigenvalues, basis = eigsh(stiffness, k=30, M=sp.diags(mass), sigma=-1e-6)
+    order = np.argsort(eigenvalues)
+    return vertices, np.clip(eigenvalues[order], 0.0, None), basis[:, order]
+
+
+def test_fast_fit_agrees_with_the_lstsq_reference(ellipsoid):
+    _, eigenvalues, basis = ellipsoid
+    rng = np.random.default_rng(0)
+    rows = rng.choice(basis.shape[0], 200, replace=False)
+    offsets = 0.05 * rng.normal(size=(200, 3)) + [0.2, 0.0, -0.1]
+    fast = smooth_displacement(basis[rows], eigenvalues, offsets, 1.0, 1e-4, rounds=3)
+    slow = smooth_displacement_reference(basis[rows], eigenvalues, offsets, 1.0, 1e-4, rounds=3)
+    assert fast.shape == (30, 3)
+    np.testing.assert_allclose(fast, slow, atol=1e-8)
+
+
+def test_a_translation_is_reproduced_exactly(ellipsoid):
+    _, eigenvalues, basis = ellipsoid
+    shift = np.array([0.3, -0.2, 0.1])
+    rows = np.arange(0, basis.shape[0], 3)
+    found = smooth_displacement(basis[rows], eigenvalues, np.tile(shift, (rows.size, 1)), 1.0, 1e-3)
+    np.testing.assert_allclose(basis @ found, np.tile(shift, (basis.shape[0], 1)), atol=1e-8)
+
+
+def test_the_fit_averages_noise_and_resists_outliers(ellipsoid):
+    _, eigenvalues, basis = ellipsoid
+    rng = np.random.default_rng(1)
+    truth = basis[:, :8] @ (0.05 * rng.normal(size=(8, 3)))  # a smooth displacement
+    rows = rng.choice(basis.shape[0], 300, replace=False)
+    offsets = truth[rows] + 0.02 * rng.normal(size=(300, 3))
+    wild = rng.choice(300, 10, replace=False)
+    offsets[wild] += rng.choice([-0.5, 0.5], size=(10, 3))  # matches on another part
+    fitted = basis @ smooth_displacement(basis[rows], eigenvalues, offsets, 1.0, 1e-5)
+    before = np.linalg.norm(offsets - truth[rows], axis=1)
+    after = np.linalg.norm(fitted - truth, axis=1)
+    assert after.mean() < 0.5 * before.mean()
+    assert after[rows[wild]].max() < 0.1 * before[wild].min()  # pulled back within the noise
+    once = basis @ smooth_displacement(basis[rows], eigenvalues, offsets, 1.0, 1e-5, rounds=1)
+    assert after.mean() < np.linalg.norm(once - truth, axis=1).mean()  # reweighting helps
+
+
+def test_bad_input_is_refused(ellipsoid):
+    _, eigenvalues, basis = ellipsoid
+    offsets = np.zeros((4, 3))
+    with pytest.raises(InputError):
+        smooth_displacement(basis[:4], eigenvalues, offsets[:3], 1.0, 1e-3)
+    with pytest.raises(InputError):
+        smooth_displacement(basis[:4], eigenvalues[:-1], offsets, 1.0, 1e-3)
+    with pytest.raises(InputError):
+        smooth_displacement(basis[:4], eigenvalues, offsets, 1.0, 0.0)
+    with pytest.raises(InputError):
+        smooth_displacement(basis[:4], eigenvalues, offsets, 1.0, 1e-3, rounds=0)
