@@ -33,7 +33,12 @@ def cmd_match(args: argparse.Namespace) -> int:
     x, y = model.prepare_many(
         [source, target], seed=args.seed, scaling=args.scaling, frames=args.frames
     )
-    result = model.match(x, y, queries, beams=args.beams, refine=args.refine)
+    from litege_core.matching.refine import ZoomOutSettings
+
+    zoomout = (
+        ZoomOutSettings() if args.smoothing is None else ZoomOutSettings(smoothing=args.smoothing)
+    )
+    result = model.match(x, y, queries, beams=args.beams, refine=args.refine, zoomout=zoomout)
     save_npy(args.output, result.indices.astype(np.int64))
     print_json(
         {
@@ -91,6 +96,13 @@ def register(commands: argparse._SubParsersAction) -> None:
         choices=["none", "zoomout", "zoomout-hybrid"],
         default="none",
         help="meshes only: refine the learned map with ZoomOut (needs pyFM, the 'eval' extra)",
+    )
+    match.add_argument(
+        "--smoothing",
+        type=float,
+        default=None,
+        help="with --refine: weight of the smooth displacement fitted to the refined map "
+        "(unit-area frame, area² units; 0: the spectral map alone; default: the library's)",
     )
     match.add_argument("--seed", type=int, default=0, help="seed of the samples")
     match.add_argument("-o", "--output", required=True, help="output .npy file")

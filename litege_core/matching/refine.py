@@ -37,15 +37,17 @@ A refined map is a few seconds per pair on a CPU (the eigenpairs dominate), not 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from litege_core.errors import InputError, MissingDependencyError
 from litege_core.matching.deform import smooth_displacement
 from litege_core.sampling import farthest_point_sampling
+
+if TYPE_CHECKING:  # scipy loads when a map is smoothed
+    from scipy.spatial import cKDTree
 
 
 class PreparedShape(Protocol):
@@ -402,6 +404,8 @@ def smoothed(
         settings.smoothing,
         settings.smoothing_rounds,
     )
+    from scipy.spatial import cKDTree
+
     return replace(refined, displacement=displacement, target_tree=cKDTree(target.vertices))
 
 

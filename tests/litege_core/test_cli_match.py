@@ -128,3 +128,10 @@ def test_match_reports_frames_and_refines_on_request(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == ["tnet", "tnet"] and report["refinement"]
     assert np.load(out).shape == (3,)
+    # --smoothing reaches the refinement: 0 keeps the spectral map, a negative weight is refused
+    raw = tmp_path / "raw.npy"
+    assert main([*argv, "--smoothing", "0", "-o", str(raw)]) == 0
+    capsys.readouterr()
+    assert np.load(raw).shape == (3,)
+    assert main([*argv, "--smoothing", "-1", "-o", str(raw)]) != 0
+    assert "smoothing" in capsys.readouterr().err
