@@ -243,10 +243,12 @@ def test_refine_with_a_point_cloud_is_not_applicable(
     assert client.correspondences(src, tgt, [0, 1])["refinement"] == "none"  # unrefined: fine
 
 
-def test_refine_without_pyfm_is_a_missing_dependency(service, client, small_pair, monkeypatch):
-    """pyFM not importable on the server: 501 missing-dependency, never a 500."""
+def test_refine_without_pyfm_is_a_missing_dependency(service, client, blob, monkeypatch):
+    """pyFM not importable on the server: 501 missing-dependency, never a 500. Fresh shapes: a
+    pair refined before keeps its map (smoothed matches are read without pyFM)."""
     monkeypatch.setitem(sys.modules, "pyFM", None)  # `import pyFM` now raises ImportError
-    src, tgt = small_pair["ids"]
+    shapes = (blob(23, subdivisions=2), blob(24, subdivisions=2))
+    src, tgt = (client.register_arrays(s.vertices, s.faces)["shape_id"] for s in shapes)
     body = {"source_shape_id": src, "target_shape_id": tgt, "queries": [0], "refine": "zoomout"}
     problem = assert_problem(_post(service, body), 501, "missing-dependency")
     assert "pyFM" in problem["detail"]
