@@ -246,10 +246,12 @@ def test_refine_with_a_point_cloud_is_invalid_argument(client, small_pair, refer
     assert answer["refinement"] == "none"
 
 
-def test_refine_without_pyfm_is_unimplemented(client, small_pair, monkeypatch):
-    """pyFM not importable on the server: UNIMPLEMENTED missing-dependency, never INTERNAL."""
+def test_refine_without_pyfm_is_unimplemented(client, blob, monkeypatch):
+    """pyFM not importable on the server: UNIMPLEMENTED missing-dependency, never INTERNAL.
+    Fresh shapes: a pair refined before keeps its map (smoothed matches need no pyFM)."""
     monkeypatch.setitem(sys.modules, "pyFM", None)  # `import pyFM` now raises ImportError
-    ids = small_pair["ids"]
+    shapes = (blob(43, subdivisions=2), blob(44, subdivisions=2))
+    ids = [client.register_arrays(s.vertices, s.faces)["shape_id"] for s in shapes]
     error = _raises(lambda: list(client.correspond(*ids, [[0]], refine="zoomout")))
     assert error.code == SC.UNIMPLEMENTED and error.batch_id == 0
     assert error.problem_type == PROBLEM_BASE_URI + "missing-dependency"

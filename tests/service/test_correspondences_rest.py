@@ -247,7 +247,7 @@ def test_refine_without_pyfm_is_a_missing_dependency(service, client, blob, monk
     """pyFM not importable on the server: 501 missing-dependency, never a 500. Fresh shapes: a
     pair refined before keeps its map (smoothed matches are read without pyFM)."""
     monkeypatch.setitem(sys.modules, "pyFM", None)  # `import pyFM` now raises ImportError
-    shapes = (blob(23, subdivisions=2), blob(24, subdivisions=2))
+    shapes = (blob(41, subdivisions=2), blob(42, subdivisions=2))
     src, tgt = (client.register_arrays(s.vertices, s.faces)["shape_id"] for s in shapes)
     body = {"source_shape_id": src, "target_shape_id": tgt, "queries": [0], "refine": "zoomout"}
     problem = assert_problem(_post(service, body), 501, "missing-dependency")
