@@ -65,3 +65,12 @@ def test_the_mean_normal_cut_flags_chords_between_sheets_only(veto_ceiling) -> N
     assert cut(np.array([0, 0]), np.array([1, 2])).tolist() == [False, True]
     # a tilted pair on an arc: the chord is perpendicular to the mean normal only roughly
     assert not cut(np.array([0]), np.array([3]))[0]
+
+
+def test_best_weight_error_finds_the_blend_that_cancels_opposite_errors(veto_ceiling) -> None:
+    gt = np.array([[10.0, 20.0, 30.0]])
+    network, graph = gt * 0.9, gt * 1.1  # −10 % and +10 %: the half-half blend is exact
+    assert veto_ceiling.best_weight_error(network, graph, gt) == pytest.approx(0.0, abs=1e-9)
+    # one estimator exact: its own weight wins; both short: the less short one alone
+    assert veto_ceiling.best_weight_error(gt, graph, gt) == pytest.approx(0.0, abs=1e-9)
+    assert veto_ceiling.best_weight_error(network, gt * 0.8, gt) == pytest.approx(10.0)
