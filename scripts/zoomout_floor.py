@@ -6,8 +6,10 @@ separates what limits the refined map (``match(refine="zoomout")``) on those pai
 pairs and queries of ``litege eval matching --settings template`` (same seed, same pool):
 
 1. **Refinement settings**: LiteGE's map refined with each ``--grid`` entry of
-   :class:`~litege_core.matching.refine.ZoomOutSettings` (``k_init:n_eigen[:step[:smoothing]]``;
-   smoothing 0: the spectral map alone, without the smooth displacement fit).
+   :class:`~litege_core.matching.refine.ZoomOutSettings`
+   (``k_init:n_eigen[:step[:smoothing[:registration_rounds[:registration_anchor]]]]``;
+   smoothing 0: the spectral map alone, without the smooth displacement fit; registration
+   rounds 0: the fit without its registration to Y's surface).
 2. **The seed**: ZoomOut started from the *ground truth* (each farthest-point sample of X
    mapped to the same template vertex of Y) at each ``--truth-k-init``, grown to ``n_eigen``.
    If it ends where LiteGE's seed ends, the seed is not what limits the refined map: ZoomOut
@@ -30,6 +32,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import platform
+import shlex
 import sys
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -57,21 +60,29 @@ from litege_core.matching.refine import (
 SETTING = "template"
 
 
+GRID_FIELDS = (
+    ("k_init", int),
+    ("n_eigen", int),
+    ("step", int),
+    ("smoothing", float),
+    ("registration_rounds", int),
+    ("registration_anchor", float),
+)
+"""The ``:``-separated fields of a ``--grid`` entry, in order (the first two required)."""
+
+
 def parse_grid(text: str) -> list[ZoomOutSettings]:
-    """``"20:100,50:150:5,20:100:5:0"`` → settings (``k_init:n_eigen[:step[:smoothing]]``
-    each; the default smoothing where not given)."""
+    """``"20:100,50:150:5,20:100:5:0,20:100:5:3e-6:0"`` → settings
+    (``k_init:n_eigen[:step[:smoothing[:registration_rounds[:registration_anchor]]]]`` each; the
+    defaults of :class:`ZoomOutSettings` where not given)."""
+    usage = ":".join(name for name, _ in GRID_FIELDS)
     grid = []
     for item in text.split(","):
         fields = item.split(":")
-        if len(fields) not in (2, 3, 4):
-            raise SystemExit(f"bad --grid entry {item!r}: k_init:n_eigen[:step[:smoothing]]")
-        step = int(fields[2]) if len(fields) >= 3 else ZoomOutSettings.step
-        smoothing = float(fields[3]) if len(fields) == 4 else ZoomOutSettings.smoothing
-        grid.append(
-            ZoomOutSettings(
-                k_init=int(fields[0]), n_eigen=int(fields[1]), step=step, smoothing=smoothing
-            )
-        )
+        if not 2 <= len(fields) <= len(GRID_FIELDS):
+            raise SystemExit(f"bad --grid entry {item!r}: {usage} (the first two required)")
+        values = {name: kind(v) for (name, kind), v in zip(GRID_FIELDS, fields, strict=False)}
+        grid.append(ZoomOutSettings(**values))
     return grid
 
 
@@ -96,10 +107,16 @@ def rerank(spectral: NDArray, network: NDArray, weight: float | None) -> NDArray
 
 
 def label(settings: ZoomOutSettings) -> str:
-    return (
+    text = (
         f"k_init {settings.k_init}, n_eigen {settings.n_eigen}, step {settings.step}, "
         f"smoothing {settings.smoothing:g}"
     )
+    if settings.smoothing and settings.registration_rounds:  # smoothing 0 skips it too
+        text += (
+            f", registration {settings.registration_rounds} rounds, "
+            f"anchor {settings.registration_anchor:g}"
+        )
+    return text
 
 
 def row(name: str, errors: Sequence[NDArray], threshold: float) -> str:
@@ -186,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"torch threads {torch.get_num_threads()}; model {args.model} "
         f"({model.content_hash[:12]}), frames {args.frames}; {len(pairs)} template pairs × "
         f"{args.queries} queries, seed {args.seed}; error ×100 on the unit-area target, AUC "
-        f"@{threshold:g}; command `python scripts/zoomout_floor.py {' '.join(command)}`\n"
+        f"@{threshold:g}; command `python scripts/zoomout_floor.py {shlex.join(command)}`\n"
     )
     print("| map | mean error ×100 | AUC | median ×100 | p90 ×100 | worst pair ×100 |")
     print("|---|---:|---:|---:|---:|---:|")

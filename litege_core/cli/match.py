@@ -35,9 +35,15 @@ def cmd_match(args: argparse.Namespace) -> int:
     )
     from litege_core.matching.refine import ZoomOutSettings
 
-    zoomout = (
-        ZoomOutSettings() if args.smoothing is None else ZoomOutSettings(smoothing=args.smoothing)
-    )
+    chosen = {
+        name: value
+        for name, value in (
+            ("smoothing", args.smoothing),
+            ("registration_rounds", args.registration_rounds),
+        )
+        if value is not None
+    }
+    zoomout = ZoomOutSettings(**chosen)
     result = model.match(x, y, queries, beams=args.beams, refine=args.refine, zoomout=zoomout)
     save_npy(args.output, result.indices.astype(np.int64))
     print_json(
@@ -101,8 +107,17 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--smoothing",
         type=float,
         default=None,
-        help="with --refine: weight of the smooth displacement fitted to the refined map "
-        "(unit-area frame, area² units; 0: the spectral map alone; default: the library's)",
+        help="with --refine: weight of the smooth displacement fitted to the refined map and "
+        "then registered to the target's surface (unit-area frame, area² units; 0: the "
+        "spectral map alone, neither fit nor registration; default: the library's)",
+    )
+    match.add_argument(
+        "--registration-rounds",
+        type=int,
+        default=None,
+        help="with --refine: closest-point rounds registering that displacement to the "
+        "target's surface (0: the fitted displacement alone, which suits near-isometric pairs "
+        "such as one body in two poses; default: the library's)",
     )
     match.add_argument("--seed", type=int, default=0, help="seed of the samples")
     match.add_argument("-o", "--output", required=True, help="output .npy file")

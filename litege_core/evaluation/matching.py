@@ -130,7 +130,7 @@ class MatchMethod(Protocol):
 
 
 VARIANT_FRAMES = ("auto", "tnet", "judged")
-VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid", "unsmoothed")
+VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid", "unsmoothed", "unregistered")
 
 
 @dataclass(frozen=True)
@@ -143,18 +143,21 @@ class LiteGEVariant:
         refine: ``match(refine=…)``: ``none``, ``zoomout`` or ``zoomout-hybrid`` (meshes only).
         smoothed: the refined map's smooth displacement fit (token ``unsmoothed`` turns it off:
             ``ZoomOutSettings(smoothing=0)``).
+        registered: the fit's registration to Y's surface (token ``unregistered`` turns it
+            off: ``ZoomOutSettings(registration_rounds=0)``).
     """
 
     frames: str = "auto"
     side: str = "frame"
     refine: str = "none"
     smoothed: bool = True
+    registered: bool = True
 
     @classmethod
     def parse(cls, text: str) -> LiteGEVariant:
         """``"judged+zoomout"``-style text: one frames token (default ``auto``), optionally
         ``mirror-vote``, one of ``zoomout``, ``zoomout-hybrid`` and, with one of them,
-        ``unsmoothed``, joined by ``+``."""
+        ``unsmoothed`` or ``unregistered``, joined by ``+``."""
         from litege_core.errors import InputError
 
         tokens = [t.strip() for t in text.split("+") if t.strip()]
@@ -162,16 +165,25 @@ class LiteGEVariant:
         refine = [t for t in tokens if t.startswith("zoomout")]
         unknown = [t for t in tokens if t not in VARIANT_FRAMES + VARIANT_OPTIONS]
         unsmoothed = "unsmoothed" in tokens
-        if unknown or len(frames) > 1 or len(refine) > 1 or (unsmoothed and not refine):
+        unregistered = "unregistered" in tokens
+        if (
+            unknown
+            or len(frames) > 1
+            or len(refine) > 1
+            or ((unsmoothed or unregistered) and not refine)
+            or (unsmoothed and unregistered)
+        ):
             raise InputError(
                 f"bad LiteGE variant {text!r}: one of {list(VARIANT_FRAMES)} and any of "
-                f"{list(VARIANT_OPTIONS)} (unsmoothed with a refinement), joined by '+'"
+                f"{list(VARIANT_OPTIONS)} (unsmoothed or unregistered with a refinement), "
+                "joined by '+'"
             )
         return cls(
             frames=frames[0] if frames else "auto",
             side="network" if "mirror-vote" in tokens else "frame",
             refine=refine[0] if refine else "none",
             smoothed=not unsmoothed,
+            registered=not unregistered,
         )
 
     @property
@@ -183,6 +195,8 @@ class LiteGEVariant:
             out.append(self.refine)
             if not self.smoothed:
                 out.append("unsmoothed")
+            elif not self.registered:
+                out.append("unregistered")
         return out
 
     @property
@@ -229,7 +243,12 @@ class LiteGEMethod:
     def match(self, x, y, queries: NDArray) -> NDArray:
         from litege_core.matching.refine import ZoomOutSettings as RefineSettings
 
-        settings = RefineSettings() if self.variant.smoothed else RefineSettings(smoothing=0.0)
+        if not self.variant.smoothed:
+            settings = RefineSettings(smoothing=0.0)
+        elif not self.variant.registered:
+            settings = RefineSettings(registration_rounds=0)
+        else:
+            settings = RefineSettings()
         return self.model.match(
             x, y, queries, side=self.variant.side, refine=self.variant.refine, zoomout=settings
         ).indices

@@ -11,10 +11,13 @@ globally right map. :func:`zoomout_refine` does the second starting from the fir
    samples of both shapes;
 4. the samples of X are mapped to the Y vertices nearest to them in the spectral embedding;
 5. a smooth displacement of X is fitted to those matches, robustly
-   (:mod:`litege_core.matching.deform`), and each query maps to the Y vertex nearest its
-   displaced position. The spectral map is right at the scale of parts but errs by a vertex or
-   two independently at neighbouring points; the fit keeps the first and averages out the
-   second (``smoothing=0`` skips it: each query maps by the spectral embedding).
+   (:mod:`litege_core.matching.deform`), then registered to Y's surface (non-rigid ICP,
+   ``registration_rounds``), and each query maps to the Y vertex nearest its displaced
+   position. The spectral map is right at the scale of parts but errs by a vertex or two
+   independently at neighbouring points, and by a shared bias where two bodies differ in
+   proportions (it is the most isometric map); the fit keeps the first and averages out the
+   noise, the registration replaces the bias by the least-bent deformation onto Y
+   (``smoothing=0`` skips both: each query maps by the spectral embedding).
 
 Where LiteGE's map is wrong at the scale of the body (a real animal in a pose far from the
 training poses), no refinement repairs it. ``refine="zoomout-hybrid"`` therefore also runs
@@ -43,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError, MissingDependencyError
-from litege_core.matching.deform import smooth_displacement
+from litege_core.matching.deform import register_displacement, smooth_displacement
 from litege_core.sampling import farthest_point_sampling
 
 if TYPE_CHECKING:  # scipy loads when a map is smoothed
@@ -87,6 +90,14 @@ class ZoomOutSettings:
             area² units; :func:`~litege_core.matching.deform.smooth_displacement`); 0 maps
             each query by the spectral embedding alone.
         smoothing_rounds: robust reweighting rounds of that fit.
+        registration_rounds: closest-point rounds registering the fitted displacement to Y's
+            surface (:func:`~litege_core.matching.deform.register_displacement`); 0 keeps the
+            fit. Its smoothness weight falls geometrically from ``smoothing`` to
+            ``registration_smoothing``.
+        registration_smoothing: μ of the last registration round (area² units).
+        registration_anchor: weight of the registration's tie to the refined map's matches,
+            relative to its surface term (0: none; the tie keeps near-isometric pairs on the
+            refined map).
     """
 
     k_init: int = 20
@@ -104,6 +115,9 @@ class ZoomOutSettings:
     n_distortion_samples: int = 300
     smoothing: float = 3e-6
     smoothing_rounds: int = 4
+    registration_rounds: int = 8
+    registration_smoothing: float = 1e-7
+    registration_anchor: float = 0.01
 
     def __post_init__(self) -> None:
         if not 1 <= self.k_init <= self.n_eigen:
@@ -116,6 +130,10 @@ class ZoomOutSettings:
             raise InputError("n_sources, n_distortion_samples and n_descriptors must be positive")
         if self.smoothing < 0 or self.smoothing_rounds < 1:
             raise InputError("smoothing must be >= 0 and smoothing_rounds positive")
+        if min(self.registration_rounds, self.registration_anchor) < 0:
+            raise InputError("registration_rounds and registration_anchor must be >= 0")
+        if self.registration_smoothing <= 0:
+            raise InputError("registration_smoothing must be positive")
 
     @property
     def n_iterations(self) -> int:
@@ -378,8 +396,8 @@ class RefinedMap:
 def smoothed(
     refined: RefinedMap, source: Spectrum, target: Spectrum, settings: ZoomOutSettings
 ) -> RefinedMap:
-    """``refined`` with the smooth displacement of X fitted to its matches of X's samples
-    (``refined`` itself when ``settings.smoothing`` is 0).
+    """``refined`` with the smooth displacement of X fitted to its matches of X's samples and
+    registered to Y's surface (``refined`` itself when ``settings.smoothing`` is 0).
 
     Raises:
         InputError: spectra not computed by :func:`spectrum` (no mesh, vertices or
@@ -394,19 +412,42 @@ def smoothed(
         or target.vertices is None
     ):
         raise InputError("smoothing a refined map needs spectra computed by spectrum()")
+    from scipy.spatial import cKDTree
+
     samples = source.samples
     images = pointwise_matches(refined.fmap, source, target, samples)
+    basis = source.eigenvectors[samples]
+    eigenvalues = source.eigenvalues[: source.eigenvectors.shape[1]]
+    area = float(source.mesh.mass.diagonal().sum())
+    points = source.vertices[samples]
+    offsets = target.vertices[images] - points
     displacement = smooth_displacement(
-        source.eigenvectors[samples],
-        source.eigenvalues[: source.eigenvectors.shape[1]],
-        target.vertices[images] - source.vertices[samples],
-        float(source.mesh.mass.diagonal().sum()),
+        basis,
+        eigenvalues,
+        offsets,
+        area,
         settings.smoothing,
         settings.smoothing_rounds,
     )
-    from scipy.spatial import cKDTree
-
-    return replace(refined, displacement=displacement, target_tree=cKDTree(target.vertices))
+    tree = cKDTree(target.vertices)
+    if settings.registration_rounds:
+        if target.mesh is None:
+            raise InputError("registering a refined map needs spectra computed by spectrum()")
+        displacement = register_displacement(
+            basis,
+            eigenvalues,
+            points,
+            offsets,
+            displacement,
+            target.vertices,
+            np.asarray(target.mesh.vertex_normals, dtype=np.float64),
+            area,
+            (settings.smoothing, settings.registration_smoothing),
+            settings.registration_rounds,
+            settings.registration_anchor,
+            target_tree=tree,
+        )
+    return replace(refined, displacement=displacement, target_tree=tree)
 
 
 def refined_map(

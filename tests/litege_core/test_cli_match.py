@@ -135,3 +135,9 @@ def test_match_reports_frames_and_refines_on_request(tmp_path, capsys):
     assert np.load(raw).shape == (3,)
     assert main([*argv, "--smoothing", "-1", "-o", str(raw)]) != 0
     assert "smoothing" in capsys.readouterr().err
+    # --registration-rounds too: 0 keeps the fitted displacement, a negative count is refused
+    assert main([*argv, "--registration-rounds", "0", "-o", str(raw)]) == 0
+    capsys.readouterr()
+    assert np.load(raw).shape == (3,)
+    assert main([*argv, "--registration-rounds", "-1", "-o", str(raw)]) != 0
+    assert "registration_rounds" in capsys.readouterr().err

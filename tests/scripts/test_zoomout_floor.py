@@ -21,8 +21,13 @@ def test_grid_entries_are_refinement_settings(zoomout_floor) -> None:
         (20, 100, 5),
     ]
     assert grid[0].smoothing == grid[1].smoothing > 0 and grid[2].smoothing == 0
-    with pytest.raises(SystemExit, match="k_init:n_eigen"):
-        zoomout_floor.parse_grid("20")
+    assert grid[0].registration_rounds > 0 and grid[0].registration_anchor > 0
+    (fit_only, tied) = zoomout_floor.parse_grid("20:100:5:3e-6:0,20:100:5:1e-5:4:0.1")
+    assert fit_only.smoothing == 3e-6 and fit_only.registration_rounds == 0
+    assert (tied.smoothing, tied.registration_rounds, tied.registration_anchor) == (1e-5, 4, 0.1)
+    for bad in ("20", "20:100:5:0:0:0:0"):
+        with pytest.raises(SystemExit, match="k_init:n_eigen"):
+            zoomout_floor.parse_grid(bad)
     assert zoomout_floor.parse_list("", int) == [] and zoomout_floor.parse_list("1,2", float) == [
         1.0,
         2.0,

@@ -370,7 +370,18 @@ def test_litege_variants_parse_name_and_label():
     assert LiteGEVariant.parse("judged+zoomout-hybrid").smoothed
     raw = LiteGEVariant.parse("judged+zoomout+unsmoothed")
     assert not raw.smoothed and raw.name == "litege[judged+zoomout+unsmoothed]"
-    for bad in ("tnet+judged", "pca", "judged+icp", "zoomout+zoomout-hybrid", "tnet+unsmoothed"):
+    fitted = LiteGEVariant.parse("judged+zoomout-hybrid+unregistered")
+    assert fitted.smoothed and not fitted.registered
+    assert fitted.name == "litege[judged+zoomout-hybrid+unregistered]"
+    for bad in (
+        "tnet+judged",
+        "pca",
+        "judged+icp",
+        "zoomout+zoomout-hybrid",
+        "tnet+unsmoothed",
+        "tnet+unregistered",
+        "zoomout+unsmoothed+unregistered",
+    ):
         with pytest.raises(InputError):
             LiteGEVariant.parse(bad)
 
