@@ -108,36 +108,13 @@ def test_registration_undoes_a_stretch_that_the_nearest_vertices_miss(ellipsoid)
     biased = cKDTree(target).query(vertices[rows])[1]  # a map with a shared bias
     offsets = target[biased] - vertices[rows]
     start = np.zeros((basis.shape[1], 3))
+    args = (basis[rows], eigenvalues, vertices[rows], offsets, start, target, normals, 1.0)
     for anchor in (0.0, 0.01):
-        found = register_displacement(
-            basis[rows],
-            eigenvalues,
-            vertices[rows],
-            offsets,
-            start,
-            target,
-            normals,
-            1.0,
-            (1e-3, 1e-5),
-            rounds=8,
-            anchor=anchor,
-        )
+        found = register_displacement(*args, (1e-3, 1e-5), rounds=8, anchor=anchor)
         assert found.shape == (basis.shape[1], 3)
         _, registered = cKDTree(target).query(vertices + basis @ found)
         assert (registered == everyone).mean() > 0.95
-    kept = register_displacement(
-        basis[rows],
-        eigenvalues,
-        vertices[rows],
-        offsets,
-        start,
-        target,
-        normals,
-        1.0,
-        (1e-3, 1e-5),
-        rounds=0,
-    )
-    np.testing.assert_array_equal(kept, start)
+    np.testing.assert_array_equal(register_displacement(*args, (1e-3, 1e-5), rounds=0), start)
 
 
 def test_the_tie_holds_a_registration_to_the_map(ellipsoid):
@@ -153,20 +130,9 @@ def test_the_tie_holds_a_registration_to_the_map(ellipsoid):
     offsets = vertices[rows] @ rotation.T - vertices[rows]
     start = smooth_displacement(basis[rows], eigenvalues, offsets, 1.0, 1e-5)
     moved = {}
+    args = (basis[rows], eigenvalues, vertices[rows], offsets, start, vertices, normals, 1.0)
     for anchor in (0.0, 1.0):
-        found = register_displacement(
-            basis[rows],
-            eigenvalues,
-            vertices[rows],
-            offsets,
-            start,
-            vertices,
-            normals,
-            1.0,
-            (1e-3, 1e-5),
-            rounds=8,
-            anchor=anchor,
-        )
+        found = register_displacement(*args, (1e-3, 1e-5), rounds=8, anchor=anchor)
         moved[anchor] = np.linalg.norm(basis[rows] @ found - offsets, axis=1).mean()
     assert moved[1.0] < 0.5 * moved[0.0]
 
