@@ -33,8 +33,8 @@ spectral map: without the tie the least-bent deformation also slides off the rig
 poses (near-isometric pairs, where the spectral map has no bias to remove). A ``3K × 3K`` solve
 per round.
 
-:func:`smooth_displacement_reference` solves :func:`smooth_displacement`'s least-squares problem
-by ``lstsq`` on its stacked rows (the slow reference).
+:func:`smooth_displacement_reference` and :func:`register_displacement_reference` solve the same
+least-squares problems by ``lstsq`` on their stacked rows (the slow references).
 """
 
 from __future__ import annotations
