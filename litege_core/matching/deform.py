@@ -56,6 +56,12 @@ def _robust_weights(residuals: NDArray, scale: float) -> NDArray:
     return 1.0 / (1.0 + (residuals / spread) ** 2)
 
 
+def _unit_rows(vectors: NDArray) -> NDArray:
+    """``(T, 3)`` rows scaled to unit length; zero rows stay zero."""
+    lengths = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return vectors / np.maximum(lengths, 1e-300)
+
+
 def _checked(
     basis: NDArray, eigenvalues: NDArray, offsets: NDArray, smoothing: float, rounds: int
 ) -> tuple[NDArray, NDArray, NDArray]:
@@ -134,7 +140,8 @@ def register_displacement(
         coefficients: ``(K, 3)`` the starting displacement ``C`` (of
             :func:`smooth_displacement`).
         target: ``(T, 3)`` Y's vertices, in the same frame.
-        target_normals: ``(T, 3)`` their normals (any length but 0; the sign does not matter).
+        target_normals: ``(T, 3)`` their normals (any length, any sign; a zero row, as an
+            unreferenced vertex has, gives a sample nearest that vertex no surface term).
         area: X's area (1 in the unit-area frame).
         smoothing: ``(μ_first, μ_last)``, the weight of ``∫ |Δ D|²`` at the first and the last
             round (area² units), geometric in between.
@@ -169,7 +176,7 @@ def register_displacement(
         from scipy.spatial import cKDTree
 
         target_tree = cKDTree(target)
-    normals = target_normals / np.linalg.norm(target_normals, axis=1, keepdims=True)
+    normals = _unit_rows(target_normals)
     sample_area = area / n_samples
     for weight in np.geomspace(smoothing[0], smoothing[1], rounds):
         fitted = basis @ coefficients
@@ -238,8 +245,7 @@ def register_displacement_reference(
     basis, eigenvalues, offsets = _checked(basis, eigenvalues, offsets, min(smoothing), 1)
     points, target = np.asarray(points, np.float64), np.asarray(target, np.float64)
     coefficients = np.array(coefficients, dtype=np.float64)
-    normals = np.asarray(target_normals, np.float64)
-    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = _unit_rows(np.asarray(target_normals, np.float64))
     n_samples, size = basis.shape
     eye = np.eye(3)
     for weight in np.geomspace(smoothing[0], smoothing[1], rounds) if rounds else ():

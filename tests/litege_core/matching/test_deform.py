@@ -172,3 +172,20 @@ def test_fast_registration_agrees_with_the_lstsq_reference(ellipsoid):
         fast = register_displacement(*args, (1e-3, 1e-5), rounds=4, anchor=anchor)
         slow = register_displacement_reference(*args, (1e-3, 1e-5), rounds=4, anchor=anchor)
         np.testing.assert_allclose(fast, slow, atol=1e-8)
+
+
+def test_vertices_without_a_normal_give_no_surface_term(ellipsoid):
+    """A zero normal (an unreferenced vertex) must not poison the solve with NaNs."""
+    vertices, eigenvalues, basis, faces = ellipsoid
+    target = vertices * [1.1, 1.0, 0.95]
+    normals = np.array(trimesh.Trimesh(target, faces).vertex_normals)
+    normals[::7] = 0.0
+    rows = np.arange(0, vertices.shape[0], 2)
+    offsets = target[rows] - vertices[rows]
+    start = np.zeros((basis.shape[1], 3))
+    args = (basis[rows], eigenvalues, vertices[rows], offsets, start, target, normals, 1.0)
+    found = register_displacement(*args, (1e-3, 1e-5), rounds=4)
+    assert np.all(np.isfinite(found))
+    np.testing.assert_allclose(
+        found, register_displacement_reference(*args, (1e-3, 1e-5), rounds=4), atol=1e-8
+    )
