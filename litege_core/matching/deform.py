@@ -62,6 +62,46 @@ def _unit_rows(vectors: NDArray) -> NDArray:
     return vectors / np.maximum(lengths, 1e-300)
 
 
+def _registration_inputs(
+    basis: NDArray,
+    eigenvalues: NDArray,
+    points: NDArray,
+    offsets: NDArray,
+    coefficients: NDArray,
+    target: NDArray,
+    target_normals: NDArray,
+    smoothing: tuple[float, float],
+    rounds: int,
+    anchor: float,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """The arguments of :func:`register_displacement` checked and as float64 arrays (a copy of
+    ``coefficients``; the normals scaled to unit rows, zero rows kept).
+
+    Raises:
+        InputError: shapes that do not fit together, a smoothing weight not positive, or
+            negative rounds or anchor.
+    """
+    basis, eigenvalues, offsets = _checked(basis, eigenvalues, offsets, min(smoothing), 1)
+    points = np.asarray(points, dtype=np.float64)
+    coefficients = np.array(coefficients, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    target_normals = np.asarray(target_normals, dtype=np.float64)
+    n_samples, size = basis.shape
+    if points.shape != offsets.shape or coefficients.shape != (size, 3):
+        raise InputError(
+            f"need ({n_samples}, 3) points and ({size}, 3) coefficients, got {points.shape}, "
+            f"{coefficients.shape}"
+        )
+    if target.ndim != 2 or target.shape[1] != 3 or target_normals.shape != target.shape:
+        raise InputError(
+            f"need (T, 3) target vertices and normals, got {target.shape}, {target_normals.shape}"
+        )
+    if rounds < 0 or anchor < 0:
+        raise InputError(f"rounds and anchor must be >= 0, got {rounds}, {anchor}")
+    normals = _unit_rows(target_normals)
+    return basis, eigenvalues, points, offsets, coefficients, target, normals
+
+
 def _checked(
     basis: NDArray, eigenvalues: NDArray, offsets: NDArray, smoothing: float, rounds: int
 ) -> tuple[NDArray, NDArray, NDArray]:
@@ -153,30 +193,25 @@ def register_displacement(
     Returns:
         ``(K, 3)`` float64 coefficients: vertex ``v`` moves by ``Φ_v C``.
     """
-    basis, eigenvalues, offsets = _checked(basis, eigenvalues, offsets, min(smoothing), 1)
-    points = np.asarray(points, dtype=np.float64)
-    coefficients = np.array(coefficients, dtype=np.float64)
-    target = np.asarray(target, dtype=np.float64)
-    target_normals = np.asarray(target_normals, dtype=np.float64)
-    n_samples, size = basis.shape
-    if points.shape != offsets.shape or coefficients.shape != (size, 3):
-        raise InputError(
-            f"need ({n_samples}, 3) points and ({size}, 3) coefficients, got {points.shape}, "
-            f"{coefficients.shape}"
-        )
-    if target.ndim != 2 or target.shape[1] != 3 or target_normals.shape != target.shape:
-        raise InputError(
-            f"need (T, 3) target vertices and normals, got {target.shape}, {target_normals.shape}"
-        )
-    if rounds < 0 or anchor < 0:
-        raise InputError(f"rounds and anchor must be >= 0, got {rounds}, {anchor}")
+    basis, eigenvalues, points, offsets, coefficients, target, normals = _registration_inputs(
+        basis,
+        eigenvalues,
+        points,
+        offsets,
+        coefficients,
+        target,
+        target_normals,
+        smoothing,
+        rounds,
+        anchor,
+    )
     if not rounds:
         return coefficients
     if target_tree is None:
         from scipy.spatial import cKDTree
 
         target_tree = cKDTree(target)
-    normals = _unit_rows(target_normals)
+    n_samples, size = basis.shape
     sample_area = area / n_samples
     for weight in np.geomspace(smoothing[0], smoothing[1], rounds):
         fitted = basis @ coefficients
@@ -242,13 +277,21 @@ def register_displacement_reference(
     ``Φ_sk n_sj`` (right side ``(y_c(s) − x_s) · n_s``), per sample and axis ``j`` one tie row
     ``√(α w_s) Φ_sk`` (right side ``√(α w_s) o_sj``), and per unknown one smoothness row
     ``√(μ_r S / A) λ_k`` (the slow reference, nearest vertices by brute force)."""
-    basis, eigenvalues, offsets = _checked(basis, eigenvalues, offsets, min(smoothing), 1)
-    points, target = np.asarray(points, np.float64), np.asarray(target, np.float64)
-    coefficients = np.array(coefficients, dtype=np.float64)
-    normals = _unit_rows(np.asarray(target_normals, np.float64))
+    basis, eigenvalues, points, offsets, coefficients, target, normals = _registration_inputs(
+        basis,
+        eigenvalues,
+        points,
+        offsets,
+        coefficients,
+        target,
+        target_normals,
+        smoothing,
+        rounds,
+        anchor,
+    )
     n_samples, size = basis.shape
     eye = np.eye(3)
-    for weight in np.geomspace(smoothing[0], smoothing[1], rounds) if rounds else ():
+    for weight in np.geomspace(smoothing[0], smoothing[1], rounds):
         fitted = basis @ coefficients
         moved = points + fitted
         nearest = np.argmin(((moved[:, None, :] - target[None, :, :]) ** 2).sum(-1), axis=1)
