@@ -40,6 +40,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         for name, value in (
             ("smoothing", args.smoothing),
             ("registration_rounds", args.registration_rounds),
+            ("distortion_tolerance", args.distortion_tolerance),
         )
         if value is not None
     }
@@ -118,6 +119,14 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="with --refine: closest-point rounds registering that displacement to the "
         "target's surface (0: the fitted displacement alone, which suits near-isometric pairs "
         "such as one body in two poses; default: the library's)",
+    )
+    match.add_argument(
+        "--distortion-tolerance",
+        type=float,
+        default=None,
+        help="with --refine zoomout-hybrid: keep the smoothed map only where its geodesic "
+        "distortion is at most this multiple of the spectral map's (inf: always; default: "
+        "the model's category default, 1.1 for humans, inf for quadrupeds)",
     )
     match.add_argument("--seed", type=int, default=0, help="seed of the samples")
     match.add_argument("-o", "--output", required=True, help="output .npy file")

@@ -41,6 +41,7 @@ Methods:
 from __future__ import annotations
 
 import datetime
+import math
 import os
 import sys
 import time
@@ -130,7 +131,14 @@ class MatchMethod(Protocol):
 
 
 VARIANT_FRAMES = ("auto", "tnet", "judged")
-VARIANT_OPTIONS = ("mirror-vote", "zoomout", "zoomout-hybrid", "unsmoothed", "unregistered")
+VARIANT_OPTIONS = (
+    "mirror-vote",
+    "zoomout",
+    "zoomout-hybrid",
+    "unsmoothed",
+    "unregistered",
+    "unchecked",
+)
 
 
 @dataclass(frozen=True)
@@ -145,6 +153,9 @@ class LiteGEVariant:
             ``ZoomOutSettings(smoothing=0)``).
         registered: the fit's registration to Y's surface (token ``unregistered`` turns it
             off: ``ZoomOutSettings(registration_rounds=0)``).
+        checked: the hybrid's distortion check of the smoothed map, where the model's
+            category has one (token ``unchecked`` turns it off:
+            ``ZoomOutSettings(distortion_tolerance=inf)``).
     """
 
     frames: str = "auto"
@@ -152,12 +163,13 @@ class LiteGEVariant:
     refine: str = "none"
     smoothed: bool = True
     registered: bool = True
+    checked: bool = True
 
     @classmethod
     def parse(cls, text: str) -> LiteGEVariant:
         """``"judged+zoomout"``-style text: one frames token (default ``auto``), optionally
         ``mirror-vote``, one of ``zoomout``, ``zoomout-hybrid`` and, with one of them,
-        ``unsmoothed`` or ``unregistered``, joined by ``+``."""
+        ``unsmoothed`` or ``unregistered`` and ``unchecked``, joined by ``+``."""
         from litege_core.errors import InputError
 
         tokens = [t.strip() for t in text.split("+") if t.strip()]
@@ -166,16 +178,18 @@ class LiteGEVariant:
         unknown = [t for t in tokens if t not in VARIANT_FRAMES + VARIANT_OPTIONS]
         unsmoothed = "unsmoothed" in tokens
         unregistered = "unregistered" in tokens
+        unchecked = "unchecked" in tokens
         if (
             unknown
             or len(frames) > 1
             or len(refine) > 1
-            or ((unsmoothed or unregistered) and not refine)
-            or (unsmoothed and unregistered)
+            or ((unsmoothed or unregistered or unchecked) and not refine)
+            or (unsmoothed and (unregistered or unchecked))
         ):
             raise InputError(
                 f"bad LiteGE variant {text!r}: one of {list(VARIANT_FRAMES)} and any of "
-                f"{list(VARIANT_OPTIONS)} (unsmoothed or unregistered with a refinement), "
+                f"{list(VARIANT_OPTIONS)} (unsmoothed, or unregistered and unchecked, with a "
+                "refinement), "
                 "joined by '+'"
             )
         return cls(
@@ -184,6 +198,7 @@ class LiteGEVariant:
             refine=refine[0] if refine else "none",
             smoothed=not unsmoothed,
             registered=not unregistered,
+            checked=not unchecked,
         )
 
     @property
@@ -195,8 +210,11 @@ class LiteGEVariant:
             out.append(self.refine)
             if not self.smoothed:
                 out.append("unsmoothed")
-            elif not self.registered:
-                out.append("unregistered")
+            else:
+                if not self.registered:
+                    out.append("unregistered")
+                if not self.checked:
+                    out.append("unchecked")
         return out
 
     @property
@@ -243,12 +261,14 @@ class LiteGEMethod:
     def match(self, x, y, queries: NDArray) -> NDArray:
         from litege_core.matching.refine import ZoomOutSettings as RefineSettings
 
+        overrides: dict[str, Any] = {}
         if not self.variant.smoothed:
-            settings = RefineSettings(smoothing=0.0)
-        elif not self.variant.registered:
-            settings = RefineSettings(registration_rounds=0)
-        else:
-            settings = RefineSettings()
+            overrides["smoothing"] = 0.0
+        if not self.variant.registered:
+            overrides["registration_rounds"] = 0
+        if not self.variant.checked:
+            overrides["distortion_tolerance"] = math.inf
+        settings = RefineSettings(**overrides)
         return self.model.match(
             x, y, queries, side=self.variant.side, refine=self.variant.refine, zoomout=settings
         ).indices

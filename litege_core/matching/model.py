@@ -730,7 +730,8 @@ class MatchingModel:
                 a wave-kernel-signature map, whichever preserves geodesic distances better
                 (:mod:`litege_core.matching.refine`; needs pyFM; seconds per pair).
                 ``distance`` is then the network's prediction at the refined match.
-            zoomout: settings of the refinement (default :class:`ZoomOutSettings`).
+            zoomout: settings of the refinement (default :class:`ZoomOutSettings`; an unset
+                ``distortion_tolerance`` takes the model category's default).
 
         Raises:
             IndexOutOfRangeError, ArrayShapeError, NonFiniteError: bad queries.
@@ -759,7 +760,7 @@ class MatchingModel:
                 found, value, chosen = found_m, value_m, mirror
         refinement = "none"
         if refine != "none":
-            settings = zoomout or ZoomOutSettings()
+            settings = (zoomout or ZoomOutSettings()).for_category(self.category)
             source_spectrum = spectrum(source, settings)
             target_spectrum = spectrum(target, settings)
             refined, spent = self._refined_map(

@@ -28,7 +28,9 @@ geodesic distances (:func:`geodesic_distortion`: heat-method distances from ``n_
 farthest points of X to ``n_distortion_samples`` farthest points, against the same distances
 between their images on Y; ties keep LiteGE's). On a near-isometric pair the right map has the
 lower distortion; across species the WKS map is usually wrong at the body scale and LiteGE's
-is kept.
+is kept. The same check then judges step 5 where the category asks for it
+(:attr:`ZoomOutSettings.distortion_tolerance`): a smoothed map that distorts geodesics more than
+the spectral map gives way to it (bipeds: near-isometric human pairs lose to the fit).
 
 Both shapes must be meshes; their spectra (``n_eigen`` eigenpairs of the cotangent Laplacian in
 the aligned unit-area frame, or the robust "tufted" Laplacian of a mesh prepared as broken) are
@@ -39,6 +41,7 @@ A refined map is a few seconds per pair on a CPU (the eigenpairs dominate), not 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -72,6 +75,15 @@ class PreparedShape(Protocol):
 REFINE_METHODS: tuple[str, ...] = ("none", "zoomout", "zoomout-hybrid")
 """``refine`` values of :meth:`~litege_core.matching.MatchingModel.match`."""
 
+DISTORTION_TOLERANCE: dict[str, float] = {"biped": 1.1}
+"""Category default of :attr:`ZoomOutSettings.distortion_tolerance` (categories not named:
+``inf``, the smoothed map always). Chosen on generated pairs (``scripts/refine_gate.py``,
+BENCHMARKS.md ``refine-gate``, 48 biped and 24 quadruped pairs): on near-isometric biped pairs
+(one body in two poses, two bodies of one family) the smoothed map is worse than the spectral
+one, and it distorts geodesics more; the check at 1.1 (the middle of the flat optimum 0.95–1.15)
+takes the biped mean 2.54 → 2.36 (spectral 2.45). On quadruped pairs the smoothed map is better
+even where it distorts more, and every tolerance lost (1.62 unchecked, 1.75 at 1.1)."""
+
 
 @dataclass(frozen=True)
 class ZoomOutSettings:
@@ -98,6 +110,11 @@ class ZoomOutSettings:
         registration_anchor: weight of the registration's tie to the refined map's matches,
             relative to its surface term (0: none; the tie keeps near-isometric pairs on the
             refined map).
+        distortion_tolerance: ``zoomout-hybrid`` keeps the smoothed (fitted and registered)
+            map only where its geodesic distortion is at most this multiple of the spectral
+            map's, else the spectral map (``math.inf``: always the smoothed map). ``None``:
+            the matching model's category default (:data:`DISTORTION_TOLERANCE`,
+            :meth:`for_category`); the functions of this module read ``None`` as ``inf``.
     """
 
     k_init: int = 20
@@ -118,6 +135,7 @@ class ZoomOutSettings:
     registration_rounds: int = 8
     registration_smoothing: float = 1e-7
     registration_anchor: float = 0.01
+    distortion_tolerance: float | None = None
 
     def __post_init__(self) -> None:
         if not 1 <= self.k_init <= self.n_eigen:
@@ -134,6 +152,15 @@ class ZoomOutSettings:
             raise InputError("registration_rounds and registration_anchor must be >= 0")
         if self.registration_smoothing <= 0:
             raise InputError("registration_smoothing must be positive")
+        if self.distortion_tolerance is not None and not self.distortion_tolerance > 0:
+            raise InputError("distortion_tolerance must be positive (inf: no check) or None")
+
+    def for_category(self, category: str) -> ZoomOutSettings:
+        """These settings with an unset ``distortion_tolerance`` set to ``category`` 's
+        default (:data:`DISTORTION_TOLERANCE`; ``inf`` for a category without one)."""
+        if self.distortion_tolerance is not None:
+            return self
+        return replace(self, distortion_tolerance=DISTORTION_TOLERANCE.get(category, math.inf))
 
     @property
     def n_iterations(self) -> int:
@@ -336,7 +363,8 @@ class HybridResult:
     Attributes:
         indices: ``(N,)`` int64 Y vertices of the queries.
         seed: ``"litege"`` or ``"descriptors"``: the start of the kept map.
-        distortion: ``{"litege": float, "descriptors": float}``.
+        distortion: ``{"litege": float, "descriptors": float}``, and ``"smoothed"`` where the
+            smoothed map was checked (:attr:`ZoomOutSettings.distortion_tolerance`).
     """
 
     indices: NDArray
@@ -353,7 +381,8 @@ class RefinedMap:
         fmap: ``(k2, k1)`` functional map (Y → X functions, pyFM's convention).
         seed: ``zoomout-hybrid``'s start of the kept map, ``"litege"`` or ``"descriptors"``
             (``None`` for plain ZoomOut, which starts from LiteGE's matches).
-        distortion: the hybrid's check ``{"litege": float, "descriptors": float}`` (empty for
+        distortion: the hybrid's check ``{"litege": float, "descriptors": float}``, with
+            ``"smoothed"`` where the smoothed map was checked (empty for
             plain ZoomOut).
         displacement: ``(K, 3)`` coefficients, in X's eigenbasis, of the smooth displacement
             fitted to the map (:func:`smoothed`), or ``None``: queries map by the spectral
@@ -493,7 +522,20 @@ def refined_map(
             source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
         )
     seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
-    return smoothed(RefinedMap(maps[seed], seed, distortion), source, target, settings)
+    refined = smoothed(RefinedMap(maps[seed], seed, distortion), source, target, settings)
+    tolerance = settings.distortion_tolerance
+    if refined.displacement is None or tolerance is None or math.isinf(tolerance):
+        return refined
+    found = refined.matches(source, target, checked)
+    distortion = {
+        **distortion,
+        "smoothed": geodesic_distortion(
+            source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
+        ),
+    }
+    if distortion["smoothed"] <= tolerance * distortion[seed]:
+        return replace(refined, distortion=distortion)
+    return RefinedMap(maps[seed], seed, distortion)
 
 
 def hybrid_refine(

@@ -141,3 +141,8 @@ def test_match_reports_frames_and_refines_on_request(tmp_path, capsys):
     assert np.load(raw).shape == (3,)
     assert main([*argv, "--registration-rounds", "-1", "-o", str(raw)]) != 0
     assert "registration_rounds" in capsys.readouterr().err
+    # --distortion-tolerance too: inf never checks, a non-positive tolerance is refused
+    assert main([*argv, "--distortion-tolerance", "inf", "-o", str(raw)]) == 0
+    capsys.readouterr()
+    assert main([*argv, "--distortion-tolerance", "0", "-o", str(raw)]) != 0
+    assert "distortion_tolerance" in capsys.readouterr().err

@@ -373,6 +373,11 @@ def test_litege_variants_parse_name_and_label():
     fitted = LiteGEVariant.parse("judged+zoomout-hybrid+unregistered")
     assert fitted.smoothed and not fitted.registered
     assert fitted.name == "litege[judged+zoomout-hybrid+unregistered]"
+    unchecked = LiteGEVariant.parse("tnet+zoomout-hybrid+unchecked")
+    assert unchecked.smoothed and unchecked.registered and not unchecked.checked
+    assert unchecked.name == "litege[tnet+zoomout-hybrid+unchecked]"
+    both = LiteGEVariant.parse("zoomout-hybrid+unregistered+unchecked")
+    assert both.name == "litege[zoomout-hybrid+unregistered+unchecked]"
     for bad in (
         "tnet+judged",
         "pca",
@@ -381,6 +386,8 @@ def test_litege_variants_parse_name_and_label():
         "tnet+unsmoothed",
         "tnet+unregistered",
         "zoomout+unsmoothed+unregistered",
+        "tnet+unchecked",
+        "zoomout+unsmoothed+unchecked",
     ):
         with pytest.raises(InputError):
             LiteGEVariant.parse(bad)

@@ -4,6 +4,7 @@ and ZoomOut refinement (issue 15)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 
 import numpy as np
@@ -517,6 +518,71 @@ def test_hybrid_keeps_the_less_distorting_map(lumpy):
     assert bad.seed == "descriptors"
     assert bad.distortion["descriptors"] < bad.distortion["litege"]
     assert np.linalg.norm(vertices[bad.indices] - vertices, axis=1).mean() < 0.2
+
+
+def test_hybrid_checks_the_smoothed_map_against_the_spectral_one(lumpy):
+    """A stretched pair: ``distortion_tolerance`` keeps the smoothed map only where its
+    geodesic distortion is within the tolerance of the spectral map's (module doc)."""
+    pytest.importorskip("pyFM")
+    from litege_core.matching.refine import (
+        geodesic_distortion,
+        heat_engine,
+        pointwise_matches,
+        refined_map,
+    )
+    from litege_core.sampling import farthest_point_sampling
+
+    vertices, faces = lumpy
+    stretched = vertices * [1.3, 0.85, 1.1]
+    base = ZoomOutSettings(k_init=12, n_eigen=30, n_samples=200, k_fit=8, n_sources=5)
+    x, y = _Prepared(vertices, faces), _Prepared(stretched, faces)
+    source, target = spectrum(x, base), spectrum(y, base)
+    area = float(source.mesh.mass.diagonal().sum())
+    base = dataclasses.replace(
+        base, smoothing=3e-6 * area**2, registration_smoothing=1e-7 * area**2
+    )
+    heat_x, heat_y = heat_engine(x), heat_engine(y)
+
+    def refined(tolerance):
+        settings = dataclasses.replace(base, distortion_tolerance=tolerance)
+        return refined_map(
+            "zoomout-hybrid", source.samples, source, target, settings, heat_x, heat_y, vertices
+        )
+
+    unchecked = refined(math.inf)
+    assert unchecked.displacement is not None and "smoothed" not in unchecked.distortion
+    loose = refined(1e6)
+    assert loose.displacement is not None
+    sources = farthest_point_sampling(vertices, base.n_sources)
+    samples = farthest_point_sampling(vertices, base.n_distortion_samples)
+    found = loose.matches(source, target, np.concatenate([sources, samples]))
+    assert loose.distortion["smoothed"] == pytest.approx(
+        geodesic_distortion(
+            heat_x, heat_y, sources, samples, found[: sources.size], found[sources.size :]
+        )
+    )
+    strict = refined(1e-6)  # no smoothed map distorts less than a millionth of the spectral
+    assert strict.displacement is None and strict.seed == loose.seed
+    rows = np.arange(vertices.shape[0])
+    np.testing.assert_array_equal(
+        strict.matches(source, target, rows),
+        pointwise_matches(strict.fmap, source, target, rows),
+    )
+    spectral = strict.distortion[strict.seed]
+    assert strict.distortion["smoothed"] > 1e-6 * spectral
+    even = refined(1.0)
+    assert (even.displacement is not None) == (even.distortion["smoothed"] <= spectral)
+
+
+def test_distortion_tolerance_defaults_by_category():
+    assert ZoomOutSettings().distortion_tolerance is None
+    assert ZoomOutSettings().for_category("biped").distortion_tolerance == 1.1
+    assert ZoomOutSettings().for_category("quadruped").distortion_tolerance == math.inf
+    chosen = ZoomOutSettings(distortion_tolerance=2.0)
+    assert chosen.for_category("biped") is chosen
+    for bad in (0.0, -1.0, math.nan):
+        with pytest.raises(InputError, match="distortion_tolerance"):
+            ZoomOutSettings(distortion_tolerance=bad)
 
 
 def test_match_refine_hybrid_reports_its_seed(model, shapes):
