@@ -166,7 +166,8 @@ def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
         help="comma-separated LiteGE rows: a frames token (auto, tnet, judged) and any of "
         "mirror-vote and zoomout or zoomout-hybrid (with 'unsmoothed': no smooth fit of the "
         "refined map; 'unregistered': the fit without its registration to the target's "
-        "surface), joined by '+', e.g. 'tnet,judged,judged+zoomout' (default: auto, one "
+        "surface; 'unchecked': no distortion check of the smoothed map), joined by '+', e.g. "
+        "'tnet,judged,judged+zoomout' (default: auto, one "
         "LiteGE row)",
     )
     parser.add_argument("--seed", type=int, default=0)
