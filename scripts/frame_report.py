@@ -40,7 +40,8 @@ the shape's best mirror-symmetry planes (:func:`symmetry_normals`) are candidate
 each with 48 frames about it (:func:`sagittal_rotations`); the tables gain their best
 (``sagittal oracle``), the frame the judge keeps among them (``judged over sagittal``) and
 the T-Net's frame laid on the nearest of those planes (``tnet snapped``, :func:`snapped`).
-``--intrinsic`` adds frames that owe nothing to the pose (:func:`intrinsic_frames`): each
+``--intrinsic`` adds frames that owe nothing to the pose
+(:mod:`litege_core.matching.intrinsic`, ``frames="intrinsic"``): each
 reference animal mapped onto the mesh by a wave-kernel functional map, and the rotation that
 best fits its canonical points to their matches; TOSCA gains the frame of the lowest fit
 residual (``intrinsic``) and the best reference's (``intrinsic oracle``), FAUST the first.
@@ -63,6 +64,7 @@ from scipy.spatial.transform import Rotation
 
 from litege_core.io import load_shape
 from litege_core.matching import MatchingModel
+from litege_core.matching.intrinsic import intrinsic_frames
 from litege_core.matching.judge import FrameJudge
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
@@ -70,8 +72,6 @@ from litege_core.synth.poses import EXTRA_MODES
 from litege_core.variants import random_rotation
 
 FAILURE = 0.66
-INTRINSIC_ROUNDS = 6
-"""Reweighting rounds of :func:`robust_rotation`."""
 TOSCA_TO_CANONICAL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Rows: canonical x, y, z in TOSCA file coordinates (``q = C f``)."""
 
@@ -269,88 +269,21 @@ def alternative_errors(
     return out
 
 
-def robust_rotation(
-    source: np.ndarray, target: np.ndarray, rounds: int = INTRINSIC_ROUNDS
-) -> tuple[np.ndarray, float]:
-    """The proper rotation ``R`` with ``target ≈ R source + t`` (``(P, 3)`` paired points), by
-    Procrustes reweighted ``rounds`` times with Cauchy weights (scale: twice the median
-    residual), and the mean residual of the last fit."""
-    weights = np.ones(len(source))
-    for _ in range(rounds):
-        share = weights / weights.sum()
-        centred_source = source - share @ source
-        centred_target = target - share @ target
-        u, _, vt = np.linalg.svd((centred_source * weights[:, None]).T @ centred_target)
-        sign = np.sign(np.linalg.det(vt.T @ u.T))
-        rotation = vt.T @ np.diag([1.0, 1.0, sign]) @ u.T
-        residuals = np.linalg.norm(centred_target - centred_source @ rotation.T, axis=1)
-        weights = 1.0 / (1.0 + (residuals / (2.0 * np.median(residuals) + 1e-12)) ** 2)
-    return rotation, float(residuals.mean())
-
-
-class _Mesh:
-    """What :func:`~litege_core.matching.refine.spectrum` reads of a prepared shape."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        self.aligned, self.faces, self.scaling = vertices, faces, "unit_area"
-        self._lazy: dict[str, object] = {}
-
-
-def intrinsic_frames(shape: Shape, category: str) -> list[tuple[float, np.ndarray, str]]:
-    """Per reference animal of ``category`` (the judge's rest-pose family means): the mean
-    residual, the rotation (input → canonical) and the family, of an intrinsic frame: the
-    reference's wave-kernel functional map onto the mesh (ZoomOut-refined, the map of
-    ``zoomout-hybrid``'s descriptor seed) matches its farthest-point samples, and
-    :func:`robust_rotation` fits the reference's canonical samples to their matches. A
-    left-right mirrored map still gives the right proper rotation (the best proper fit to a
-    reflection about the narrow axis flips that axis back)."""
-    from litege_core.evaluation.geodesic import unit_area
-    from litege_core.matching.judge import reference_animals
-    from litege_core.matching.refine import (
-        ZoomOutSettings,
-        descriptor_map,
-        pointwise_matches,
-        spectrum,
-    )
-    from litege_core.synth import template
-
-    settings = ZoomOutSettings()
-    faces = np.asarray(shape.faces, dtype=np.int64)
-    vertices, _ = unit_area(np.asarray(shape.vertices, dtype=np.float64), faces)
-    target = spectrum(_Mesh(vertices, faces), settings)
-    out = []
-    for reference in reference_animals(category):
-        key = (category, reference.name)
-        if key not in _REFERENCE_SPECTRA:
-            mesh = _Mesh(np.asarray(reference.vertices), np.asarray(template(category).faces))
-            _REFERENCE_SPECTRA[key] = spectrum(mesh, settings)
-        source = _REFERENCE_SPECTRA[key]
-        found = pointwise_matches(
-            descriptor_map(source, target, settings), source, target, source.samples
-        )
-        rotation, residual = robust_rotation(
-            np.asarray(reference.vertices)[source.samples], vertices[found]
-        )
-        out.append((residual, rotation.T, reference.name))
-    return out
-
-
-_REFERENCE_SPECTRA: dict = {}
-
-
 def intrinsic_errors(
     shapes: list[Shape], category: str, to_file: list[np.ndarray]
 ) -> tuple[list[np.ndarray], list[np.ndarray], list[str]]:
-    """:func:`intrinsic_frames` of each shape in file coordinates (``frame @ to_file``, the
-    shape's input rotation): ``(frames of the lowest residual, every reference's frames as
-    (R, 3, 3) per shape, the families of the kept frames)``."""
+    """The intrinsic frames of each shape (:func:`~litege_core.matching.intrinsic.
+    intrinsic_frames`) in file coordinates (``frame @ to_file``, the shape's input rotation):
+    ``(frames of the lowest residual, every reference's frames as (R, 3, 3) per shape, the
+    families of the kept frames)``."""
     kept, every, names = [], [], []
     for shape, rotation in zip(shapes, to_file, strict=True):
-        frames = intrinsic_frames(shape, category)
-        _, best, name = min(frames, key=lambda item: item[0])
-        kept.append(best @ rotation)
-        every.append(np.array([frame @ rotation for _, frame, _ in frames]))
-        names.append(name)
+        assert shape.faces is not None  # TOSCA and FAUST are meshes
+        frames = intrinsic_frames(shape.vertices, shape.faces, category)
+        best = min(frames, key=lambda frame: frame.residual)
+        kept.append(best.rotation @ rotation)
+        every.append(np.array([frame.rotation @ rotation for frame in frames]))
+        names.append(best.family)
     return kept, every, names
 
 

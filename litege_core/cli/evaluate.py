@@ -163,9 +163,9 @@ def add_matching_arguments(parser: argparse.ArgumentParser) -> None:
         "--variants",
         type=parse_variants,
         default="auto",
-        help="comma-separated LiteGE rows: a frames token (auto, tnet, judged) and any of "
-        "mirror-vote and zoomout or zoomout-hybrid (with 'unsmoothed': no smooth fit of the "
-        "refined map; 'unregistered': the fit without its registration to the target's "
+        help="comma-separated LiteGE rows: a frames token (auto, tnet, judged, intrinsic) "
+        "and any of mirror-vote and zoomout or zoomout-hybrid (with 'unsmoothed': no smooth "
+        "fit of the refined map; 'unregistered': the fit without its registration to the target's "
         "surface; 'unchecked': no distortion check of the smoothed map), joined by '+', e.g. "
         "'tnet,judged,judged+zoomout' (default: auto, one "
         "LiteGE row)",

@@ -92,11 +92,12 @@ def register(commands: argparse._SubParsersAction) -> None:
     match.add_argument("--beams", type=int, default=None, help="candidates kept per coarse tier")
     match.add_argument(
         "--frames",
-        choices=["auto", "tnet", "judged"],
+        choices=["auto", "tnet", "judged", "intrinsic"],
         default="auto",
         help="canonical frame: the T-Net's, or (judged) where the T-Net's turned runs disagree "
         "the best of it and the principal-axis frames, judged by the matching network against "
-        "reference animals (auto: the model's default)",
+        "reference animals, or (intrinsic; meshes, needs pyFM, seconds per shape) the frame "
+        "of reference animals' functional maps onto the mesh (auto: the model's default)",
     )
     match.add_argument(
         "--refine",

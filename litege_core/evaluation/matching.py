@@ -130,7 +130,7 @@ class MatchMethod(Protocol):
         ...
 
 
-VARIANT_FRAMES = ("auto", "tnet", "judged")
+VARIANT_FRAMES = ("auto", "tnet", "judged", "intrinsic")
 VARIANT_OPTIONS = (
     "mirror-vote",
     "zoomout",
@@ -146,7 +146,7 @@ class LiteGEVariant:
     """One LiteGE row of the ablation (issue 15).
 
     Attributes:
-        frames: ``prepare(frames=…)``: ``auto``, ``tnet`` or ``judged``.
+        frames: ``prepare(frames=…)``: ``auto``, ``tnet``, ``judged`` or ``intrinsic``.
         side: ``match(side=…)``: ``frame``, or ``network`` (token ``mirror-vote``).
         refine: ``match(refine=…)``: ``none``, ``zoomout`` or ``zoomout-hybrid`` (meshes only).
         smoothed: the refined map's smooth displacement fit (token ``unsmoothed`` turns it off:

@@ -47,12 +47,14 @@ from litege_core.shape import Shape
 Scaling = Literal["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"]
 SCALINGS: tuple[str, ...] = ("auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500")
 
-FrameMode = Literal["auto", "tnet", "judged"]
-FRAME_MODES: tuple[str, ...] = ("auto", "tnet", "judged")
+FrameMode = Literal["auto", "tnet", "judged", "intrinsic"]
+FRAME_MODES: tuple[str, ...] = ("auto", "tnet", "judged", "intrinsic")
 """``tnet``: the T-Net's frame as is (the reference); ``judged``: the T-Net's frame where its
 turned runs agree (:func:`runs_agree`), else the one of it and the 24 principal-axis frames that
 the matching network finds most like the canonical reference animals
-(:class:`~litege_core.matching.judge.FrameJudge`); ``auto``: ``judged`` for the categories the
+(:class:`~litege_core.matching.judge.FrameJudge`); ``intrinsic``: for a mesh, the frame of the
+reference animals' functional maps onto it (:mod:`litege_core.matching.intrinsic`; seconds per
+shape, needs pyFM), for a point cloud the T-Net's; ``auto``: ``judged`` for the categories the
 judge is validated on, else ``tnet``."""
 
 TURN_RUN_POINTS = 500

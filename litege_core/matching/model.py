@@ -58,6 +58,7 @@ from litege_core.matching.frame import (
     subsample,
     turned,
 )
+from litege_core.matching.intrinsic import intrinsic_frame
 from litege_core.matching.judge import DEFAULT_MARGIN, JUDGED_BY_DEFAULT, FrameJudge, choose
 from litege_core.matching.refine import (
     REFINE_METHODS,
@@ -391,7 +392,8 @@ class MatchingModel:
         ``tnet``.
 
         Raises:
-            InputError: an unknown mode, or ``judged`` without a judge.
+            InputError: an unknown mode, ``judged`` without a judge, or ``intrinsic`` for a
+                category without reference animals.
         """
         if frames not in FRAME_MODES:
             raise InputError(f"frames must be one of {list(FRAME_MODES)}, got {frames!r}")
@@ -401,6 +403,12 @@ class MatchingModel:
         if frames == "judged" and not has_judge:
             raise InputError(
                 f"frames='judged' needs reference animals; none for category {self.category!r}"
+            )
+        from litege_core.synth import CATEGORIES
+
+        if frames == "intrinsic" and self.category not in CATEGORIES:
+            raise InputError(
+                f"frames='intrinsic' needs reference animals; none for category {self.category!r}"
             )
         return frames
 
@@ -438,7 +446,9 @@ class MatchingModel:
             scaling: ``"auto"`` or a fixed scaling (see :mod:`litege_core.matching.frame`).
             frames: ``"tnet"`` (the T-Net's frame), ``"judged"`` (the T-Net's frame where its
                 turned runs agree, else the T-Net's or a principal-axis frame, chosen by
-                :attr:`frame_judge`) or ``"auto"`` (``judged`` for the categories of
+                :attr:`frame_judge`), ``"intrinsic"`` (a mesh's frame from functional maps of
+                reference animals, :mod:`~litege_core.matching.intrinsic`; a cloud's T-Net
+                frame) or ``"auto"`` (``judged`` for the categories of
                 :data:`~litege_core.matching.judge.JUDGED_BY_DEFAULT`).
             frame_margin: another frame replaces the T-Net's only when its judge score is
                 lower by more than this fraction.
@@ -458,6 +468,8 @@ class MatchingModel:
             aligned_frames, names = self._judged_frames(
                 shapes, aligned_frames, frame_margin, int(seed)
             )
+        elif mode == "intrinsic":
+            aligned_frames, names = self._intrinsic_frames(shapes, aligned_frames)
         described = self._engine.describe_with_residual(
             [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
@@ -527,6 +539,23 @@ class MatchingModel:
             transform, cloud, chosen = frames[i]
             out[i] = (turned(transform, shape_turns[best]), cloud @ shape_turns[best].T, chosen)
             names[i] = "tnet" if best == 0 else f"pca{best - 1}"
+        return out, names
+
+    def _intrinsic_frames(
+        self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]]
+    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
+        """Each mesh in its intrinsic frame (:func:`~litege_core.matching.intrinsic.
+        intrinsic_frame`), named ``intrinsic:<family>`` after the reference animal that gave
+        it; each point cloud keeps its T-Net frame (``tnet``)."""
+        out, names = list(frames), ["tnet"] * len(frames)
+        for i, shape in enumerate(shapes):
+            if shape.faces is None:
+                continue
+            found = intrinsic_frame(shape.vertices, shape.faces, self.category)
+            transform, cloud, chosen = frames[i]
+            turn = found.rotation @ np.asarray(transform.rotation).T  # T-Net → intrinsic frame
+            out[i] = (turned(transform, turn), cloud @ turn.T, chosen)
+            names[i] = f"intrinsic:{found.family}"
         return out, names
 
     def _orientation_scores(
