@@ -44,7 +44,8 @@ the T-Net's frame laid on the nearest of those planes (``tnet snapped``, :func:`
 (:mod:`litege_core.matching.intrinsic`, ``frames="intrinsic"``): each
 reference animal mapped onto the mesh by a wave-kernel functional map, and the rotation that
 best fits its canonical points to their matches; TOSCA gains the frame of the lowest fit
-residual (``intrinsic``) and the best reference's (``intrinsic oracle``), FAUST the first.
+residual (``intrinsic``), the best reference's (``intrinsic oracle``, TOSCA), and three ways of
+choosing between them and the T-Net's frame (:data:`INTRINSIC_CHOICES`).
 
 Prints a markdown block; every number comes from this script.
 """
@@ -269,22 +270,41 @@ def alternative_errors(
     return out
 
 
-def intrinsic_errors(
-    shapes: list[Shape], category: str, to_file: list[np.ndarray]
-) -> tuple[list[np.ndarray], list[np.ndarray], list[str]]:
-    """The intrinsic frames of each shape (:func:`~litege_core.matching.intrinsic.
-    intrinsic_frames`) in file coordinates (``frame @ to_file``, the shape's input rotation):
-    ``(frames of the lowest residual, every reference's frames as (R, 3, 3) per shape, the
-    families of the kept frames)``."""
-    kept, every, names = [], [], []
+INTRINSIC_CHOICES = (
+    "intrinsic",
+    "intrinsic where split",
+    "judged over intrinsic",
+    "judged over intrinsic where split",
+)
+"""Frames ``--intrinsic`` reports (:func:`intrinsic_choices`)."""
+
+
+def intrinsic_choices(
+    model: MatchingModel, shapes: list[Shape], to_file: list[np.ndarray]
+) -> tuple[dict[str, list[np.ndarray]], list[np.ndarray], list[str]]:
+    """Per shape, in file coordinates (``frame @ to_file``, the shape's input rotation), the
+    frames of :data:`INTRINSIC_CHOICES`: the intrinsic frame of the lowest residual
+    (:func:`~litege_core.matching.intrinsic.intrinsic_frames`), the same only where the
+    T-Net's turned runs split (else the T-Net's frame, as judged frames do), the frame the
+    judge keeps among the T-Net's and every reference's intrinsic frame (:func:`judge_over`),
+    and the same only where the runs split. Also every reference's frame ``(R, 3, 3)`` per
+    shape and the family of the lowest residual."""
+    chosen: dict[str, list[np.ndarray]] = {name: [] for name in INTRINSIC_CHOICES}
+    every, names = [], []
     for shape, rotation in zip(shapes, to_file, strict=True):
         assert shape.faces is not None  # TOSCA and FAUST are meshes
-        frames = intrinsic_frames(shape.vertices, shape.faces, category)
+        frames = intrinsic_frames(shape.vertices, shape.faces, model.category)
         best = min(frames, key=lambda frame: frame.residual)
-        kept.append(best.rotation @ rotation)
+        prepared = model.prepare(shape, frames="tnet")
+        tnet = np.asarray(prepared.transform.rotation)
+        split = len(candidate_rotations(model, prepared)) > 1
+        judged = judge_over(model, shape, prepared, [tnet] + [f.rotation for f in frames])
+        picks = (best.rotation, best.rotation if split else tnet, judged, judged if split else tnet)
+        for name, frame in zip(INTRINSIC_CHOICES, picks, strict=True):
+            chosen[name].append(frame @ rotation)
         every.append(np.array([frame.rotation @ rotation for frame in frames]))
         names.append(best.family)
-    return kept, every, names
+    return chosen, every, names
 
 
 def consensus(rotations: list[np.ndarray]) -> np.ndarray:
@@ -475,17 +495,21 @@ def main() -> None:
             )
             switched[f"TOSCA {mode}"] = sum(name != "tnet" for _, name in found)
         if args.intrinsic:
-            kept, every, families_kept = intrinsic_errors(real, model.category, rotations)
-            lowest = [angle(f, TOSCA_TO_CANONICAL) for f in kept]
-            best = [min(angle(f, TOSCA_TO_CANONICAL) for f in frames) for frames in every]
-            for label, name, error, floor in zip(labels, families_kept, lowest, best, strict=True):
-                per_shape[f"TOSCA {label}"]["intrinsic"] = (name, error)
-                per_shape[f"TOSCA {label}"]["intrinsic oracle"] = ("best", floor)
-            for name, errors in (("intrinsic", lowest), ("intrinsic oracle", best)):
+            chosen, every, families_kept = intrinsic_choices(model, real, rotations)
+            found_errors = {
+                name: [angle(f, TOSCA_TO_CANONICAL) for f in frames]
+                for name, frames in chosen.items()
+            }
+            found_errors["intrinsic oracle"] = [
+                min(angle(f, TOSCA_TO_CANONICAL) for f in frames) for frames in every
+            ]
+            for name, errors in found_errors.items():
                 rows.append(
                     f"| TOSCA ({len(real)} shapes) vs file convention | {name} | "
                     f"{summary(errors)} |"
                 )
+                for label, family, error in zip(labels, families_kept, errors, strict=True):
+                    per_shape[f"TOSCA {label}"][name] = (family, error)
         if args.oracle:
             found_errors = alternative_errors(
                 model, real, rotations, TOSCA_TO_CANONICAL, args.sagittal
@@ -502,10 +526,12 @@ def main() -> None:
     files = sorted((root / "faust_5k").glob("*.off"))
     if files and model.category == "biped":
         real, rotations = rotated_files(files, args.seed, 29)
-        faust_modes = ("tnet", "judged", "intrinsic") if args.intrinsic else ("tnet", "judged")
-        for mode in faust_modes:
-            if mode == "intrinsic":
-                in_file, _, families_kept = intrinsic_errors(real, model.category, rotations)
+        intrinsic: dict[str, list[np.ndarray]] = {}
+        if args.intrinsic:
+            intrinsic, _, families_kept = intrinsic_choices(model, real, rotations)
+        for mode in ("tnet", "judged", *intrinsic):
+            if mode in intrinsic:
+                in_file = intrinsic[mode]
                 found = list(zip(in_file, families_kept, strict=True))
             else:
                 found = frames_of(model, real, mode)
@@ -524,7 +550,7 @@ def main() -> None:
                 f"| FAUST pairs ({len(pairs)}): frames agree ≤ 0.66 rad, % | {mode} | "
                 f"{len(pairs)} | — | — | {100 * np.mean(agree):.1f} |"
             )
-            if mode != "intrinsic":
+            if mode not in intrinsic:
                 switched[f"FAUST {mode}"] = sum(name != "tnet" for _, name in found)
 
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
@@ -549,7 +575,7 @@ def main() -> None:
                 "sagittal oracle",
                 "judged over sagittal",
                 "tnet snapped",
-                "intrinsic",
+                *INTRINSIC_CHOICES,
                 "intrinsic oracle",
             )
             if m in next(iter(per_shape.values()))
@@ -559,6 +585,9 @@ def main() -> None:
             "sagittal oracle": "best sagittal candidate",
             "intrinsic": "intrinsic (lowest residual)",
             "intrinsic oracle": "best intrinsic",
+            "intrinsic where split": "intrinsic where runs split",
+            "judged over intrinsic": "judged over T-Net + intrinsic",
+            "judged over intrinsic where split": "the same where runs split",
         }
         print(
             "\n| real shape | T-Net frame, rad | judged: frame kept, rad |"

@@ -96,8 +96,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         default="auto",
         help="canonical frame: the T-Net's, or (judged) where the T-Net's turned runs disagree "
         "the best of it and the principal-axis frames, judged by the matching network against "
-        "reference animals, or (intrinsic; meshes, needs pyFM, seconds per shape) the frame "
-        "of reference animals' functional maps onto the mesh (auto: the model's default)",
+        "reference animals, or (intrinsic; meshes, needs pyFM, seconds per shape) where those "
+        "runs disagree the frame of reference animals' functional maps onto the mesh (auto: "
+        "the model's default)",
     )
     match.add_argument(
         "--refine",

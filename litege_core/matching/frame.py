@@ -52,10 +52,10 @@ FRAME_MODES: tuple[str, ...] = ("auto", "tnet", "judged", "intrinsic")
 """``tnet``: the T-Net's frame as is (the reference); ``judged``: the T-Net's frame where its
 turned runs agree (:func:`runs_agree`), else the one of it and the 24 principal-axis frames that
 the matching network finds most like the canonical reference animals
-(:class:`~litege_core.matching.judge.FrameJudge`); ``intrinsic``: for a mesh, the frame of the
-reference animals' functional maps onto it (:mod:`litege_core.matching.intrinsic`; seconds per
-shape, needs pyFM), for a point cloud the T-Net's; ``auto``: ``judged`` for the categories the
-judge is validated on, else ``tnet``."""
+(:class:`~litege_core.matching.judge.FrameJudge`); ``intrinsic``: the T-Net's frame where its
+turned runs agree, else for a mesh the frame of the reference animals' functional maps onto it
+(:mod:`litege_core.matching.intrinsic`; seconds per shape, needs pyFM), for a point cloud the
+T-Net's; ``auto``: ``judged`` for the categories the judge is validated on, else ``tnet``."""
 
 TURN_RUN_POINTS = 500
 """Points each turned T-Net run sees (a subset of the T-Net's input; it was trained on 500 to

@@ -14,10 +14,11 @@ The map is blind to left and right (the wave kernel is symmetric), which does no
 the best *proper* rotation onto a map mirrored about the sagittal plane is the rotation itself,
 the mirror folded back along the body's narrowest axis.
 
-Meshes only (the Laplace–Beltrami spectrum), and a few seconds per shape and reference on a
-CPU. Needs pyFM, like the refinement (:class:`~litege_core.errors.MissingDependencyError`
-without it). Measured with ``scripts/frame_report.py --intrinsic`` (BENCHMARKS.md
-``frame-intrinsic``).
+``MatchingModel.prepare(frames="intrinsic")`` uses it where the T-Net's turned runs disagree
+(as judged frames consult the judge), and keeps the T-Net's frame elsewhere. Meshes only (the
+Laplace–Beltrami spectrum), and a few seconds per shape and reference on a CPU. Needs pyFM,
+like the refinement (:class:`~litege_core.errors.MissingDependencyError` without it).
+Measured with ``scripts/frame_report.py --intrinsic`` (BENCHMARKS.md ``frame-intrinsic``).
 """
 
 from __future__ import annotations

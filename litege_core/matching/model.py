@@ -446,9 +446,10 @@ class MatchingModel:
             scaling: ``"auto"`` or a fixed scaling (see :mod:`litege_core.matching.frame`).
             frames: ``"tnet"`` (the T-Net's frame), ``"judged"`` (the T-Net's frame where its
                 turned runs agree, else the T-Net's or a principal-axis frame, chosen by
-                :attr:`frame_judge`), ``"intrinsic"`` (a mesh's frame from functional maps of
-                reference animals, :mod:`~litege_core.matching.intrinsic`; a cloud's T-Net
-                frame) or ``"auto"`` (``judged`` for the categories of
+                :attr:`frame_judge`), ``"intrinsic"`` (the T-Net's frame where its turned
+                runs agree, else for a mesh its frame from functional maps of reference
+                animals, :mod:`~litege_core.matching.intrinsic`) or ``"auto"`` (``judged``
+                for the categories of
                 :data:`~litege_core.matching.judge.JUDGED_BY_DEFAULT`).
             frame_margin: another frame replaces the T-Net's only when its judge score is
                 lower by more than this fraction.
@@ -469,7 +470,7 @@ class MatchingModel:
                 shapes, aligned_frames, frame_margin, int(seed)
             )
         elif mode == "intrinsic":
-            aligned_frames, names = self._intrinsic_frames(shapes, aligned_frames)
+            aligned_frames, names = self._intrinsic_frames(shapes, aligned_frames, int(seed))
         described = self._engine.describe_with_residual(
             [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
@@ -542,14 +543,22 @@ class MatchingModel:
         return out, names
 
     def _intrinsic_frames(
-        self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]]
+        self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]], seed: int
     ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
-        """Each mesh in its intrinsic frame (:func:`~litege_core.matching.intrinsic.
-        intrinsic_frame`), named ``intrinsic:<family>`` after the reference animal that gave
-        it; each point cloud keeps its T-Net frame (``tnet``)."""
+        """The T-Net frame of each shape whose turned T-Net runs agree (as judged frames) and
+        of each point cloud; each other mesh in its intrinsic frame
+        (:func:`~litege_core.matching.intrinsic.intrinsic_frame`), named
+        ``intrinsic:<family>`` after the reference animal that gave it."""
         out, names = list(frames), ["tnet"] * len(frames)
-        for i, shape in enumerate(shapes):
-            if shape.faces is None:
+        meshes = [i for i, shape in enumerate(shapes) if shape.faces is not None]
+        if not meshes:
+            return out, names
+        turns = candidate_turns(
+            self.bundle.tnet, [frames[i] for i in meshes], self.pipeline.n_tnet_points, seed
+        )
+        for i, shape_turns in zip(meshes, turns, strict=True):
+            shape = shapes[i]
+            if shape_turns is None or shape.faces is None:  # the T-Net's runs agree
                 continue
             found = intrinsic_frame(shape.vertices, shape.faces, self.category)
             transform, cloud, chosen = frames[i]

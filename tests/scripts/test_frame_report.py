@@ -141,4 +141,3 @@ class _JudgePrefers:
         out = np.ones(len(clouds))
         out[self.best] = 0.1
         return out
-

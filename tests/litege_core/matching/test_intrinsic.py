@@ -63,8 +63,19 @@ def test_intrinsic_frames_find_a_posed_human_in_any_rotation():
         intrinsic_frames(shape.vertices, shape.faces, "fish")
 
 
-def test_prepare_with_intrinsic_frames_turns_meshes_and_keeps_clouds_on_the_tnet():
+def test_prepare_with_intrinsic_frames_turns_meshes_and_keeps_clouds_on_the_tnet(monkeypatch):
     pytest.importorskip("pyFM")
+    from litege_core.matching import model as model_module
+
+    split = model_module.candidate_turns
+
+    def always_split(tnet, frames, n_points, seed):  # the judged-frames test of a split shape
+        return [
+            np.eye(3)[None] if turns is None else turns
+            for turns in split(tnet, frames, n_points, seed)
+        ]
+
+    monkeypatch.setattr(model_module, "candidate_turns", always_split)
     tiny = MatchingModel.tiny_random(0)  # category "test": no reference animals
     with pytest.raises(InputError, match="intrinsic"):
         tiny.resolve_frames("intrinsic")
@@ -83,3 +94,9 @@ def test_prepare_with_intrinsic_frames_turns_meshes_and_keeps_clouds_on_the_tnet
     np.testing.assert_allclose(  # batched T-Net runs agree to float32 rounding
         plain.transform.rotation, tnet_cloud.transform.rotation, atol=1e-5
     )
+    # where the T-Net's turned runs agree, its frame stands
+    monkeypatch.setattr(model_module, "candidate_turns", lambda *args: [None])
+    agreed = model.prepare(mesh, frames="intrinsic")
+    assert agreed.frame == "tnet"
+    tnet_mesh = model.prepare(mesh, frames="tnet")
+    np.testing.assert_allclose(agreed.transform.rotation, tnet_mesh.transform.rotation)
