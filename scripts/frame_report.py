@@ -282,7 +282,8 @@ INTRINSIC_CHOICES = (
 def intrinsic_choices(
     model: MatchingModel, shapes: list[Shape], to_file: list[np.ndarray]
 ) -> tuple[dict[str, list[np.ndarray]], list[np.ndarray], list[str]]:
-    """Per shape, in file coordinates (``frame @ to_file``, the shape's input rotation), the
+    """Per shape, in file coordinates (``frame @ to_file``, the shape's input rotation; the
+    identity is the true frame of a generated or rigged shape), the
     frames of :data:`INTRINSIC_CHOICES`: the intrinsic frame of the lowest residual
     (:func:`~litege_core.matching.intrinsic.intrinsic_frames`), the same only where the
     T-Net's turned runs split (else the T-Net's frame, as judged frames do), the frame the
@@ -292,7 +293,7 @@ def intrinsic_choices(
     chosen: dict[str, list[np.ndarray]] = {name: [] for name in INTRINSIC_CHOICES}
     every, names = [], []
     for shape, rotation in zip(shapes, to_file, strict=True):
-        assert shape.faces is not None  # TOSCA and FAUST are meshes
+        assert shape.faces is not None  # rigged animals, TOSCA and FAUST are meshes
         frames = intrinsic_frames(shape.vertices, shape.faces, model.category)
         best = min(frames, key=lambda frame: frame.residual)
         prepared = model.prepare(shape, frames="tnet")
@@ -392,7 +393,8 @@ def main() -> None:
     parser.add_argument(
         "--intrinsic",
         action="store_true",
-        help="also intrinsic frames (TOSCA and FAUST meshes; needs pyFM; seconds per shape): "
+        help="also intrinsic frames (rigged, TOSCA and FAUST meshes; needs pyFM; seconds per "
+        "shape): "
         "reference animals mapped by wave-kernel functional maps, then a robust rotation fit",
     )
     parser.add_argument(
@@ -462,6 +464,16 @@ def main() -> None:
                 switched[f"rigged {mode}"] = changed
             if args.oracle:
                 found_errors = alternative_errors(model, shapes, truths, np.eye(3), args.sagittal)
+                for name, errors in found_errors.items():
+                    rows.append(f"| rigged animals (val seeds) | {name} | {summary(errors)} |")
+            if args.intrinsic:
+                chosen, every, _ = intrinsic_choices(model, shapes, truths)
+                found_errors = {
+                    name: [angle(f, np.eye(3)) for f in frames] for name, frames in chosen.items()
+                }
+                found_errors["intrinsic oracle"] = [
+                    min(angle(f, np.eye(3)) for f in frames) for frames in every
+                ]
                 for name, errors in found_errors.items():
                     rows.append(f"| rigged animals (val seeds) | {name} | {summary(errors)} |")
 
