@@ -373,6 +373,8 @@ def test_litege_variants_parse_name_and_label():
     fitted = LiteGEVariant.parse("judged+zoomout-hybrid+unregistered")
     assert fitted.smoothed and not fitted.registered
     assert fitted.name == "litege[judged+zoomout-hybrid+unregistered]"
+    intrinsic = LiteGEVariant.parse("intrinsic+zoomout-hybrid")
+    assert intrinsic.frames == "intrinsic" and intrinsic.name == "litege[intrinsic+zoomout-hybrid]"
     unchecked = LiteGEVariant.parse("tnet+zoomout-hybrid+unchecked")
     assert unchecked.smoothed and unchecked.registered and not unchecked.checked
     assert unchecked.name == "litege[tnet+zoomout-hybrid+unchecked]"
@@ -380,6 +382,7 @@ def test_litege_variants_parse_name_and_label():
     assert both.name == "litege[zoomout-hybrid+unregistered+unchecked]"
     for bad in (
         "tnet+judged",
+        "intrinsic+tnet",
         "pca",
         "judged+icp",
         "zoomout+zoomout-hybrid",
