@@ -189,8 +189,7 @@ class LiteGEVariant:
             raise InputError(
                 f"bad LiteGE variant {text!r}: one of {list(VARIANT_FRAMES)} and any of "
                 f"{list(VARIANT_OPTIONS)} (unsmoothed, or unregistered and unchecked, with a "
-                "refinement), "
-                "joined by '+'"
+                "refinement), joined by '+'"
             )
         return cls(
             frames=frames[0] if frames else "auto",
