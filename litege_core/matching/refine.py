@@ -78,11 +78,11 @@ REFINE_METHODS: tuple[str, ...] = ("none", "zoomout", "zoomout-hybrid")
 DISTORTION_TOLERANCE: dict[str, float] = {"biped": 1.1}
 """Category default of :attr:`ZoomOutSettings.distortion_tolerance` (categories not named:
 ``inf``, the smoothed map always). Chosen on generated pairs (``scripts/refine_gate.py``,
-BENCHMARKS.md ``refine-gate``, 48 biped and 24 quadruped pairs): on near-isometric biped pairs
+BENCHMARKS.md ``refine-gate``, 48 biped and 48 quadruped pairs): on near-isometric biped pairs
 (one body in two poses, two bodies of one family) the smoothed map is worse than the spectral
 one, and it distorts geodesics more; the check at 1.1 (the middle of the flat optimum 0.95–1.15)
 takes the biped mean 2.54 → 2.36 (spectral 2.45). On quadruped pairs the smoothed map is better
-even where it distorts more, and every tolerance lost (1.62 unchecked, 1.75 at 1.1)."""
+even where it distorts more, and every tolerance lost (1.61 unchecked, 1.76 at 1.1)."""
 
 
 @dataclass(frozen=True)
