@@ -82,7 +82,7 @@ BENCHMARKS.md ``refine-gate``, 48 biped and 48 quadruped pairs): on near-isometr
 (one body in two poses, two bodies of one family) the smoothed map is worse than the spectral
 one, and it distorts geodesics more; the check at 1.1 (the middle of the flat optimum 0.95–1.15)
 takes the biped mean 2.54 → 2.36 (spectral 2.45). On quadruped pairs the smoothed map is better
-even where it distorts more, and every tolerance lost (1.61 unchecked, 1.76 at 1.1)."""
+even where it distorts more, and no tolerance helped (1.61 unchecked, 1.76 at 1.1)."""
 
 
 @dataclass(frozen=True)
