@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError
+from litege_core.validate import triangle_areas
 
 ROBUST_ROUNDS = 6
 """Reweighting rounds of :func:`robust_rotation`."""
@@ -101,9 +102,7 @@ def _references(category: str) -> tuple[tuple[str, NDArray, Any], ...]:
 
 def _unit_area(vertices: NDArray, faces: NDArray) -> NDArray:
     """``(V, 3)`` centred on the vertex mean and scaled to unit surface area."""
-    corners = vertices[faces]
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    area = 0.5 * float(np.linalg.norm(cross, axis=1).sum())
+    area = float(triangle_areas(vertices, faces).sum())
     if not area > 0:
         raise InputError("intrinsic frames need a mesh with a positive area")
     return (vertices - vertices.mean(axis=0)) / np.sqrt(area)
