@@ -35,18 +35,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from numpy.typing import NDArray
 
 from litege_core.evaluation import matching_data as data
 from litege_core.evaluation.matching import load_matching_model
 from litege_core.matching.refine import (
+    DistortionCheck,
     ZoomOutSettings,
-    geodesic_distortion,
     heat_engine,
     pointwise_matches,
     spectrum,
 )
-from litege_core.sampling import farthest_point_sampling
 
 PAIR_SETS = ("families", "same-family", "one-body")
 
@@ -96,23 +94,14 @@ def pair_record(model, pair, frames: str, seed: int, settings: ZoomOutSettings) 
     sx, sy = spectrum(x, settings), spectrum(y, settings)
     spectral = pointwise_matches(refined.fmap, sx, sy, np.asarray(pair.queries))
     points = np.asarray(x.aligned, dtype=np.float64)
-    sources = farthest_point_sampling(points, settings.n_sources)
-    samples = farthest_point_sampling(points, settings.n_distortion_samples)
-    checked = np.concatenate([sources, samples])
-    hx, hy = heat_engine(x), heat_engine(y)
-
-    def distortion(found: NDArray) -> float:
-        return geodesic_distortion(
-            hx, hy, sources, samples, found[: sources.size], found[sources.size :]
-        )
-
+    check = DistortionCheck.of(heat_engine(x), heat_engine(y), points, settings)
     return {
         "pair": pair.name,
         "seed_map": refined.seed,
         "error_spectral": float(pair.errors(spectral)[0].mean() * 100),
         "error_registered": float(pair.errors(registered.indices)[0].mean() * 100),
-        "distortion_spectral": distortion(pointwise_matches(refined.fmap, sx, sy, checked)),
-        "distortion_registered": distortion(refined.matches(sx, sy, checked)),
+        "distortion_spectral": refined.distortion[refined.seed],  # the hybrid's own check
+        "distortion_registered": check(refined.matches(sx, sy, check.points)),
     }
 
 

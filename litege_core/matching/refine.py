@@ -357,6 +357,47 @@ def geodesic_distortion(
 
 
 @dataclass(frozen=True)
+class DistortionCheck:
+    """The hybrid's distortion check of maps of X (:func:`geodesic_distortion`).
+
+    Attributes:
+        source_heat, target_heat: :func:`heat_engine` of X and Y.
+        sources: ``(n_sources,)`` farthest points of X; samples: ``(n_distortion_samples,)``.
+    """
+
+    source_heat: Any
+    target_heat: Any
+    sources: NDArray
+    samples: NDArray
+
+    @classmethod
+    def of(
+        cls, source_heat: Any, target_heat: Any, source_points: NDArray, settings: ZoomOutSettings
+    ) -> DistortionCheck:
+        """The check on the farthest points of X's ``(V, 3)`` vertices that ``settings``
+        name."""
+        count = len(source_points)
+        return cls(
+            source_heat,
+            target_heat,
+            farthest_point_sampling(source_points, min(settings.n_sources, count)),
+            farthest_point_sampling(source_points, min(settings.n_distortion_samples, count)),
+        )
+
+    @property
+    def points(self) -> NDArray:
+        """X's vertices a map must send to Y: the sources, then the samples."""
+        return np.concatenate([self.sources, self.samples])
+
+    def __call__(self, found: NDArray) -> float:
+        """The distortion of the map that sends :attr:`points` to Y's vertices ``found``."""
+        n = self.sources.size
+        return geodesic_distortion(
+            self.source_heat, self.target_heat, self.sources, self.samples, found[:n], found[n:]
+        )
+
+
+@dataclass(frozen=True)
 class HybridResult:
     """Matches of ``zoomout-hybrid`` and how they were chosen.
 
@@ -506,33 +547,21 @@ def refined_map(
         raise InputError(f"no refined map for refine={method!r}")
     if source_heat is None or target_heat is None or source_points is None:
         raise InputError("zoomout-hybrid needs both heat engines and the source's points")
-    sources = farthest_point_sampling(source_points, min(settings.n_sources, len(source_points)))
-    samples = farthest_point_sampling(
-        source_points, min(settings.n_distortion_samples, len(source_points))
-    )
-    checked = np.concatenate([sources, samples])
+    check = DistortionCheck.of(source_heat, target_heat, source_points, settings)
     maps = {
         "litege": zoomout_map(seed_map, source, target, settings),
         "descriptors": descriptor_map(source, target, settings),
     }
-    distortion = {}
-    for name, fmap in maps.items():
-        found = pointwise_matches(fmap, source, target, checked)
-        distortion[name] = geodesic_distortion(
-            source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
-        )
+    distortion = {
+        name: check(pointwise_matches(fmap, source, target, check.points))
+        for name, fmap in maps.items()
+    }
     seed = "litege" if distortion["litege"] <= distortion["descriptors"] else "descriptors"
     refined = smoothed(RefinedMap(maps[seed], seed, distortion), source, target, settings)
     tolerance = settings.distortion_tolerance
     if refined.displacement is None or tolerance is None or math.isinf(tolerance):
         return refined
-    found = refined.matches(source, target, checked)
-    distortion = {
-        **distortion,
-        "smoothed": geodesic_distortion(
-            source_heat, target_heat, sources, samples, found[: sources.size], found[sources.size :]
-        ),
-    }
+    distortion = {**distortion, "smoothed": check(refined.matches(source, target, check.points))}
     if distortion["smoothed"] <= tolerance * distortion[seed]:
         return replace(refined, distortion=distortion)
     return RefinedMap(maps[seed], seed, distortion)
@@ -572,6 +601,7 @@ def hybrid_refine(
 
 __all__ = [
     "REFINE_METHODS",
+    "DistortionCheck",
     "HybridResult",
     "PreparedShape",
     "RefinedMap",
