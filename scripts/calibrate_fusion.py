@@ -171,8 +171,7 @@ def main() -> None:
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
-        f"graph / geodesic {calibration.mesh_bias:.4f}; network weight "
-        f"sigmoid({calibration.mesh_gate:.3f})\n"
+        f"graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
     )
     if len(candidates) > 1:
         tried = ", ".join(f"{ratio}: {error:.3f}" for error, ratio, _, _ in candidates)

@@ -4,11 +4,11 @@ The calibration shapes are ones we generate (held-out procedural shapes, rigged 
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
-the same median over the mesh inputs, whose graph follows the mesh's connectivity), and the
-four cloud gate constants and the mesh gate minimise the mean per-shape error of the fused
-rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot is the candidate
-whose bias-corrected graph has the lowest mean per-shape error at that density
-(:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
+the same median over the mesh inputs, whose graph follows the mesh's connectivity, and which
+the graph answers alone), and the four cloud gate constants minimise the mean per-shape error
+of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
+is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
+density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
 """
 
 from __future__ import annotations
@@ -80,7 +80,6 @@ def probe_calibration(
         (1.0,),
         (-60.0, 0.0, 0.0, 0.0),
         mesh_bias=1.0,
-        mesh_gate=-60.0,
         bundle_hash=bundle_hash,
         veto_head=veto_head,
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
@@ -246,8 +245,8 @@ def fit_fusion(
     fitted_on: dict[str, Any] | None = None,
     normal_cos: dict[str, float] | None = None,
 ) -> FusionCalibration:
-    """Bias knots and gates fitted on ``samples`` (see the module docstring). Without mesh
-    samples the mesh bias is 1 and the mesh gate gives the network all the weight.
+    """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
+    mesh samples the mesh bias is 1.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
     built with (:func:`choose_normal_limits`), or ``None``: no normal limit."""
     from scipy.optimize import minimize
@@ -270,7 +269,6 @@ def fit_fusion(
         tuple(b for _, b, _ in ordered),
         (0.0, 0.0, 0.0, 0.0),
         mesh_bias=_median_ratio(meshes) if meshes else 1.0,
-        mesh_gate=0.0 if meshes else 60.0,
         bundle_hash=bundle_hash,
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
@@ -300,9 +298,6 @@ def fit_fusion(
 
     if clouds:
         base = with_gate(fitted(clouds, np.zeros(4), with_gate))
-    if meshes:
-        mesh_gate = fitted(meshes, np.zeros(1), lambda g: replace(base, mesh_gate=float(g[0])))
-        base = replace(base, mesh_gate=float(mesh_gate[0]))
     return base
 
 

@@ -264,9 +264,10 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), read by default "
             '(`fusion="auto"` of `Predictor(bundle)`, `NumpyPredictor`, `litege geodesic` and the '
             'service); `fusion="none"` / `--fusion none` / `LITEGE_GEODESIC_FUSION=none` answer '
-            "with the network alone. The network's distances are blended with a "
-            f"Dijkstra: on a mesh over chords between vertices at most {MESH_RINGS} edges "
-            f"apart, on a point cloud over its k = {data['k']} nearest-neighbour graph whose "
+            "with the network alone. A mesh is answered by a Dijkstra over chords between "
+            f"vertices at most {MESH_RINGS} edges apart (the network only between parts it "
+            "cannot join); on a point cloud the network's distances are blended with a "
+            f"Dijkstra over its k = {data['k']} nearest-neighbour graph whose "
             f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
             f"exceeds {data['prune_ratio']} × the chord)"
             + (
@@ -278,7 +279,7 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else ""
             )
             + "; the graphs' biases and the blend "
-            "weights (on a cloud a sigmoid of the shape's OOD z-score, log10 of its point count "
+            "weight (a sigmoid of the cloud's OOD z-score, log10 of its point count "
             "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "
             f"{shapes} only, never on the real dev set. Constants, fit errors and the date are "
             "in the file; dev-set results in BENCHMARKS.md (`fusion-*` sections). Paths follow "

@@ -20,16 +20,18 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                with the surface)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
-    w        = sigmoid(mesh_gate) on a mesh; for a cloud
+    w        = 0 on a mesh (its ring graph alone); for a cloud
                sigmoid(a + c_z · z + c_n · (log10 N − 3) + c_r · r)
                (z: the shape's OOD z-score; r: its surface roughness, see
                :func:`surface_roughness`, high on noisy scans)
     G        = w · G_network + (1 − w) · G_graph / b
 
 so a shape the network knows (low z), a sparse or a noisy cloud leans on the network, and an
-unusual shape sampled densely, or any mesh, leans on the graph. Pairs the graph cannot join
-(another component) keep the network's value. Distances only: paths still follow the network's
-field.
+unusual shape sampled densely leans on the graph. A mesh is answered by its ring graph alone: a
+fitted weight was below 2 % on our generated meshes and dropping it lowered the real dev meshes'
+error (BENCHMARKS "mesh-graph-alone"), so a mesh query evaluates no network unless its graph
+cannot join a pair. Pairs the graph cannot join (another component) keep the network's value.
+Distances only: paths still follow the network's field.
 
 The calibration is a sidecar of the bundle, like the small head: ``fusion.json`` beside the
 bundle files, naming the content hash of the bundle it was fitted for (a mismatch is refused),
@@ -41,6 +43,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -66,10 +69,11 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 4
+FUSION_FORMAT = 5
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
-``normal_cos`` (a format-3 file reads as one without normal limits)."""
-READABLE_FORMATS = (3, FUSION_FORMAT)
+``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
+``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored)."""
+READABLE_FORMATS = (3, 4, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -97,7 +101,6 @@ class FusionCalibration:
         bias: the graph's median distance / true distance at each knot.
         gate: ``(a, c_z, c_n, c_r)`` of the network's weight ``w`` on a point cloud.
         mesh_bias: the mesh graph's median distance / true distance.
-        mesh_gate: the logit of the network's weight ``w`` on a mesh.
         bundle_hash: content hash of the bundle the calibration belongs to.
         fitted_on: what it was fitted on (free-form JSON: data, counts, errors).
         veto_head: the head whose edge predictions prune the graph: ``"small"`` (the
@@ -113,7 +116,6 @@ class FusionCalibration:
     bias: tuple[float, ...]
     gate: tuple[float, float, float, float]
     mesh_bias: float
-    mesh_gate: float
     bundle_hash: str
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
@@ -135,8 +137,6 @@ class FusionCalibration:
             raise ArtifactError(f"fusion gate must be four finite numbers, got {self.gate!r}")
         if not (math.isfinite(self.mesh_bias) and self.mesh_bias > 0):
             raise ArtifactError(f"fusion mesh_bias must be positive, got {self.mesh_bias!r}")
-        if not math.isfinite(self.mesh_gate):
-            raise ArtifactError(f"fusion mesh_gate must be finite, got {self.mesh_gate!r}")
         limits = np.asarray(self.normal_cos, dtype=np.float64)
         valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
         if limits.size and not valid:
@@ -158,13 +158,12 @@ class FusionCalibration:
     def network_weight(
         self, z_score: float, n_points: int, roughness: float, mesh: bool = False
     ) -> float:
-        """The network's weight ``w`` in ``[0, 1]`` for a mesh, or for a cloud of this OOD z,
-        size and surface roughness."""
+        """The network's weight ``w`` in ``[0, 1]`` for a cloud of this OOD z, size and surface
+        roughness; 0 for a mesh (its ring graph alone)."""
         if mesh:
-            logit = self.mesh_gate
-        else:
-            a, c_z, c_n, c_r = self.gate
-            logit = a + c_z * float(z_score) + c_n * (math.log10(n_points) - 3.0) + c_r * roughness
+            return 0.0
+        a, c_z, c_n, c_r = self.gate
+        logit = a + c_z * float(z_score) + c_n * (math.log10(n_points) - 3.0) + c_r * roughness
         return float(1.0 / (1.0 + math.exp(-min(max(logit, -60.0), 60.0))))
 
     def to_json(self) -> dict[str, Any]:
@@ -186,7 +185,6 @@ class FusionCalibration:
                 bias=tuple(float(v) for v in data["bias"]),
                 gate=tuple(float(v) for v in data["gate"]),  # type: ignore[arg-type]
                 mesh_bias=float(data["mesh_bias"]),
-                mesh_gate=float(data["mesh_gate"]),
                 bundle_hash=str(data["bundle_hash"]),
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
@@ -299,7 +297,7 @@ def shape_graph(
 
 
 def fused_distances(
-    network: NDArray,
+    network: Callable[[], NDArray],
     calibration: FusionCalibration,
     points: NDArray,
     faces: NDArray | None,
@@ -310,8 +308,10 @@ def fused_distances(
     edge_geodesics: EdgeGeodesics,
     veto_key: str,
 ) -> NDArray:
-    """``network`` ``(S, T)`` (canonical units) blended with the graph distances of the query
-    points: :func:`shape_graph`, :func:`graph_rows`, then :func:`fuse`; float64 ``(S, T)``.
+    """The network's distances ``(S, T)`` (canonical units) blended with the graph distances of
+    the query points: :func:`shape_graph`, :func:`graph_rows`, then :func:`fuse`; float64
+    ``(S, T)``. ``network`` computes them when the answer needs them: on a cloud, and on a mesh
+    only where its graph joins no path (a mesh is answered by its graph alone).
 
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
@@ -326,7 +326,9 @@ def fused_distances(
             tree = kept["fusion.tree"] = cKDTree(points)
     rows = graph_rows(graph, points, src, dst, calibration.k, tree, edge_geodesics)
     mesh = faces is not None
-    return fuse(network, rows, calibration, ood_score, points.shape[0], roughness, mesh)
+    if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
+        return rows / calibration.graph_bias(points.shape[0], mesh=True)
+    return fuse(network(), rows, calibration, ood_score, points.shape[0], roughness, mesh)
 
 
 def pruned_knn_graph(

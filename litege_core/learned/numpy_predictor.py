@@ -474,10 +474,11 @@ class NumpyPredictor:
             raise InputError("this shape state was not registered with this bundle")
         src = self._indices(state, sources, "source")
         dst = self._indices(state, targets, "target")
-        out = self._network(state, src, dst)
-        if self.fusion is not None:
+        if self.fusion is None:
+            out = self._network(state, src, dst)
+        else:  # the network where the answer needs it (not on a mesh its graph spans)
             out = fused_distances(
-                out,
+                lambda: self._network(state, src, dst),
                 self.fusion,
                 self._fusion_points(state),
                 state.faces,

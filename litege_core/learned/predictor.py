@@ -59,9 +59,10 @@ calibration to compare with).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import numpy as np
@@ -157,10 +158,11 @@ class Predictor:
             same bundle, each building its own feature table.
         fusion: ``"auto"`` (default: ``"graph"`` where the bundle ships a calibration, as
             the shipped ones do, else ``"none"``), ``"none"`` (the network's distances) or
-            ``"graph"`` (the network blended with a calibrated graph Dijkstra: a mesh's own
-            edges, a cloud's network-pruned kNN graph; weighted per shape by its OOD z-score,
-            point count and roughness; :mod:`litege_core.learned.fusion`, ``fusion.json``
-            beside the bundle files), or a
+            ``"graph"`` (a calibrated graph Dijkstra: over a mesh's own edges alone, the
+            network only between parts they do not connect; over a cloud's network-pruned kNN
+            graph blended with the network, weighted per shape by its OOD z-score, point count
+            and roughness; :mod:`litege_core.learned.fusion`, ``fusion.json`` beside the
+            bundle files), or a
             :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
             calibration; its bundle hash must still match). Needs the bundle's residual
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
@@ -447,6 +449,21 @@ class Predictor:
         """
         return self._resolve_many([state], [query], what)[0]
 
+    @staticmethod
+    def _locate(
+        state: ShapeState, query: QueryLike, what: str
+    ) -> tuple[NDArray | None, NDArray | None]:
+        """Where ``query`` lies on ``state``: ``(indices, None)`` for vertices (``None``
+        indices: every point; xyz points that land on a vertex count as it), or ``(None,
+        points)``, the canonical ``(Q, 3)`` projections of xyz points onto the surface."""
+        parsed = parse_query(query, what).check(state.n_points, what)
+        if parsed.points is None:
+            return parsed.indices, None
+        snapped = snap(state.projector, state.transform.apply(parsed.points))
+        if snapped.indices is None:
+            return None, np.asarray(snapped.points, np.float64)
+        return snapped.indices, None
+
     def _resolve_many(
         self,
         states: Sequence[ShapeState],
@@ -462,14 +479,10 @@ class Predictor:
         resolved: list[ResolvedPoints | None] = []
         pending: list[tuple[int, ShapeState, NDArray]] = []
         for b, (state, query, what) in enumerate(zip(states, queries, whats, strict=True)):
-            parsed = parse_query(query, what).check(state.n_points, what)
-            indices = parsed.indices
-            if parsed.points is not None:  # xyz: onto the surface, a vertex where it lands on one
-                snapped = snap(state.projector, state.transform.apply(parsed.points))
-                if snapped.indices is None:
-                    resolved.append(self.embed_canonical(state, snapped.points))
-                    continue
-                indices = snapped.indices
+            indices, points = self._locate(state, query, what)
+            if points is not None:
+                resolved.append(self.embed_canonical(state, points))
+                continue
             if indices is None:  # every point
                 resolved.append(
                     ResolvedPoints(
@@ -613,17 +626,33 @@ class Predictor:
             )
         for state in states:
             self.check_state(state)
-        count = len(states)
-        resolved = self._resolve_many(  # one point-MLP call for the sources and the targets
-            states + states, sources_list + targets_list, ["source"] * count + ["target"] * count
-        )
-        blocks = list(zip(resolved[:count], resolved[count:], strict=True))
-        outputs = self.evaluate_blocks(blocks)
-        if self.fusion is not None:
-            outputs = [
-                self._fused(state, src, dst, out)
-                for state, (src, dst), out in zip(states, blocks, outputs, strict=True)
-            ]
+        outputs: list[NDArray | None] = [None] * len(states)
+        batched = []  # a mesh with a fusion is answered by its graph (the network where needed)
+        for b, (state, sources, targets) in enumerate(
+            zip(states, sources_list, targets_list, strict=True)
+        ):
+            if self.fusion is not None and state.faces is not None:
+                outputs[b] = self._mesh_fused(state, sources, targets)
+            else:
+                batched.append(b)
+        if batched:
+            count = len(batched)
+            resolved = self._resolve_many(  # one point-MLP call for the sources and the targets
+                [states[b] for b in batched] * 2,
+                [sources_list[b] for b in batched] + [targets_list[b] for b in batched],
+                ["source"] * count + ["target"] * count,
+            )
+            blocks = list(zip(resolved[:count], resolved[count:], strict=True))
+            answers = self.evaluate_blocks(blocks)
+            for b, (src, dst), out in zip(batched, blocks, answers, strict=True):
+                if self.fusion is not None:
+                    out = self._fused(
+                        states[b],
+                        (src.indices, src.canonical),
+                        (dst.indices, dst.canonical),
+                        functools.partial(np.asarray, out),
+                    )
+                outputs[b] = out
         return [
             (np.asarray(out, dtype=np.float64) / state.transform.scale).astype(np.float32)
             for out, state in zip(outputs, states, strict=True)
@@ -662,21 +691,46 @@ class Predictor:
         return lambda i, j: self._veto._pair_distances(state, i, j)
 
     def _fused(
-        self, state: ShapeState, src: ResolvedPoints, dst: ResolvedPoints, network: Any
+        self,
+        state: ShapeState,
+        src: tuple[NDArray | None, NDArray],
+        dst: tuple[NDArray | None, NDArray],
+        network: Callable[[], NDArray],
     ) -> NDArray:
-        """``network`` ``(S, T)`` (canonical units) blended with the shape's graph distances."""
+        """The network's ``(S, T)`` (canonical units, computed by ``network`` where needed)
+        blended with the shape's graph distances between ``(indices, canonical)`` queries."""
         assert self.fusion is not None
         return fused_distances(
             network,
             self.fusion,
             state.canonical_points,
             state.faces,
-            (src.indices, src.canonical),
-            (dst.indices, dst.canonical),
+            src,
+            dst,
             state.ood_score,
             state._lazy,
             self._edge_geodesics(state),
             self._veto._table_key,
+        )
+
+    def _mesh_fused(self, state: ShapeState, sources: QueryLike, targets: QueryLike) -> NDArray:
+        """The fused ``(S, T)`` of a mesh (canonical units): its graph's rows, without
+        embedding a point unless the graph cannot join a pair."""
+
+        def graph_query(query: QueryLike, what: str) -> tuple[NDArray | None, NDArray]:
+            indices, points = self._locate(state, query, what)
+            if points is not None:
+                return None, points
+            if indices is None:
+                return np.arange(state.n_points), state.canonical_points
+            return indices, state.canonical_rows(indices)
+
+        def network() -> NDArray:
+            blocks = self._resolve_many([state, state], [sources, targets], ["source", "target"])
+            return self.evaluate_blocks([(blocks[0], blocks[1])])[0]
+
+        return self._fused(
+            state, graph_query(sources, "source"), graph_query(targets, "target"), network
         )
 
     def _pair_distances(self, state: ShapeState, i: NDArray, j: NDArray) -> NDArray:

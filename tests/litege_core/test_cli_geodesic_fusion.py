@@ -31,7 +31,13 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
     save_fusion(
         directory,
         FusionCalibration(
-            8, 1e9, (3.0,), (1.0,), (0.0, 0.0, 0.0, 0.0), 1.0, 0.0, bundle.content_hash
+            8,
+            1e9,
+            (3.0,),
+            (1.0,),
+            (0.0, 0.0, 0.0, 0.0),
+            mesh_bias=1.0,
+            bundle_hash=bundle.content_hash,
         ),
     )
     fused = Predictor(load_bundle(directory), fusion="graph")

@@ -60,7 +60,7 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
     assert calibration.network_weight(0.0, 1000, 0.1) > 0.8
     assert calibration.network_weight(4.0, 1000, 0.1) < 0.2
     assert calibration.mesh_bias == pytest.approx(1.06, abs=0.005)
-    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) < 0.1
+    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) == 0.0  # the graph alone
     fused = np.mean([sample_error(s, calibration, "fused") for s in samples])
     network = np.mean([sample_error(s, None, "network") for s in samples])
     graph = np.mean([sample_error(s, None, "graph") for s in samples])
@@ -76,11 +76,11 @@ def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> Non
     assert "| toy | cloud_1000 | 12 |" in table and "| toy | mesh | 6 |" in table
 
 
-def test_without_mesh_samples_meshes_keep_the_network() -> None:
+def test_without_mesh_samples_a_mesh_graph_keeps_its_lengths() -> None:
     clouds = [s for s in _samples() if not s.mesh]
     calibration = fit_fusion(clouds, "h" * 64, k=8, prune_ratio=1.5)
     assert calibration.mesh_bias == 1.0
-    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) == pytest.approx(1.0)
+    assert calibration.network_weight(0.0, 800, 0.1, mesh=True) == 0.0
 
 
 def test_unreachable_graph_pairs_count_with_the_network_value() -> None:

@@ -38,7 +38,6 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         bias=(0.98, 1.01, 1.02),
         gate=(0.5, -1.0, -2.0, -10.0),
         mesh_bias=1.04,
-        mesh_gate=-1.5,
         bundle_hash=bundle_hash,
         fitted_on={"shapes": {"toy": 3}},
     )
@@ -61,7 +60,6 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"gate": (0.0, 1.0, 0.0)},
         {"mesh_bias": 0.0},
         {"mesh_bias": float("nan")},
-        {"mesh_gate": float("inf")},
         {"veto_head": "tiny"},
         {"normal_cos": (0.7, 0.8)},
         {"normal_cos": (0.7, 0.0, 0.8)},
@@ -97,10 +95,9 @@ def test_network_weight_is_the_gate_sigmoid() -> None:
     assert calibration.network_weight(3.0, 1000, 0.1) < calibration.network_weight(0.0, 1000, 0.1)
     assert calibration.network_weight(0.0, 5000, 0.1) < calibration.network_weight(0.0, 300, 0.1)
     assert 0.0 <= calibration.network_weight(1e9, 10**9, 0.1) < 1e-20
-    # a mesh has its own gate and bias, whatever its z, size and roughness
+    # a mesh is its graph's alone, with its own bias, whatever its z, size and roughness
     for z, n in ((0.0, 300), (5.0, 10**5)):
-        mesh_weight = calibration.network_weight(z, n, 0.3, mesh=True)
-        assert mesh_weight == pytest.approx(1 / (1 + np.exp(1.5)))
+        assert calibration.network_weight(z, n, 0.3, mesh=True) == 0.0
         assert calibration.graph_bias(n, mesh=True) == 1.04
 
 
@@ -168,6 +165,10 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json(json.loads(json.dumps(calibration.to_json()))) == (
         calibration
     )
+    # a format-4 file (a mesh gate, since dropped) reads as the same calibration
+    older = {**calibration.to_json(), "format_version": 4, "mesh_gate": -5.5}
+    assert FusionCalibration.from_json(older) == calibration
+    assert "mesh_gate" not in calibration.to_json()
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -363,10 +364,10 @@ def test_fuse_blends_with_the_gate_and_keeps_the_network_where_the_graph_fails()
     np.testing.assert_allclose(fuse(network, graph, only_network, 5.0, 300, 0.1), network)
     half = _calibration(gate=(0.0, 0.0, 0.0, 0.0), bias=(1.0, 1.0, 1.0))
     np.testing.assert_allclose(fuse(network, graph, half, 1.0, 1000, 0.1), [[0, 11, 20]])
-    mesh_graph_only = _calibration(gate=(60.0, 0.0, 0.0, 0.0), mesh_gate=-60.0, mesh_bias=1.2)
-    np.testing.assert_allclose(
-        fuse(network, graph, mesh_graph_only, 0.0, 1000, 0.1, mesh=True), [[0, 10, 20]]
-    )
+    # a mesh: the graph alone (the cloud gate trusts only the network here), the network only
+    # where the graph fails
+    mesh = _calibration(gate=(60.0, 0.0, 0.0, 0.0), mesh_bias=1.2)
+    np.testing.assert_allclose(fuse(network, graph, mesh, 0.0, 1000, 0.1, mesh=True), [[0, 10, 20]])
 
 
 # ------------------------------------------------------------------ through the predictor
@@ -378,9 +379,7 @@ def bundle_dir(toy_bundle_dir_with_ood):
 
 
 def _graph_only(bundle_hash: str, prune_ratio: float = 1e9) -> FusionCalibration:
-    return _calibration(
-        bundle_hash, gate=(-60.0, 0.0, 0.0, 0.0), mesh_gate=-60.0, prune_ratio=prune_ratio
-    )
+    return _calibration(bundle_hash, gate=(-60.0, 0.0, 0.0, 0.0), prune_ratio=prune_ratio)
 
 
 def _graph_only_predictor(bundle_dir) -> tuple[Predictor, FusionCalibration]:
@@ -505,6 +504,63 @@ def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
     # the cloud of the same vertices fuses with its kNN graph instead: other distances
     cloud_rows = predictor.distances(predictor.register(_cloud(shape)), sources)
     assert np.abs(cloud_rows - rows).max() > 1e-3 * rows.max()
+
+
+def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypatch) -> None:
+    bundle = load_bundle(bundle_dir)
+    # a cloud gate that trusts only the network: a mesh is still answered by its graph alone
+    calibration = _calibration(bundle.content_hash, gate=(60.0, 0.0, 0.0, 0.0))
+    predictor = Predictor(bundle, fusion=calibration)
+    shape = blob(3)
+    state = predictor.register(shape)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the network was evaluated")
+
+    monkeypatch.setattr(predictor, "evaluate_blocks", refuse)
+    monkeypatch.setattr(predictor, "_resolve_many", refuse)
+    sources = np.array([0, 17, 200])
+    rows = predictor.distances(state, sources)
+    ring = _reference_ring_graph(state.canonical_points, np.asarray(shape.faces), MESH_RINGS)
+    expected = dijkstra(ring, directed=False, indices=sources)
+    expected /= calibration.mesh_bias * state.transform.scale
+    np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(predictor.distance_field(state, 17), rows[1], rtol=1e-6)
+    inside = np.asarray(shape.vertices)[np.asarray(shape.faces)[:2]].mean(axis=1)
+    assert np.all(np.isfinite(predictor.distances(state, inside)))  # xyz points: no network
+
+
+def test_a_mesh_of_two_parts_takes_the_network_between_them(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    first, second = blob(3), blob(4)
+    n_first = first.n_points
+    two = Shape.from_arrays(
+        np.concatenate([first.vertices, np.asarray(second.vertices) + np.array([4.0, 0.0, 0.0])]),
+        np.concatenate([first.faces, np.asarray(second.faces) + n_first]),
+    )
+    calibration = _calibration(bundle.content_hash, mesh_bias=1.1)
+    fused, network = Predictor(bundle, fusion=calibration), Predictor(bundle, fusion="none")
+    sources = np.array([0, n_first + 5])
+    state = fused.register(two)
+    rows = fused.distances(state, sources)
+    alone = network.distances(network.register(two), sources)
+    across = np.zeros_like(rows, dtype=bool)
+    across[0, n_first:] = across[1, :n_first] = True
+    np.testing.assert_allclose(rows[across], alone[across], rtol=1e-6)  # the network's values
+    ring = mesh_ring_graph(state.canonical_points, np.asarray(two.faces), MESH_RINGS)
+    expected = dijkstra(ring, directed=False, indices=sources)
+    expected /= calibration.mesh_bias * state.transform.scale
+    np.testing.assert_allclose(rows[~across], expected[~across], rtol=1e-5, atol=1e-5)
+
+
+def test_a_batch_of_meshes_and_clouds_equals_each_alone(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    predictor = Predictor(bundle, fusion=_calibration(bundle.content_hash))
+    states = [predictor.register(s) for s in (blob(3), _cloud(blob(4)), blob(5), _cloud(blob(3)))]
+    sources = [np.array([0, 9]), np.array([3]), np.array([1, 2, 40]), np.array([7])]
+    batch = predictor.distances_many(states, sources)
+    for state, query, got in zip(states, sources, batch, strict=True):
+        np.testing.assert_allclose(got, predictor.distances(state, query), rtol=1e-6)
 
 
 def test_the_mesh_ring_graph_keeps_touching_parts_apart() -> None:
@@ -644,8 +700,7 @@ def test_agreement_is_the_network_against_its_own_graph(bundle_dir, blob, tmp_pa
     sources = farthest_point_sampling(state.canonical_points, 3)
     network = Predictor(bundle, fusion="none")
     net = network.distances(network.register(shape), sources).astype(np.float64)
-    graph_only = Predictor(bundle, fusion=dataclasses.replace(calibration, mesh_gate=-60.0))
-    graph = graph_only.distances(graph_only.register(shape), sources).astype(np.float64)
+    graph = fused.distances(state, sources).astype(np.float64)  # a mesh: its graph alone
     assert score == pytest.approx(np.abs(net - graph).mean() / graph.mean(), rel=1e-4)
     assert score > 0.0
     assert "fusion.mesh_graph" in state._lazy  # kept for the fused queries

@@ -190,6 +190,23 @@ def test_shipped_fusion_equals_the_torch_predictor(scaled_blob, name, n_points):
 
 
 @pytest.mark.parametrize("name", shipped_bundles())
+def test_a_mesh_evaluates_no_network(scaled_blob, name, monkeypatch):
+    """A mesh its ring graph spans is answered by the graph alone (the fusion's weight of the
+    network on a mesh is 0): the runtime embeds no point, and answers as the torch predictor."""
+    mesh = scaled_blob(2, subdivisions=3)
+    runtime, reference = NumpyPredictor.shipped(name), Predictor(load_shipped(name))
+    state = runtime.register(mesh)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the network was evaluated")
+
+    monkeypatch.setattr(runtime, "_network", refuse)
+    got = runtime.distances(state, [0, 7, 150], "all")
+    want = reference.distances(reference.register(mesh), [0, 7, 150], "all")
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(want.max()))
+
+
+@pytest.mark.parametrize("name", shipped_bundles())
 def test_agreement_equals_the_torch_predictors(scaled_blob, name):
     mesh = scaled_blob(3, subdivisions=4)
     cloud = Shape.from_arrays(mesh.vertices[::2])
