@@ -666,11 +666,14 @@ def _add_query_routes(app: FastAPI) -> None:
         openapi_extra=_json_request_body(PathRequest),
     )
     async def paths(request: Request, runtime: RuntimeDep) -> PathResponse:
-        """A geodesic path (polyline on the surface from source to target): traced on the
-        learned field (``method: learned``, the default; ``converged`` says whether the learned
-        walk reached the source), or by a classical engine (``exact``: the exact geodesic of
-        a mesh; ``heat``: descent of the heat-method distance; ``graph``: the k-NN graph's
-        shortest path). ``segments`` says which method produced which part."""
+        """A geodesic path (polyline on the surface from source to target): the learned
+        method's (``method: learned``, the default: where the model fuses its distances with
+        a graph, the on-surface route they follow, an edge-flip geodesic on a mesh and the
+        k-NN graph's shortest path on a cloud; elsewhere traced on the learned field,
+        ``converged`` saying whether the walk reached the source), or a classical engine's
+        (``exact``: the exact geodesic of a mesh; ``heat``: descent of the heat-method
+        distance; ``graph``: the k-NN graph's shortest path). ``segments`` says which method
+        produced which part."""
         body = await _json_body(request, PathRequest)
         result = await runtime.path(
             body.shape_id, body.source, body.target, body.model, method=body.method

@@ -218,8 +218,9 @@ class PathSegment(BaseModel):
     start: int = Field(description="index in points where this part starts")
     method: str = Field(
         description="what produced the part: 'learned' (the learned walk), 'edge-flip', "
-        "'mesh-edges', 'knn-graph', 'straight' (finishing a stalled learned walk), "
-        "'heat-descent', 'exact-mmp'"
+        "'mesh-edges', 'knn-graph', 'straight' (a surface route: the whole learned path "
+        "where the model fuses its distances with a graph, or the finish of a stalled "
+        "learned walk), 'heat-descent', 'exact-mmp'"
     )
 
 
@@ -243,11 +244,14 @@ class PathResponse(BaseModel):
     predicted_distance: float | None = Field(
         None, description="learned paths: the network's distance; null otherwise"
     )
-    n_steps: int | None = Field(None, description="learned paths: accepted gradient steps")
+    n_steps: int | None = Field(
+        None, description="learned paths: accepted gradient steps (0 for a surface route)"
+    )
     converged: bool | None = Field(
         None,
         description="learned paths: whether the learned walk reached the source (else an "
-        "on-surface route finished it, see segments); null for classical methods",
+        "on-surface route finished it, see segments), or for a surface route whether it joins "
+        "the two points on the surface; null for classical methods",
     )
 
 

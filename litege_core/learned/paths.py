@@ -48,6 +48,10 @@ starts at the target ``t`` and repeatedly moves against the gradient of the pred
 
   :attr:`GeodesicPath.segments` says which method produced which part of the polyline.
 
+``route="surface"`` skips the walk: every path is that on-surface route from the target to the
+source; ``route="auto"`` (the default) takes it where the predictor fuses its distances with a
+graph (:data:`ROUTES`).
+
 All walkers of one call advance together as one batch (one network evaluation with gradient
 and one projection per step for all active walkers; finished walkers are masked out). The
 on-surface router of a shape (edge graph, k-NN graph, edge-flip solver) is built on the first
@@ -102,6 +106,16 @@ STRAIGHT = "straight"
 """A straight segment, only between parts of a shape that no surface route connects."""
 PATH_METHODS = (LEARNED, EDGE_FLIP, MESH_EDGES, KNN_GRAPH, STRAIGHT)
 """Every value :attr:`GeodesicPath.segments` can name."""
+SURFACE = "surface"
+"""``route`` of :func:`trace_paths`: no learned walk, the on-surface route from the start (the
+finishing route of the module docstring, from the target to the source)."""
+ROUTES = ("auto", LEARNED, SURFACE)
+"""Values of :func:`trace_paths`' ``route``: ``auto`` (the default) is ``surface`` where the
+predictor fuses its distances with a graph (the shipped models: their distances are mostly or
+wholly the graph's, so their paths follow the surface too; on the real dev meshes an edge-flip
+path is within 0.3 % of the exact length and the learned walk 6–7 % too long, on their
+2000-point clouds the k-NN route errs 7.5 / 6.8 against the walk's 12.3 / 10.5 (TOSCA /
+FAUST); BENCHMARKS.md "path-quality"), else ``learned``."""
 
 
 class DistanceModel(Protocol):
@@ -135,7 +149,8 @@ class GeodesicPath:
         predicted_distance: the network's ``G(source, target)``, user units.
         n_steps: accepted gradient steps of the learned walk.
         converged: whether the learned walk (traced from the target) ended within
-            ``max(tolerance, step)`` of the source.
+            ``max(tolerance, step)`` of the source; for a ``surface`` route (no walk,
+            ``n_steps`` 0), whether a surface route joins the two points (not ``straight``).
         segments: the parts of the polyline as ``(start_index, method)`` pairs in order,
             ``method`` one of :data:`PATH_METHODS`; part ``k`` runs from
             ``points[start_k]`` to ``points[start_{k+1}]`` (the last one to ``points[-1]``).
@@ -173,6 +188,7 @@ def trace_paths(
     step: float | None = None,
     max_steps: int | None = None,
     tolerance: float | None = None,
+    route: str = "auto",
 ) -> list[GeodesicPath]:
     """Trace ``B`` paths on one shape at once.
 
@@ -185,12 +201,19 @@ def trace_paths(
         step: move length ``η`` in the user's units (default: see the module docstring).
         max_steps: cap on loop iterations (default ``4·max G / η + 64``).
         tolerance: stopping distance in the user's units (default ``step``).
+        route: ``"learned"`` (the walk, finished on the surface), ``"surface"`` (the
+            on-surface route alone) or ``"auto"`` (``surface`` where the predictor fuses,
+            :data:`ROUTES`).
 
     Returns:
         ``B`` :class:`GeodesicPath` in the order of the pairs, each from its source to its
         target.
     """
     predictor.check_state(state)
+    if route not in ROUTES:
+        raise InputError(f"route must be one of {list(ROUTES)}, got {route!r}")
+    if route == "auto":
+        route = SURFACE if getattr(predictor, "fusion", None) is not None else LEARNED
     src = predictor.resolve(state, parse_query(sources, "source", allow_all=False), "source")
     dst = predictor.resolve(state, parse_query(targets, "target", allow_all=False), "target")
     src, dst = _broadcast(predictor, src, dst)
@@ -216,8 +239,9 @@ def trace_paths(
     if max_steps < 0:
         raise InputError(f"max_steps must be a non-negative integer, got {max_steps!r}")
     walk = _Walk(predictor, state, src, dst.canonical, step_c, tol_c)
-    walk.run(int(max_steps))
-    return walk.paths(src, dst, predicted / scale)
+    if route == LEARNED:
+        walk.run(int(max_steps))
+    return walk.paths(src, dst, predicted / scale, surface=route == SURFACE)
 
 
 def trace_path(
@@ -229,6 +253,7 @@ def trace_path(
     step: float | None = None,
     max_steps: int | None = None,
     tolerance: float | None = None,
+    route: str = "auto",
 ) -> GeodesicPath:
     """One path from ``source`` to ``target`` (an index or an xyz point each); see
     :func:`trace_paths` for the arguments."""
@@ -240,6 +265,7 @@ def trace_path(
         step=step,
         max_steps=max_steps,
         tolerance=tolerance,
+        route=route,
     )[0]
 
 
@@ -398,13 +424,21 @@ class _Walk:
             self.active[gave_up] = False
 
     def paths(
-        self, src: ResolvedPoints, dst: ResolvedPoints, predicted_user: NDArray
+        self,
+        src: ResolvedPoints,
+        dst: ResolvedPoints,
+        predicted_user: NDArray,
+        surface: bool = False,
     ) -> list[GeodesicPath]:
-        """Assemble the polylines (source → target), finishing stalled walks on the surface."""
+        """Assemble the polylines (source → target), finishing stalled walks on the surface;
+        ``surface``: every walker (none has moved) takes the surface route."""
         transform = self.state.transform
         gap = np.linalg.norm(self.x - self.source, axis=1)
         limit = max(self.tolerance, self.step) * (1 + 1e-9)
-        stalled = np.flatnonzero(gap > self.step * (1 + 1e-9))
+        if surface:
+            stalled = np.arange(self.x.shape[0])
+        else:
+            stalled = np.flatnonzero(gap > self.step * (1 + 1e-9))
         routes = self._finish(stalled, src) if stalled.size else {}
         results = []
         for b in range(self.x.shape[0]):  # assembling the outputs, after the walk
@@ -424,6 +458,8 @@ class _Walk:
             else:
                 points = np.concatenate([walk, src.user[b : b + 1]])[::-1]
                 segments = ((0, LEARNED),)
+            if points.shape[0] == 1:  # a surface route from a point to itself
+                points = np.repeat(points, 2, axis=0)
             points = np.ascontiguousarray(points)
             points.setflags(write=False)
             length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
@@ -433,7 +469,7 @@ class _Walk:
                     length=length,
                     predicted_distance=float(predicted_user[b]),
                     n_steps=int(self.n_steps[b]),
-                    converged=bool(gap[b] <= limit),
+                    converged=bool(gap[b] <= limit) or (surface and segments[0][1] != STRAIGHT),
                     segments=segments,
                 )
             )
@@ -596,7 +632,9 @@ __all__ = [
     "MESH_EDGES",
     "MESH_STEP_FRACTION",
     "PATH_METHODS",
+    "ROUTES",
     "STRAIGHT",
+    "SURFACE",
     "GeodesicPath",
     "SurfaceRouter",
     "trace_path",

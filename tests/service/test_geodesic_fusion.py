@@ -52,9 +52,12 @@ def test_fused_answers_are_the_library_answers(fused_service, dog) -> None:
         path = client.path(shape_id, 0, 1000)
     np.testing.assert_allclose(answer, library.distances(state, sources), rtol=1e-5, atol=1e-6)
     assert not np.allclose(answer, plain.distances(plain.register(dog), sources), rtol=1e-3)
-    # paths follow the network's field, fused or not
-    expected = plain.path(plain.register(dog), 0, 1000)
+    # a fused model's path is the surface route its distances follow, not the network's walk
+    expected = library.path(state, 0, 1000)
+    assert expected.segments == ((0, "edge-flip"),) and expected.n_steps == 0
     assert path["length"] == pytest.approx(expected.length, rel=1e-4)
+    assert [(s["start"], s["method"]) for s in path["segments"]] == [(0, "edge-flip")]
+    assert path["length"] != pytest.approx(plain.path(plain.register(dog), 0, 1000).length)
 
 
 def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:

@@ -27,6 +27,7 @@ from litege_core.learned.fusion import (
     resolve_fusion,
     save_fusion,
 )
+from litege_core.learned.paths import EDGE_FLIP, KNN_GRAPH, MESH_EDGES
 from litege_core.shape import Shape
 
 
@@ -528,6 +529,28 @@ def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypat
     np.testing.assert_allclose(predictor.distance_field(state, 17), rows[1], rtol=1e-6)
     inside = np.asarray(shape.vertices)[np.asarray(shape.faces)[:2]].mean(axis=1)
     assert np.all(np.isfinite(predictor.distances(state, inside)))  # xyz points: no network
+
+
+def test_paths_of_a_fused_shape_follow_its_surface(bundle_dir, blob) -> None:
+    bundle = load_bundle(bundle_dir)
+    fused = Predictor(bundle, fusion=_calibration(bundle.content_hash))
+    plain = Predictor(bundle, fusion="none")
+    mesh, sources, targets = blob(3), np.array([0, 5, 9]), np.array([200, 100, 50])
+    # auto: a fused shape takes the surface route, as its distances take (mostly) the graph's
+    for shape, methods in ((mesh, (EDGE_FLIP, MESH_EDGES)), (_cloud(mesh), (KNN_GRAPH,))):
+        paths = fused.paths(fused.register(shape), sources, targets)
+        assert all(p.n_steps == 0 and p.segments[0][1] in methods for p in paths)
+        expected = plain.paths(plain.register(shape), sources, targets, route="surface")
+        for a, b in zip(paths, expected, strict=True):
+            np.testing.assert_allclose(a.points, b.points)
+    # the learned walk without a fusion, or when asked
+    walks = [
+        plain.paths(plain.register(mesh), sources, targets),
+        fused.paths(fused.register(mesh), sources, targets, route="learned"),
+        fused.paths(fused.register(_cloud(mesh)), sources, targets, route="learned"),
+    ]
+    for paths in walks:
+        assert any(path.n_steps > 0 for path in paths)
 
 
 def test_a_mesh_of_two_parts_takes_the_network_between_them(bundle_dir, blob) -> None:

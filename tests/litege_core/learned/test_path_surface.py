@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from litege_core.engines import ExactGeodesicEngine
 from litege_core.engines.graph import knn_graph
+from litege_core.errors import InputError
 from litege_core.learned import shape_samples
 from litege_core.learned.paths import (
     CLOUD_CANDIDATES,
@@ -142,6 +143,39 @@ def test_point_cloud_walks_are_finished_on_the_knn_graph(toy_predictor, animal):
                     assert all(graph[a, b] > 0 for a, b in itertools.pairwise(chain))
             if max_steps == 1:
                 assert path.segments[0][1] == KNN_GRAPH and not path.converged
+
+
+def test_surface_routes_skip_the_walk(toy_predictor, animal, torus):
+    state = toy_predictor.register(animal)
+    rng = np.random.default_rng(5)
+    sources, targets = rng.integers(0, animal.n_points, (2, 8))
+    targets[0] = sources[0]  # a point to itself: a one-point route
+    router = SurfaceRouter(animal.vertices, animal.faces)
+    paths = toy_predictor.paths(state, sources, targets, route="surface")
+    for path, (route, method) in zip(paths, router.routes(targets, sources), strict=True):
+        assert path.n_steps == 0 and path.converged and path.segments == ((0, method),)
+        assert method == (MESH_ROUTE if route.shape[0] > 1 else MESH_EDGES)
+        expected = route[::-1] if route.shape[0] > 1 else route[[0, 0]]
+        np.testing.assert_allclose(path.points, expected, atol=1e-12)  # read from the source
+        assert path.length == pytest.approx(np.linalg.norm(np.diff(expected, axis=0), axis=1).sum())
+    # xyz ends: straight inside their triangles, the route between their nearest corners
+    torus_state = toy_predictor.register(torus)
+    ends = torus.vertices[rng.integers(0, torus.n_points, (2, 4))]
+    sources = ends[0] * 1.03 + 0.01  # off the surface: projected
+    mesh = trimesh.Trimesh(torus.vertices, torus.faces, process=False)
+    diagonal = float(np.linalg.norm(np.ptp(torus.vertices, axis=0)))
+    for path in toy_predictor.paths(torus_state, sources, ends[1], route="surface"):
+        assert path.n_steps == 0 and path.segments == ((0, MESH_ROUTE),)
+        points = np.asarray(path.points)
+        middle = 0.5 * (points[1:] + points[:-1])
+        assert trimesh.proximity.closest_point(mesh, middle)[1].max() <= 1e-6 * diagonal
+    # a cloud: its k-NN graph's route; an unknown route is refused
+    cloud = Shape.from_arrays(shape_samples(animal, 2000, seed=2))
+    cloud_state = toy_predictor.register(cloud)
+    path = toy_predictor.path(cloud_state, 3, 400, route="surface")
+    assert path.segments == ((0, KNN_GRAPH),) and path.n_steps == 0
+    with pytest.raises(InputError, match="route"):
+        toy_predictor.path(cloud_state, 3, 400, route="shortest")
 
 
 # ------------------------------------------------------------------------ the router
