@@ -42,7 +42,9 @@ starts at the target ``t`` and repeatedly moves against the gradient of the pred
     (non-manifold edges or vertices) the route is ``"mesh-edges"``, the Dijkstra shortest path
     along mesh edges.
   - point cloud: ``"knn-graph"``, the Dijkstra shortest path on the symmetric
-    :data:`KNN_NEIGHBOURS`-nearest-neighbour graph of the cloud (every vertex a cloud point).
+    :data:`KNN_NEIGHBOURS`-nearest-neighbour graph of the cloud (every vertex a cloud point),
+    or, for a predictor that fuses, on the fusion's own vetoed graph (its
+    ``surface_router``).
   - ``"straight"``: only where no surface route exists — the stall point and the source lie on
     different connected components of the mesh (or of the cloud's k-NN graph).
 
@@ -112,10 +114,10 @@ finishing route of the module docstring, from the target to the source)."""
 ROUTES = ("auto", LEARNED, SURFACE)
 """Values of :func:`trace_paths`' ``route``: ``auto`` (the default) is ``surface`` where the
 predictor fuses its distances with a graph (the shipped models: their distances are mostly or
-wholly the graph's, so their paths follow the surface too; on the real dev meshes an edge-flip
-path is within 0.3 % of the exact length and the learned walk 6–7 % too long, on their
-2000-point clouds the k-NN route errs 7.5 / 6.8 against the walk's 12.3 / 10.5 (TOSCA /
-FAUST); BENCHMARKS.md "path-quality"), else ``learned``."""
+wholly the graph's, so their paths follow the same graph: on the real dev meshes an edge-flip
+path errs 0.28 / 0.07 against the learned walk's 7.24 / 5.77, on their 2000-point clouds the
+route on the fusion's vetoed graph 4.46 / 3.80 against 11.37 / 9.96 (TOSCA / FAUST, GT mean
+100); BENCHMARKS.md "path-quality"), else ``learned``."""
 
 
 class DistanceModel(Protocol):
@@ -496,11 +498,15 @@ class _Walk:
                 ends = src.indices[stalled]
             else:
                 ends = self._nearest_corner(self.source[stalled])
-        router = state._lazy.get("surface_router")
-        if router is None:
-            router = state._lazy.setdefault(
-                "surface_router", SurfaceRouter(state.vertices, state.faces)
-            )
+        router_of = getattr(self.predictor, "surface_router", None)  # a fused predictor's
+        if router_of is not None:
+            router = router_of(state)
+        else:
+            router = state._lazy.get("surface_router")
+            if router is None:
+                router = state._lazy.setdefault(
+                    "surface_router", SurfaceRouter(state.vertices, state.faces)
+                )
         found = router.routes(starts, ends)
         return {int(b): route for b, route in zip(stalled, found, strict=True)}
 
@@ -531,9 +537,14 @@ class SurfaceRouter:
     Args:
         vertices: ``(N, 3)`` float64 vertices or cloud points.
         faces: ``(F, 3)`` int64 triangles, or ``None`` for a point cloud.
+        graph: a point cloud's ``(N, N)`` graph to route on (any units; e.g. a fusion's vetoed
+            k-NN graph), instead of its :data:`KNN_NEIGHBOURS`-NN graph, which still routes
+            the pairs ``graph`` does not connect.
     """
 
-    def __init__(self, vertices: NDArray, faces: NDArray | None) -> None:
+    def __init__(
+        self, vertices: NDArray, faces: NDArray | None, graph: sp.csr_array | None = None
+    ) -> None:
         # scipy and the engines load with the first router (a path), not with the predictor.
         from scipy.sparse.csgraph import connected_components
 
@@ -545,8 +556,13 @@ class SurfaceRouter:
         self._flip: Any = None
         self._topology: MeshTopology | None = None
         n = self.vertices.shape[0]
+        self._fallback: SurfaceRouter | None = None
         if faces is None:
-            self.graph: sp.csr_array = knn_graph(self.vertices, KNN_NEIGHBOURS)
+            self.graph: sp.csr_array = (
+                knn_graph(self.vertices, KNN_NEIGHBOURS) if graph is None else graph
+            )
+            if graph is not None:
+                self._fallback = SurfaceRouter(self.vertices, None)
             self.graph_method = KNN_GRAPH
             self._flip_refused = True
         else:
@@ -592,6 +608,11 @@ class SurfaceRouter:
                     while chain[-1] != end:
                         chain.append(int(predecessors[chain[-1]]))
                     out[i] = (self.vertices[chain], self.graph_method)
+        apart = [i for i, route in enumerate(out) if route is not None and route[1] == STRAIGHT]
+        if apart and self._fallback is not None:  # the given graph splits them: the k-NN one
+            found = self._fallback.routes(starts[apart], ends[apart])
+            for i, route in zip(apart, found, strict=True):
+                out[i] = route
         return [route for route in out if route is not None]
 
     def _edge_flip(self, a: int, b: int) -> NDArray | None:

@@ -81,6 +81,7 @@ from litege_core.learned.fusion import (
     FusionCalibration,
     fused_distances,
     resolve_fusion,
+    shape_graph,
 )
 from litege_core.learned.manifest import (
     AUTO_HEAD,
@@ -89,10 +90,10 @@ from litege_core.learned.manifest import (
     residual_statistics,
     resolve_head,
 )
-from litege_core.learned.paths import GeodesicPath, trace_path, trace_paths
+from litege_core.learned.paths import GeodesicPath, SurfaceRouter, trace_path, trace_paths
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
-from litege_core.learned.veto_graph import grown_features
+from litege_core.learned.veto_graph import LazyVetoGraph, grown_features
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
@@ -869,6 +870,28 @@ class Predictor:
     ) -> list[GeodesicPath]:
         """Several paths at once; see :func:`~litege_core.learned.trace_paths`."""
         return trace_paths(self, state, sources, targets, **options)
+
+    def surface_router(self, state: ShapeState) -> SurfaceRouter:
+        """The router of ``state``'s on-surface paths (kept with the state): with a fusion, a
+        point cloud routes on the fusion's fully vetoed k-NN graph, the graph its distances
+        read; a mesh, or a predictor without a fusion, on the router's own graphs."""
+        fused_cloud = self.fusion is not None and state.faces is None
+        key = "surface_router"
+        if fused_cloud:
+            assert self.fusion is not None
+            key += f".{self._veto._table_key}.{self.fusion.k}.{self.fusion.prune_ratio}"
+        router = state._lazy.get(key)
+        if router is None:
+            graph = None
+            if fused_cloud:
+                assert self.fusion is not None
+                lazy, _ = shape_graph(
+                    state.canonical_points, None, self.fusion, state._lazy, self._veto._table_key
+                )
+                assert isinstance(lazy, LazyVetoGraph)  # a cloud's graph
+                graph = lazy.vetoed(self._edge_geodesics(state))
+            router = state._lazy.setdefault(key, SurfaceRouter(state.vertices, state.faces, graph))
+        return router
 
 
 def _fingerprint(head: SmallHead) -> str:

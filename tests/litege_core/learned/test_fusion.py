@@ -27,7 +27,7 @@ from litege_core.learned.fusion import (
     resolve_fusion,
     save_fusion,
 )
-from litege_core.learned.paths import EDGE_FLIP, KNN_GRAPH, MESH_EDGES
+from litege_core.learned.paths import EDGE_FLIP, KNN_GRAPH, MESH_EDGES, SurfaceRouter
 from litege_core.shape import Shape
 
 
@@ -537,12 +537,20 @@ def test_paths_of_a_fused_shape_follow_its_surface(bundle_dir, blob) -> None:
     plain = Predictor(bundle, fusion="none")
     mesh, sources, targets = blob(3), np.array([0, 5, 9]), np.array([200, 100, 50])
     # auto: a fused shape takes the surface route, as its distances take (mostly) the graph's
-    for shape, methods in ((mesh, (EDGE_FLIP, MESH_EDGES)), (_cloud(mesh), (KNN_GRAPH,))):
-        paths = fused.paths(fused.register(shape), sources, targets)
-        assert all(p.n_steps == 0 and p.segments[0][1] in methods for p in paths)
-        expected = plain.paths(plain.register(shape), sources, targets, route="surface")
-        for a, b in zip(paths, expected, strict=True):
-            np.testing.assert_allclose(a.points, b.points)
+    paths = fused.paths(fused.register(mesh), sources, targets)  # a mesh: edge-flip
+    assert all(p.n_steps == 0 and p.segments[0][1] in (EDGE_FLIP, MESH_EDGES) for p in paths)
+    expected = plain.paths(plain.register(mesh), sources, targets, route="surface")
+    for a, b in zip(paths, expected, strict=True):
+        np.testing.assert_allclose(a.points, b.points)
+    cloud = _cloud(mesh)  # a cloud: the fusion's vetoed k-NN graph, the one its distances read
+    state = fused.register(cloud)
+    paths = fused.paths(state, sources, targets)
+    vetoed = pruned_knn_graph(state.canonical_points, 8, 1.6, fused._edge_geodesics(state))
+    assert vetoed.nnz < knn_graph(state.canonical_points, 8).nnz  # the veto cut some edges
+    routes = SurfaceRouter(cloud.vertices, None, vetoed).routes(targets, sources)
+    for path, (route, method) in zip(paths, routes, strict=True):
+        assert path.n_steps == 0 and path.segments == ((0, method),) and method == KNN_GRAPH
+        np.testing.assert_allclose(path.points, route[::-1])
     # the learned walk without a fusion, or when asked
     walks = [
         plain.paths(plain.register(mesh), sources, targets),

@@ -202,6 +202,22 @@ def test_edge_flip_routes_are_geodesics(animal):
         assert length <= 1.05 * d  # locally shortest from the edge path: at most a few % off
 
 
+def test_a_given_cloud_graph_routes_and_its_gaps_fall_back_on_the_knn_graph():
+    import scipy.sparse as sp
+
+    points = np.column_stack([np.linspace(0.0, 1.0, 40), np.zeros(40), np.zeros(40)])
+    full = knn_graph(points, 4)
+    rows, cols = full.nonzero()
+    split = (rows < 20) == (cols < 20)  # the given graph: two halves, no edge between them
+    given = sp.csr_array((full.data[split], (rows[split], cols[split])), shape=full.shape)
+    router = SurfaceRouter(points, None, given)
+    (inside, how_inside), (across, how_across) = router.routes(np.array([0, 0]), [10, 30])
+    assert how_inside == how_across == KNN_GRAPH  # never a straight jump where k-NN joins them
+    np.testing.assert_allclose(np.linalg.norm(np.diff(across, axis=0), axis=1).sum(), 30 / 39)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(inside, axis=0), axis=1).sum(), 10 / 39)
+    assert inside[:, 0].max() <= points[19, 0]  # the given graph's route, inside its half
+
+
 def test_router_falls_back_on_meshes_geometry_central_refuses(sphere_mesh):
     vertices, faces = sphere_mesh
     extra = np.array([[faces[0, 0], faces[0, 1], faces[40, 2]]])  # a third face on one edge
