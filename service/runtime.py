@@ -137,13 +137,14 @@ class PathResult:
         points: ``(L, 3)`` float64 polyline in the user's frame, ``points[0]`` the source.
         length: polyline length (user units).
         method: the requested method; ``engine``: what ran (see :class:`GeodesicAnswer`).
-        distance: the method's distance between the end points (user units): the network's
-            prediction (``learned``) or the engine's distance (exact: the exact geodesic).
+        distance: the method's distance between the end points (user units): the model's
+            answer (``learned``: as :meth:`Runtime.geodesic` gives it, fused where the model
+            fuses) or the engine's distance (exact: the exact geodesic).
         segments: ``(start_index, how)`` per part of the polyline, in order (which method
             produced which part: ``learned``, ``edge-flip``, ``mesh-edges``, ``knn-graph``,
             ``straight``, ``heat-descent``, ``exact-mmp``).
         model: the model that answered (``learned``), else ``None``.
-        predicted_distance: ``distance`` of a learned path, else ``None``.
+        predicted_distance: the network's distance of a learned path, else ``None``.
         n_steps: accepted gradient steps of a learned walk, else ``None``.
         converged: whether a learned walk reached the source, else ``None``.
     """
@@ -160,13 +161,14 @@ class PathResult:
     converged: bool | None = None
 
     @classmethod
-    def of(cls, path: GeodesicPath, model: str) -> PathResult:
+    def of(cls, path: GeodesicPath, model: str, distance: float) -> PathResult:
+        """A learned path; ``distance``: the model's answer for its end points."""
         return cls(
             points=np.ascontiguousarray(path.points),  # the library gives source → target
             length=float(path.length),
             method=LEARNED,
             engine=LEARNED,
-            distance=float(path.predicted_distance),
+            distance=float(distance),
             segments=tuple((int(i), str(how)) for i, how in path.segments),
             model=model,
             predicted_distance=float(path.predicted_distance),
@@ -1039,14 +1041,21 @@ class Runtime:
     def _path(
         predictor: Predictor, registered: Registered, source: QueryLike, target: QueryLike
     ) -> PathResult:
-        return PathResult.of(predictor.path(registered.state, source, target), registered.model)
+        state = registered.state
+        distance = float(predictor.distances(state, source, target)[0, 0])
+        return PathResult.of(predictor.path(state, source, target), registered.model, distance)
 
     @staticmethod
     def _paths(
         predictor: Predictor, registered: Registered, sources: QueryLike, targets: QueryLike
     ) -> list[PathResult]:
-        paths = predictor.paths(registered.state, sources, targets)
-        return [PathResult.of(path, registered.model) for path in paths]
+        state = registered.state
+        paths = predictor.paths(state, sources, targets)
+        distances = np.diagonal(predictor.distances(state, sources, targets))  # as /geodesic
+        return [
+            PathResult.of(path, registered.model, float(distance))
+            for path, distance in zip(paths, distances, strict=True)
+        ]
 
     def _handle_classical_geodesic(self, jobs: list[_ClassicalGeodesicJob]) -> list[Any]:
         return [

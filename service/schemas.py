@@ -235,7 +235,8 @@ class PathResponse(BaseModel):
     length: float = Field(description="polyline length, input units")
     distance: float = Field(
         description="the method's distance between source and target, input units (learned: "
-        "the predicted distance; exact: the exact geodesic, equal to length to rounding)"
+        "the model's, as /geodesic answers it, fused where the model fuses; exact: the exact "
+        "geodesic, equal to length to rounding)"
     )
     segments: list[PathSegment] = Field(
         description="the parts of the polyline in order; part k runs from points[start_k] to "

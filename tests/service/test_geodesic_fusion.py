@@ -58,6 +58,8 @@ def test_fused_answers_are_the_library_answers(fused_service, dog) -> None:
     assert path["length"] == pytest.approx(expected.length, rel=1e-4)
     assert [(s["start"], s["method"]) for s in path["segments"]] == [(0, "edge-flip")]
     assert path["length"] != pytest.approx(plain.path(plain.register(dog), 0, 1000).length)
+    assert path["distance"] == pytest.approx(float(answer[0][1000]), rel=1e-5)  # as /geodesic
+    assert path["predicted_distance"] == pytest.approx(expected.predicted_distance, rel=1e-4)
 
 
 def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:
