@@ -174,11 +174,14 @@ def add_head_argument(parser: argparse.ArgumentParser) -> None:
 FUSIONS = ("auto", "none", "graph")
 """The learned engine's fusions (:data:`litege_core.learned.fusion.FUSIONS`, listed here for the
 same reason as :data:`LATTICE_CHOICES`; a test keeps the two equal)."""
+ROUTES = ("auto", "learned", "surface")
+"""Learned paths' routes (:data:`litege_core.learned.paths.ROUTES`, listed here for the same
+reason; a test keeps the two equal)."""
 
 
 def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
-    """``--fusion auto|none|graph``: the network blended with the model's calibrated graph
-    Dijkstra (a mesh's edges, a cloud's network-pruned kNN graph;
+    """``--fusion auto|none|graph``: the model's calibrated graph Dijkstra (a mesh's edges
+    alone, a cloud's network-pruned kNN graph blended with the network;
     :mod:`litege_core.learned.fusion`) where the model ships a calibration, or the network
     alone."""
     parser.add_argument(
@@ -186,10 +189,10 @@ def add_fusion_argument(parser: argparse.ArgumentParser) -> None:
         choices=FUSIONS,
         default="auto",
         help="auto (default: graph where the model ships a fusion calibration, as the shipped "
-        "ones do, else none), none (the network's distances: fastest) or graph (blend them "
-        "with a calibrated graph Dijkstra (a mesh's own edges, a cloud's kNN graph), weighted "
-        "by how unusual the shape is and how dense its points are: more accurate on real "
-        "shapes; refused for a model without a calibration)",
+        "ones do, else none), none (the network's distances: fastest on clouds) or graph (a "
+        "calibrated graph Dijkstra: a mesh's own edges alone, a cloud's kNN graph blended with "
+        "the network, weighted by how unusual the shape is and how dense its points are: more "
+        "accurate on real shapes; refused for a model without a calibration)",
     )
 
 
@@ -206,6 +209,7 @@ __all__ = [
     "FUSIONS",
     "HEAD_CHOICES",
     "LATTICE_CHOICES",
+    "ROUTES",
     "SHAPE_FILE_HELP",
     "SHAPE_KINDS",
     "add_bundle_arguments",

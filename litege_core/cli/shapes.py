@@ -7,6 +7,7 @@ import argparse
 from typing import Any
 
 from litege_core.cli.common import (
+    ROUTES,
     add_fusion_argument,
     add_head_argument,
     add_kind_argument,
@@ -128,12 +129,14 @@ def cmd_path(args: argparse.Namespace) -> int:
     if args.method == "learned":
         model = predictor(args)
         state = model.register(shape, seed=args.seed)
-        path = model.path(state, args.source, args.target)
+        path = model.path(state, args.source, args.target, route=args.route)
         points = path.points
         report.update(
             engine="learned",
             model=model.bundle.name,
             head=model.head,
+            fusion="none" if model.fusion is None else "graph",
+            route=args.route,
             length=path.length,
             predicted_distance=path.predicted_distance,
             n_steps=path.n_steps,
@@ -209,6 +212,16 @@ def register(commands: argparse._SubParsersAction) -> None:
     path.add_argument("--source", required=True, type=int, help="source vertex/point index")
     path.add_argument("--target", required=True, type=int, help="target vertex/point index")
     add_head_argument(path)
+    add_fusion_argument(path)
+    path.add_argument(
+        "--route",
+        choices=ROUTES,
+        default="auto",
+        help="learned paths: auto (default: surface where the model fuses, as the shipped ones "
+        "do, else learned), learned (a walk down the network's distance, finished on the "
+        "surface where it stalls) or surface (the on-surface route the fused distances follow: "
+        "an edge-flip geodesic on a mesh, the vetoed k-NN graph's shortest path on a cloud)",
+    )
     _add_method_arguments(path)
     path.set_defaults(handler=cmd_path)
 

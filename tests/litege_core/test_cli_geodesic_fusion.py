@@ -7,6 +7,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 
 from litege_core.cli import main
 from litege_core.io import load_shape, save_shape
@@ -56,8 +57,45 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
 
 def test_the_fusion_option_is_the_predictor_option() -> None:
     from litege_core.cli.common import FUSIONS as CLI_FUSIONS
+    from litege_core.cli.common import ROUTES as CLI_ROUTES
+    from litege_core.learned.paths import ROUTES
 
-    assert CLI_FUSIONS == FUSIONS
+    assert CLI_FUSIONS == FUSIONS and CLI_ROUTES == ROUTES
+
+
+def test_path_routes_with_and_without_fusion(tmp_path, toy_bundle_dir_with_ood, blob, capsys):
+    directory = tmp_path / "toy"
+    shutil.copytree(toy_bundle_dir_with_ood, directory)
+    bundle = load_bundle(directory)
+    save_fusion(
+        directory,
+        FusionCalibration(
+            8,
+            1e9,
+            (3.0,),
+            (1.0,),
+            (0.0, 0.0, 0.0, 0.0),
+            mesh_bias=1.0,
+            bundle_hash=bundle.content_hash,
+        ),
+    )
+    mesh_file = tmp_path / "blob.ply"
+    save_shape(blob(3), mesh_file)
+    out = tmp_path / "p.npy"
+    args = ["path", str(mesh_file), "--source", "3", "--target", "200", "--bundle", str(directory)]
+    reports = {}
+    for option in ([], ["--route", "learned"], ["--fusion", "none"], ["--route", "surface"]):
+        assert main([*args, *option, "-o", str(out)]) == 0
+        reports[" ".join(option)] = (json.loads(capsys.readouterr().out), np.load(out))
+    auto, polyline = reports[""]
+    assert auto["fusion"] == "graph" and auto["route"] == "auto" and auto["n_steps"] == 0
+    assert auto["segments"][0][1] in ("edge-flip", "mesh-edges")  # the fused mesh's surface
+    np.testing.assert_array_equal(polyline, reports["--route surface"][1])
+    assert reports["--fusion none"][0]["fusion"] == "none"
+    for option in ("--route learned", "--fusion none"):  # the walk
+        assert reports[option][0]["n_steps"] > 0
+    with pytest.raises(SystemExit):  # argparse refuses an unknown route
+        main([*args, "--route", "shortest", "-o", str(out)])
 
 
 def test_auto_picks_the_model_of_the_shapes_category(tmp_path, capsys) -> None:
