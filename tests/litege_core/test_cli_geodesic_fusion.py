@@ -15,6 +15,20 @@ from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import FUSIONS, FusionCalibration, save_fusion
 
 
+def _calibrate(directory) -> None:
+    """Save a fusion calibration beside the bundle in ``directory`` (a cloud's weight: 1/2)."""
+    calibration = FusionCalibration(
+        8,
+        1e9,
+        (3.0,),
+        (1.0,),
+        (0.0, 0.0, 0.0, 0.0),
+        mesh_bias=1.0,
+        bundle_hash=load_bundle(directory).content_hash,
+    )
+    save_fusion(directory, calibration)
+
+
 def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, capsys) -> None:
     directory = tmp_path / "toy"
     shutil.copytree(toy_bundle_dir_with_ood, directory)
@@ -28,19 +42,7 @@ def test_geodesic_with_graph_fusion(tmp_path, toy_bundle_dir_with_ood, blob, cap
     assert main([*args, "-o", str(plain_out)]) == 0  # auto: no calibration, the network alone
     assert json.loads(capsys.readouterr().out)["fusion"] == "none"
 
-    bundle = load_bundle(directory)
-    save_fusion(
-        directory,
-        FusionCalibration(
-            8,
-            1e9,
-            (3.0,),
-            (1.0,),
-            (0.0, 0.0, 0.0, 0.0),
-            mesh_bias=1.0,
-            bundle_hash=bundle.content_hash,
-        ),
-    )
+    _calibrate(directory)
     fused = Predictor(load_bundle(directory), fusion="graph")
     expected = fused.distances(fused.register(load_shape(mesh_file)), [0, 7])
     for option in (["--fusion", "graph"], [], ["--runtime", "torch"]):  # auto: graph now
@@ -66,19 +68,7 @@ def test_the_fusion_option_is_the_predictor_option() -> None:
 def test_path_routes_with_and_without_fusion(tmp_path, toy_bundle_dir_with_ood, blob, capsys):
     directory = tmp_path / "toy"
     shutil.copytree(toy_bundle_dir_with_ood, directory)
-    bundle = load_bundle(directory)
-    save_fusion(
-        directory,
-        FusionCalibration(
-            8,
-            1e9,
-            (3.0,),
-            (1.0,),
-            (0.0, 0.0, 0.0, 0.0),
-            mesh_bias=1.0,
-            bundle_hash=bundle.content_hash,
-        ),
-    )
+    _calibrate(directory)
     mesh_file = tmp_path / "blob.ply"
     save_shape(blob(3), mesh_file)
     out = tmp_path / "p.npy"
