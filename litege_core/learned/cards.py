@@ -283,7 +283,8 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "
             f"{shapes} only, never on the real dev set. Constants, fit errors and the date are "
             "in the file; dev-set results in BENCHMARKS.md (`fusion-*` sections). Paths follow "
-            "the network's field."
+            "the same graphs (an edge-flip geodesic on a mesh, the vetoed k-NN graph's shortest "
+            'path on a cloud; `route="learned"` walks the network\'s field).'
         )
         credits = [
             COLLECTION_CREDITS[c]

@@ -31,7 +31,9 @@ unusual shape sampled densely leans on the graph. A mesh is answered by its ring
 fitted weight was below 2 % on our generated meshes and dropping it lowered the real dev meshes'
 error (BENCHMARKS "mesh-graph-alone"), so a mesh query evaluates no network unless its graph
 cannot join a pair. Pairs the graph cannot join (another component) keep the network's value.
-Distances only: paths still follow the network's field.
+A fused predictor's paths follow the same graphs (``route="auto"`` of
+:func:`~litege_core.learned.paths.trace_paths`: an edge-flip geodesic on a mesh, the fully vetoed
+k-NN graph's shortest path on a cloud).
 
 The calibration is a sidecar of the bundle, like the small head: ``fusion.json`` beside the
 bundle files, naming the content hash of the bundle it was fitted for (a mismatch is refused),

@@ -498,7 +498,7 @@ class _Walk:
                 ends = src.indices[stalled]
             else:
                 ends = self._nearest_corner(self.source[stalled])
-        router_of = getattr(self.predictor, "surface_router", None)  # a fused predictor's
+        router_of = getattr(self.predictor, "surface_router", None)  # Predictor's: fusion-aware
         if router_of is not None:
             router = router_of(state)
         else:

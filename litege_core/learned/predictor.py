@@ -167,8 +167,9 @@ class Predictor:
             :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
             calibration; its bundle hash must still match). Needs the bundle's residual
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
-            on it; paths follow the network's field. The graph's edges are vetoed by the head
-            the calibration names (``veto_head``: the shipped ones use the small head).
+            on it; its paths follow the same graphs (:meth:`surface_router`,
+            ``route="auto"``). The graph's edges are vetoed by the head the calibration names
+            (``veto_head``: the shipped ones use the small head).
         udf_backend: how the descriptor's UDF is computed (:mod:`litege_core.descriptor.udf`):
             ``"auto"`` (default: a k-d tree on a CPU, the fused Triton kernel on a GPU where
             Triton is installed, else batched torch), ``"kdtree"``, ``"pykdtree"``,
