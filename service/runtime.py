@@ -145,8 +145,9 @@ class PathResult:
             ``straight``, ``heat-descent``, ``exact-mmp``).
         model: the model that answered (``learned``), else ``None``.
         predicted_distance: the network's distance of a learned path, else ``None``.
-        n_steps: accepted gradient steps of a learned walk, else ``None``.
-        converged: whether a learned walk reached the source, else ``None``.
+        n_steps: accepted gradient steps of a learned walk (0: a surface route), else ``None``.
+        converged: whether a learned walk reached the source (a surface route: whether it
+            joins the two points), else ``None``.
     """
 
     points: np.ndarray
