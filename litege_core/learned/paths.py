@@ -556,13 +556,12 @@ class SurfaceRouter:
         self._flip: Any = None
         self._topology: MeshTopology | None = None
         n = self.vertices.shape[0]
-        self._fallback: SurfaceRouter | None = None
+        self._given_graph = graph is not None and faces is None
+        self._fallback: SurfaceRouter | None = None  # built on the first pair it must route
         if faces is None:
             self.graph: sp.csr_array = (
                 knn_graph(self.vertices, KNN_NEIGHBOURS) if graph is None else graph
             )
-            if graph is not None:
-                self._fallback = SurfaceRouter(self.vertices, None)
             self.graph_method = KNN_GRAPH
             self._flip_refused = True
         else:
@@ -609,7 +608,10 @@ class SurfaceRouter:
                         chain.append(int(predecessors[chain[-1]]))
                     out[i] = (self.vertices[chain], self.graph_method)
         apart = [i for i, route in enumerate(out) if route is not None and route[1] == STRAIGHT]
-        if apart and self._fallback is not None:  # the given graph splits them: the k-NN one
+        if apart and self._given_graph:  # the given graph splits them: the k-NN graph routes
+            with self._lock:
+                if self._fallback is None:
+                    self._fallback = SurfaceRouter(self.vertices, None)
             found = self._fallback.routes(starts[apart], ends[apart])
             for i, route in zip(apart, found, strict=True):
                 out[i] = route
