@@ -333,6 +333,27 @@ def fused_distances(
     return fuse(network(), rows, calibration, ood_score, points.shape[0], roughness, mesh)
 
 
+def route_trees(
+    graph: LazyVetoGraph, roots: NDArray, far: NDArray, edge_geodesics: EdgeGeodesics
+) -> NDArray:
+    """Dijkstra predecessors ``(R, N)`` from ``roots`` on the fully vetoed cloud graph, read
+    towards the ``far`` nodes: rounds of Dijkstra on ``graph`` judging only the edges of the
+    routes from every root to every far node (their trees beyond
+    :data:`~litege_core.learned.veto_graph.PATH_PAIRS` pairs), until no route crosses a cut
+    edge, as :func:`graph_rows` does (module doc of :mod:`~litege_core.learned.veto_graph`):
+    the routes of the fully vetoed graph. ``-9999``: no predecessor (a root, or cut off)."""
+    from litege_core.engines.graph import dijkstra_tree  # scipy: on first use
+
+    roots = np.asarray(roots, dtype=np.int64)
+    far = np.asarray(far, dtype=np.int64)
+    n = graph.graph.shape[0]
+    for _ in range(MAX_ROUNDS):
+        predecessors = dijkstra_tree(graph.graph, roots)[1]
+        if not graph.judge(graph.positions(*path_edges(predecessors, far, n)), edge_geodesics):
+            return predecessors
+    return dijkstra_tree(graph.vetoed(edge_geodesics), roots)[1]
+
+
 def pruned_knn_graph(
     points: NDArray,
     k: int,
@@ -666,6 +687,7 @@ __all__ = [
     "normal_cosines",
     "pruned_knn_graph",
     "resolve_fusion",
+    "route_trees",
     "save_fusion",
     "shape_graph",
     "surface_roughness",

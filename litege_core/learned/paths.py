@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -539,11 +540,19 @@ class SurfaceRouter:
         faces: ``(F, 3)`` int64 triangles, or ``None`` for a point cloud.
         graph: a point cloud's ``(N, N)`` graph to route on (any units; e.g. a fusion's vetoed
             k-NN graph), instead of its :data:`KNN_NEIGHBOURS`-NN graph, which still routes
-            the pairs ``graph`` does not connect.
+            the pairs ``graph`` (or ``trees``) does not connect.
+        trees: with ``graph``, ``(roots (R,), far (F,)) → (R, N)`` Dijkstra predecessors
+            from the roots (scipy's: ``-9999`` for none) on the graph the routes follow, to be
+            read towards the ``far`` nodes (a fusion's lazily vetoed graph:
+            :func:`~litege_core.learned.fusion.route_trees`); ``None``: Dijkstra on ``graph``.
     """
 
     def __init__(
-        self, vertices: NDArray, faces: NDArray | None, graph: sp.csr_array | None = None
+        self,
+        vertices: NDArray,
+        faces: NDArray | None,
+        graph: sp.csr_array | None = None,
+        trees: Callable[[NDArray, NDArray], NDArray] | None = None,
     ) -> None:
         # scipy and the engines load with the first router (a path), not with the predictor.
         from scipy.sparse.csgraph import connected_components
@@ -558,6 +567,7 @@ class SurfaceRouter:
         n = self.vertices.shape[0]
         self._given_graph = graph is not None and faces is None
         self._fallback: SurfaceRouter | None = None  # built on the first pair it must route
+        self._trees = trees if self._given_graph else None
         if faces is None:
             self.graph: sp.csr_array = (
                 knn_graph(self.vertices, KNN_NEIGHBOURS) if graph is None else graph
@@ -582,7 +592,7 @@ class SurfaceRouter:
         method that produced it."""
         starts = np.asarray(starts, dtype=np.int64).reshape(-1)
         ends = np.asarray(ends, dtype=np.int64).reshape(-1)
-        from scipy.sparse.csgraph import dijkstra
+        from litege_core.engines.graph import dijkstra_tree
 
         with self._lock:
             out: list[tuple[NDArray, str] | None] = [None] * starts.size
@@ -598,15 +608,22 @@ class SurfaceRouter:
                         out[i] = (flipped, EDGE_FLIP)
                     else:
                         graph_pairs.setdefault(b, []).append(i)
-            for end, rows in graph_pairs.items():  # one Dijkstra tree per distinct end
-                _, predecessors = dijkstra(
-                    self.graph, directed=False, indices=end, return_predecessors=True
-                )
+            if graph_pairs:  # one Dijkstra tree per distinct end
+                roots = np.fromiter(graph_pairs, dtype=np.int64, count=len(graph_pairs))
+                if self._trees is not None:
+                    far = starts[[i for rows in graph_pairs.values() for i in rows]]
+                    predecessors = self._trees(roots, far)
+                else:
+                    predecessors = dijkstra_tree(self.graph, roots)[1]
+            for tree, (end, rows) in enumerate(graph_pairs.items()):
                 for i in rows:
                     chain = [int(starts[i])]
-                    while chain[-1] != end:
-                        chain.append(int(predecessors[chain[-1]]))
-                    out[i] = (self.vertices[chain], self.graph_method)
+                    while chain[-1] != end and chain[-1] >= 0:
+                        chain.append(int(predecessors[tree, chain[-1]]))
+                    if chain[-1] == end:
+                        out[i] = (self.vertices[chain], self.graph_method)
+                    else:  # the trees' graph (a veto) splits them
+                        out[i] = (self.vertices[[chain[0], end]], STRAIGHT)
         apart = [i for i, route in enumerate(out) if route is not None and route[1] == STRAIGHT]
         if apart and self._given_graph:  # the given graph splits them: the k-NN graph routes
             with self._lock:

@@ -81,6 +81,7 @@ from litege_core.learned.fusion import (
     FusionCalibration,
     fused_distances,
     resolve_fusion,
+    route_trees,
     shape_graph,
 )
 from litege_core.learned.manifest import (
@@ -875,7 +876,9 @@ class Predictor:
     def surface_router(self, state: ShapeState) -> SurfaceRouter:
         """The router of ``state``'s on-surface paths (kept with the state): with a fusion, a
         point cloud routes on the fusion's fully vetoed k-NN graph, the graph its distances
-        read; a mesh, or a predictor without a fusion, on the router's own graphs."""
+        read (vetoed lazily, on the routes' edges only:
+        :func:`~litege_core.learned.fusion.route_trees`); a mesh, or a
+        predictor without a fusion, on the router's own graphs."""
         fused_cloud = self.fusion is not None and state.faces is None
         key = "surface_router"
         if fused_cloud:
@@ -883,15 +886,17 @@ class Predictor:
             key += f".{self._veto._table_key}.{self.fusion.k}.{self.fusion.prune_ratio}"
         router = state._lazy.get(key)
         if router is None:
-            graph = None
+            graph, trees = None, None
             if fused_cloud:
                 assert self.fusion is not None
                 lazy, _ = shape_graph(
                     state.canonical_points, None, self.fusion, state._lazy, self._veto._table_key
                 )
                 assert isinstance(lazy, LazyVetoGraph)  # a cloud's graph
-                graph = lazy.vetoed(self._edge_geodesics(state))
-            router = state._lazy.setdefault(key, SurfaceRouter(state.vertices, state.faces, graph))
+                graph, edge_geodesics = lazy.graph, self._edge_geodesics(state)
+                trees = functools.partial(route_trees, lazy, edge_geodesics=edge_geodesics)
+            router = SurfaceRouter(state.vertices, state.faces, graph, trees)
+            router = state._lazy.setdefault(key, router)
         return router
 
 

@@ -228,6 +228,35 @@ def test_pruning_cuts_the_shortcut_between_touching_parts() -> None:
     assert (plain != knn_graph(points, 4)).nnz == 0
 
 
+def test_route_trees_are_the_fully_vetoed_graphs_routes() -> None:
+    from litege_core.engines.graph import dijkstra_tree
+    from litege_core.learned.fusion import route_trees
+    from litege_core.learned.veto_graph import LazyVetoGraph
+
+    points, arc = _hairpin()
+    n = points.shape[0]
+
+    def truth(i, j):
+        return np.abs(arc[i] - arc[j])
+
+    def chain(predecessors, row, node):
+        out = [int(node)]
+        while predecessors[row, out[-1]] >= 0:
+            out.append(int(predecessors[row, out[-1]]))
+        return out
+
+    base = pruned_knn_graph(points, 4, 1.6, None)
+    lazy = LazyVetoGraph(base, 1.6)
+    roots, far = np.array([n // 2 - 1]), np.array([n - 1, n - 10])  # one tip to the other arm
+    lazy_trees = route_trees(lazy, roots, far, truth)
+    eager = dijkstra_tree(pruned_knn_graph(points, 4, 1.6, truth), roots)[1]
+    for node in far:
+        route = chain(lazy_trees, 0, node)
+        assert route == chain(eager, 0, node) and route[-1] == roots[0]
+        assert len(route) > n // 2  # around the bend, not across the 0.05 gap
+    assert 0 < lazy.judged < base.nnz  # the routes' edges, not every edge
+
+
 def _sheets(gap: float = 0.04, spacing: float = 0.05) -> np.ndarray:
     """Two parallel square grids ``gap`` apart (closer than their own spacing): kNN joins each
     point to the one across and to the diagonal ones across (chords 51° off the sheets)."""
@@ -545,6 +574,8 @@ def test_paths_of_a_fused_shape_follow_its_surface(bundle_dir, blob) -> None:
     cloud = _cloud(mesh)  # a cloud: the fusion's vetoed k-NN graph, the one its distances read
     state = fused.register(cloud)
     paths = fused.paths(state, sources, targets)
+    (lazy,) = [v for key, v in state._lazy.items() if key.startswith("fusion.graph.")]
+    assert 0 < lazy.judged < lazy.graph.nnz  # vetoed lazily: the routes' edges only
     vetoed = pruned_knn_graph(state.canonical_points, 8, 1.6, fused._edge_geodesics(state))
     assert vetoed.nnz < knn_graph(state.canonical_points, 8).nnz  # the veto cut some edges
     routes = SurfaceRouter(cloud.vertices, None, vetoed).routes(targets, sources)
