@@ -499,16 +499,8 @@ class _Walk:
                 ends = src.indices[stalled]
             else:
                 ends = self._nearest_corner(self.source[stalled])
-        router_of = getattr(self.predictor, "surface_router", None)  # Predictor's: fusion-aware
-        if router_of is not None:
-            router = router_of(state)
-        else:
-            router = state._lazy.get("surface_router")
-            if router is None:
-                router = state._lazy.setdefault(
-                    "surface_router", SurfaceRouter(state.vertices, state.faces)
-                )
-        found = router.routes(starts, ends)
+        router_of = getattr(self.predictor, "surface_router", default_router)  # fusion-aware
+        found = router_of(state).routes(starts, ends)
         return {int(b): route for b, route in zip(stalled, found, strict=True)}
 
     def _nearest_corner(self, canonical: NDArray) -> NDArray:
@@ -519,6 +511,16 @@ class _Walk:
             self.state.canonical_points[corners] - projected.points[:, None], axis=2
         )
         return corners[np.arange(corners.shape[0]), np.argmin(distance, axis=1)]
+
+
+def default_router(state: ShapeState) -> SurfaceRouter:
+    """The :class:`SurfaceRouter` of ``state``'s own graphs (kept with the state)."""
+    router = state._lazy.get("surface_router")
+    if router is None:
+        router = state._lazy.setdefault(
+            "surface_router", SurfaceRouter(state.vertices, state.faces)
+        )
+    return router
 
 
 def _dedupe(points: NDArray) -> NDArray:
@@ -677,6 +679,7 @@ __all__ = [
     "SURFACE",
     "GeodesicPath",
     "SurfaceRouter",
+    "default_router",
     "trace_path",
     "trace_paths",
 ]

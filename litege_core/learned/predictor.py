@@ -91,7 +91,13 @@ from litege_core.learned.manifest import (
     residual_statistics,
     resolve_head,
 )
-from litege_core.learned.paths import GeodesicPath, SurfaceRouter, trace_path, trace_paths
+from litege_core.learned.paths import (
+    GeodesicPath,
+    SurfaceRouter,
+    default_router,
+    trace_path,
+    trace_paths,
+)
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
 from litege_core.learned.veto_graph import LazyVetoGraph, grown_features
@@ -879,23 +885,18 @@ class Predictor:
         read (vetoed lazily, on the routes' edges only:
         :func:`~litege_core.learned.fusion.route_trees`); a mesh, or a
         predictor without a fusion, on the router's own graphs."""
-        fused_cloud = self.fusion is not None and state.faces is None
-        key = "surface_router"
-        if fused_cloud:
-            assert self.fusion is not None
-            key += f".{self._veto._table_key}.{self.fusion.k}.{self.fusion.prune_ratio}"
+        fusion = self.fusion
+        if fusion is None or state.faces is not None:
+            return default_router(state)
+        key = f"surface_router.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
         router = state._lazy.get(key)
         if router is None:
-            graph, trees = None, None
-            if fused_cloud:
-                assert self.fusion is not None
-                lazy, _ = shape_graph(
-                    state.canonical_points, None, self.fusion, state._lazy, self._veto._table_key
-                )
-                assert isinstance(lazy, LazyVetoGraph)  # a cloud's graph
-                graph, edge_geodesics = lazy.graph, self._edge_geodesics(state)
-                trees = functools.partial(route_trees, lazy, edge_geodesics=edge_geodesics)
-            router = SurfaceRouter(state.vertices, state.faces, graph, trees)
+            lazy, _ = shape_graph(
+                state.canonical_points, None, fusion, state._lazy, self._veto._table_key
+            )
+            assert isinstance(lazy, LazyVetoGraph)  # a cloud's graph
+            trees = functools.partial(route_trees, lazy, edge_geodesics=self._edge_geodesics(state))
+            router = SurfaceRouter(state.vertices, None, lazy.graph, trees)
             router = state._lazy.setdefault(key, router)
         return router
 
