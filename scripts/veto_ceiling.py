@@ -8,6 +8,14 @@ ways and reports the graph error (``graph / b``) and the fused error of each:
     oracle     k-NN and normal limit, and every edge cut whose true geodesic exceeds
                ``--oracle-ratio`` × its chord (a diagnosis, not a method: it reads the mesh)
     oracle+net both vetoes
+    oracle R   with ``--extra-oracle-ratios R,...``: the oracle cut at other ratios (a low one,
+               e.g. 1.5, also cuts the chords through a thin part, not only between parts)
+    net veto R with ``--prune-ratios R,...``: the shipped graph with the network's veto cutting
+               at R × the chord instead of the calibration's ratio (a method: it reads no truth)
+
+A set is a real dev set (``tosca``, ``faust``, ...) or ``DIR@MODEL``: the test split of a
+calibration dataset (e.g. ``data/folder-cal@quadrupeds``), to compare what the dev set and the
+data the fusion is fitted on say about the same graph.
 
 and, beside them, ``shipped, best w``: the shipped graph fused with the constant network weight
 ``w`` (of 0, 0.05, …, 1) that gives each shape its lowest error. That is the fusion rule's
@@ -31,6 +39,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse
 import dataclasses
 from datetime import UTC, datetime
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,6 +49,7 @@ from litege_core.engines.graph import dijkstra_rows, knn_neighbours, mesh_ring_g
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
     EvalShape,
+    collection_eval_shapes,
     real_eval_shapes,
     real_shape_paths,
 )
@@ -53,6 +63,8 @@ from litege_core.variants import add_noise
 
 MID_LIMITS: list[float] = []
 VARIANTS = ["shipped", "shipped, best w", "no veto", "oracle", "oracle + net"]
+EXTRA_RATIOS: list[float] = []
+PRUNE_RATIOS: list[float] = []
 WEIGHT_GRID = np.linspace(0.0, 1.0, 21)
 """Network weights :func:`best_weight_error` tries."""
 
@@ -156,6 +168,10 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
         return np.maximum(oracle(i, j), network_veto(i, j))
 
     vetoes = {"shipped": network_veto, "no veto": None, "oracle": oracle, "oracle + net": both}
+    for extra in EXTRA_RATIOS:
+        vetoes[f"oracle {extra}"] = lambda i, j, r=extra: truth(i, j) * scale * ratio / r
+    for prune in PRUNE_RATIOS:
+        vetoes[f"net veto {prune}"] = lambda i, j, r=prune: network_veto(i, j) * ratio / r
     for limit in MID_LIMITS:
         facing = facing_cut(points, normals, limit)
         vetoes[f"mean normal {limit}"] = lambda i, j, f=facing: np.where(f(i, j), np.inf, 0.0)
@@ -211,31 +227,55 @@ def main() -> None:
     parser.add_argument("--eval-root", default="../shared/eval-data")
     parser.add_argument("--cache", default="out/exact-cache")
     parser.add_argument("--oracle-ratio", type=float, default=3.0)
+    parser.add_argument(
+        "--extra-oracle-ratios", default="", help="oracle cuts at other ratios too, e.g. 1.5,2"
+    )
+    parser.add_argument(
+        "--prune-ratios", default="", help="the network's veto at other ratios too, e.g. 1.1,1.5"
+    )
     parser.add_argument("--limit", type=int, default=None, help="the first shapes of each set")
     parser.add_argument("--worst", type=int, default=4)
     parser.add_argument(
         "--mean-normal", default="", help="mean-normal limits to try too, e.g. 0.3,0.5"
     )
     args = parser.parse_args()
+    for extra in filter(None, args.extra_oracle_ratios.split(",")):
+        EXTRA_RATIOS.append(float(extra))
+        VARIANTS.append(f"oracle {float(extra)}")
+    for prune in filter(None, args.prune_ratios.split(",")):
+        PRUNE_RATIOS.append(float(prune))
+        VARIANTS.append(f"net veto {float(prune)}")
     for limit in filter(None, args.mean_normal.split(",")):
         MID_LIMITS.append(float(limit))
         VARIANTS.extend([f"mean normal {float(limit)}", f"mean normal {float(limit)} + net"])
     for key in args.sets.split(","):
-        real = REAL_SETS[key]
-        bundle = load_model(real.model)
+        if "@" in key:  # a calibration dataset's test split
+            directory, model = key.split("@")
+            shapes = collection_eval_shapes(directory, "test", args.limit)
+            group = f"{Path(directory).name} (test, calibration data)"
+        else:
+            real = REAL_SETS[key]
+            model, group = real.model, real.group
+            paths = real_shape_paths(args.eval_root, key, args.limit)
+            shapes = real_eval_shapes(paths, real.group, args.sources, args.cache)
+        bundle = load_model(model)
         predictor = Predictor(bundle)  # the shipped defaults: fused
         network_only = Predictor(bundle, fusion="none")
-        paths = real_shape_paths(args.eval_root, key, args.limit)
-        shapes = real_eval_shapes(paths, real.group, args.sources, args.cache)
-        print(f"\n### {real.group}, `{real.model}`: graph / fused error by cloud graph\n")
+        print(f"\n### {group}, `{model}`: graph / fused error by cloud graph\n")
         print(
             f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine {cpu_name()}; "
-            f"{len(shapes)} shapes, {args.sources} FPS sources each, exact MMP rows, GT mean "
+            f"{len(shapes)} shapes, {shapes[0].sources.size} FPS sources each, exact rows, GT mean "
             f"100; oracle: edges cut whose geodesic on the mesh exceeds {args.oracle_ratio} × "
             f"the chord; w: the fusion's network weight (median); command `python "
             f"scripts/veto_ceiling.py --sets {key} --settings {args.settings} --sources "
             f"{args.sources} --oracle-ratio {args.oracle_ratio}"
             + (f" --mean-normal {args.mean_normal}" if args.mean_normal else "")
+            + (
+                f" --extra-oracle-ratios {args.extra_oracle_ratios}"
+                if args.extra_oracle_ratios
+                else ""
+            )
+            + (f" --prune-ratios {args.prune_ratios}" if args.prune_ratios else "")
             + "`\n"
         )
         print(

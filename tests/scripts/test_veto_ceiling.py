@@ -74,3 +74,36 @@ def test_best_weight_error_finds_the_blend_that_cancels_opposite_errors(veto_cei
     # one estimator exact: its own weight wins; both short: the less short one alone
     assert veto_ceiling.best_weight_error(gt, graph, gt) == pytest.approx(0.0, abs=1e-9)
     assert veto_ceiling.best_weight_error(network, gt * 0.8, gt) == pytest.approx(10.0)
+
+
+def test_extra_oracle_and_veto_ratios_reproduce_the_base_variants(
+    veto_ceiling, toy_bundle_dir_with_ood, blob, monkeypatch
+) -> None:
+    """``oracle R`` at the oracle's own ratio is the oracle, ``net veto R`` at the calibration's
+    ratio is the shipped graph."""
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.learned.fusion import FusionCalibration
+
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    calibration = FusionCalibration(
+        k=8,
+        prune_ratio=1.6,
+        bias_log10_points=(2.0, 3.0),
+        bias=(1.0, 1.0),
+        gate=(0.0, 0.0, 0.0, 0.0),
+        mesh_bias=1.0,
+        bundle_hash=bundle.content_hash,
+    )
+    predictor = Predictor(bundle, fusion=calibration)
+    network_only = Predictor(bundle, fusion="none")
+    mesh = blob(2)
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    sources = np.array([0, 5])
+    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)  # any positive rows
+    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
+    monkeypatch.setattr(veto_ceiling, "EXTRA_RATIOS", [3.0])
+    monkeypatch.setattr(veto_ceiling, "PRUNE_RATIOS", [1.6, 1.05])
+    out, _ = veto_ceiling.evaluate_shape(predictor, network_only, shape, "cloud_200", 3.0)
+    assert out["oracle 3.0"] == pytest.approx(out["oracle"])
+    assert out["net veto 1.6"] == pytest.approx(out["shipped"])
+    assert set(out) >= {"net veto 1.05", "no veto", "network"}
