@@ -160,16 +160,18 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     truth = oracle_edges(shape, cloud, clean, reach)
     network_veto = predictor._edge_geodesics(state)
 
-    def oracle(i, j):
-        # canonical units; scaled so that the calibration's ratio cuts at ``oracle_ratio``
-        return truth(i, j) * scale * ratio / oracle_ratio
+    def oracle_at(cut: float):
+        # canonical units; scaled so that the calibration's ratio cuts at ``cut``
+        return lambda i, j: truth(i, j) * scale * ratio / cut
+
+    oracle = oracle_at(oracle_ratio)
 
     def both(i, j):
         return np.maximum(oracle(i, j), network_veto(i, j))
 
     vetoes = {"shipped": network_veto, "no veto": None, "oracle": oracle, "oracle + net": both}
     for extra in EXTRA_RATIOS:
-        vetoes[f"oracle {extra}"] = lambda i, j, r=extra: truth(i, j) * scale * ratio / r
+        vetoes[f"oracle {extra}"] = oracle_at(extra)
     for prune in PRUNE_RATIOS:
         vetoes[f"net veto {prune}"] = lambda i, j, r=prune: network_veto(i, j) * ratio / r
     for limit in MID_LIMITS:
