@@ -161,8 +161,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     network_veto = predictor._edge_geodesics(state)
 
     def oracle_at(cut: float):
-        # canonical units; scaled so that the calibration's ratio cuts at ``cut`` (× the edge's
-        # length: its chord, or its arc length where the calibration weighs arcs)
+        # canonical units; scaled so that the calibration's ratio cuts at ``cut``
         return lambda i, j: truth(i, j) * scale * ratio / cut
 
     oracle = oracle_at(oracle_ratio)
@@ -184,9 +183,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     weight = calibration.network_weight(state.ood_score, n, roughness)
     out = {}
     for name, veto in vetoes.items():
-        graph = pruned_knn_graph(
-            points, k, ratio, veto, neighbours, normals, normal_cos, calibration.arc_weight
-        )
+        graph = pruned_knn_graph(points, k, ratio, veto, neighbours, normals, normal_cos)
         rows = dijkstra_rows(graph, cloud.sources) / scale  # user units
         corrected = rows / calibration.graph_bias(n)
         corrected = np.where(np.isfinite(corrected), corrected, network)

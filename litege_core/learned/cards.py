@@ -271,13 +271,6 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
             f"exceeds {data['prune_ratio']} × the chord)"
             + (
-                ", whose edges weigh their chords lengthened towards the arcs they span "
-                f"(weight {data['arc_weight']:g}, from the angle between the surface normals "
-                "at their ends)"
-                if data.get("arc_weight")
-                else ""
-            )
-            + (
                 " and whose chords that run along the surface normal are cut (where |n · ĉ| "
                 "exceeds "
                 + ", ".join(f"{c:g}" for c in data["normal_cos"])

@@ -17,10 +17,7 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
                in log10 N from calibration knots: looser on sparse clouds, whose chords bend
-               with the surface); each cloud edge weighs its chord lengthened towards the
-               circular arc it spans, ``ℓ = |c| · (1 + α · ((θ/2) / sin(θ/2) − 1))`` with ``θ``
-               the angle between the (unoriented) normals at its ends and ``α`` the
-               calibration's ``arc_weight`` (0: the chord; see :func:`arc_lengths`)
+               with the surface)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
@@ -74,12 +71,11 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 6
+FUSION_FORMAT = 5
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
-``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
-added ``arc_weight`` (older files read as 0: cloud edges weigh their chords)."""
-READABLE_FORMATS = (3, 4, 5, FUSION_FORMAT)
+``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored)."""
+READABLE_FORMATS = (3, 4, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -114,8 +110,6 @@ class FusionCalibration:
             or ``"full"``; whatever head answers the queries.
         normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
             ``|n · ĉ| > c`` at either end), or empty: no normal limit.
-        arc_weight: ``α`` in ``[0, 1]`` of the cloud edges' arc lengths
-            (:func:`arc_lengths`); 0: each edge weighs its chord.
     """
 
     k: int
@@ -128,7 +122,6 @@ class FusionCalibration:
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
     normal_cos: tuple[float, ...] = ()
-    arc_weight: float = 0.0
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -150,8 +143,6 @@ class FusionCalibration:
         valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
         if limits.size and not valid:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
-        if not 0.0 <= self.arc_weight <= 1.0:  # NaN fails too
-            raise ArtifactError(f"fusion arc_weight must be in [0, 1], got {self.arc_weight!r}")
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
         """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
@@ -200,7 +191,6 @@ class FusionCalibration:
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
-                arc_weight=float(data.get("arc_weight", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -280,7 +270,7 @@ def shape_graph(
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
-            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>.<arc>``.
+            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>``.
         veto_key: names the veto head (its verdicts are kept in the graph).
     """
     if faces is not None:
@@ -291,8 +281,8 @@ def shape_graph(
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
     normal_cos = calibration.normal_limit(points.shape[0])
-    k, ratio, arc = calibration.k, calibration.prune_ratio, calibration.arc_weight
-    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}.{arc}"
+    k, ratio = calibration.k, calibration.prune_ratio
+    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}"
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
         from litege_core.engines.graph import knn_neighbours  # scipy: on first use
@@ -303,9 +293,7 @@ def shape_graph(
             flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:
-            unvetoed = pruned_knn_graph(
-                points, k, ratio, None, neighbours, surface[1], normal_cos, arc
-            )
+            unvetoed = pruned_knn_graph(points, k, ratio, None, neighbours, surface[1], normal_cos)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio)
     return graph, surface[0]
 
@@ -374,11 +362,9 @@ def pruned_knn_graph(
     neighbours: tuple[NDArray, NDArray] | None = None,
     normals: NDArray | None = None,
     normal_cos: float = 1.0,
-    arc_weight: float = 0.0,
 ) -> sp.csr_array:
     """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts
-    and, with ``normals``, without the chords that run along the surface normal, its edges
-    lengthened towards their arcs by ``arc_weight`` (:func:`arc_lengths`). With
+    and, with ``normals``, without the chords that run along the surface normal. With
     ``edge_geodesics`` it is the eager reference of the lazy veto of :func:`graph_rows` (which
     the fusion runs); without, the graph that veto starts from.
 
@@ -392,12 +378,10 @@ def pruned_knn_graph(
         normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`), or ``None``.
         normal_cos: cut an edge whose unit chord ``ĉ`` has ``|n · ĉ| > normal_cos`` at either
             end (1: keep every edge).
-        arc_weight: ``α`` of :func:`arc_lengths` (needs ``normals``; 0: chord lengths). The
-            veto compares the predicted geodesic with the lengthened edge.
 
     Returns:
-        ``(N, N)`` upper-triangular CSR of edge lengths (chords, or their arc lengths; as
-        :func:`~litege_core.engines.graph.edge_graph` orders them).
+        ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
+        edge_graph`).
     """
     import scipy.sparse as sp
 
@@ -405,14 +389,9 @@ def pruned_knn_graph(
 
     graph = knn_graph(points, k, neighbours)
     cut_normals = normals is not None and normal_cos < 1.0
-    arcs = normals is not None and arc_weight > 0.0
-    if (edge_geodesics is None and not cut_normals and not arcs) or graph.nnz == 0:
+    if (edge_geodesics is None and not cut_normals) or graph.nnz == 0:
         return graph
     rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
-    lengths = graph.data
-    if arcs:
-        assert normals is not None
-        lengths = arc_lengths(normals, rows, graph.indices, lengths, arc_weight)
     keep = np.ones(graph.nnz, dtype=bool)
     if cut_normals:
         assert normals is not None
@@ -420,38 +399,10 @@ def pruned_knn_graph(
     if edge_geodesics is not None:  # the network only on the edges the normals leave
         left = np.flatnonzero(keep)
         keep[left] = edge_geodesics(rows[left], graph.indices[left]) <= (
-            prune_ratio * lengths[left]
+            prune_ratio * graph.data[left]
         )
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
-    return sp.csr_array((lengths[keep], graph.indices[keep], indptr), shape=graph.shape)
-
-
-def arc_lengths(
-    normals: NDArray, starts: NDArray, ends: NDArray, chords: NDArray, weight: float
-) -> NDArray:
-    """``(E,)`` chord lengths lengthened towards the circular arc each spans:
-    ``|c| · (1 + weight · ((θ/2) / sin(θ/2) − 1))``, ``θ`` the angle between the unit normals
-    at the chord's ends, read unoriented (``arccos |n_i · n_j|``, at most 90°: factor ≤ 1.11).
-
-    On a sphere or a cylinder's circumference a chord between exact normals gets exactly its
-    great-circle arc at ``weight = 1``; a chord with a component along a cylinder's axis gets
-    more than its geodesic (the whole chord is bent, not its circumferential part), which the
-    fitted ``weight`` and the graph's bias absorb.
-
-    Args:
-        normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`).
-        starts, ends: ``(E,)`` the chords' end points; chords: ``(E,)`` their lengths.
-        weight: ``α`` in ``[0, 1]``.
-    """
-    normal_axes = np.ascontiguousarray(normals.T)
-    cosines = np.abs(
-        np.einsum(
-            "ie,ie->e", np.take(normal_axes, starts, axis=1), np.take(normal_axes, ends, axis=1)
-        )
-    )
-    half = 0.5 * np.arccos(np.minimum(cosines, 1.0))
-    factor = np.where(half > 1e-4, half / np.sin(np.maximum(half, 1e-4)), 1.0)
-    return chords * (1.0 + weight * (factor - 1.0))
+    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
 
 
 def normal_cosines(
@@ -727,7 +678,6 @@ __all__ = [
     "FUSION_CONFIG",
     "MESH_RINGS",
     "FusionCalibration",
-    "arc_lengths",
     "corrected_graph",
     "fuse",
     "fused_distances",

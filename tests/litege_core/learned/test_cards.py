@@ -38,10 +38,6 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "normal_cos": limits}))
         named = "exceeds 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
         assert named == bool(limits)
-    # so is the arc weight of the cloud edges
-    for weight in (0.5, 0.0):
-        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "arc_weight": weight}))
-        assert ("arcs they span (weight 0.5," in sidecar_section(tmp_path)) == bool(weight)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")

@@ -65,9 +65,6 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"normal_cos": (0.7, 0.8)},
         {"normal_cos": (0.7, 0.0, 0.8)},
         {"normal_cos": (0.7, 1.2, 0.8)},
-        {"arc_weight": -0.1},
-        {"arc_weight": 1.5},
-        {"arc_weight": float("nan")},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -173,11 +170,6 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     older = {**calibration.to_json(), "format_version": 4, "mesh_gate": -5.5}
     assert FusionCalibration.from_json(older) == calibration
     assert "mesh_gate" not in calibration.to_json()
-    # a format-5 file (no arc weight) weighs chords; the arc weight round-trips
-    del older["arc_weight"]
-    assert FusionCalibration.from_json({**older, "format_version": 5}).arc_weight == 0.0
-    arcs = dataclasses.replace(calibration, arc_weight=0.5)
-    assert FusionCalibration.from_json(json.loads(json.dumps(arcs.to_json()))) == arcs
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -297,78 +289,6 @@ def test_the_normal_limit_cuts_the_chords_between_two_sheets() -> None:
     # without normals, or with the limit 1, the graph is the plain one
     same = pruned_knn_graph(points, 8, 1.6, None, normals=normals, normal_cos=1.0)
     assert (same != plain).nnz == 0
-
-
-def test_arc_lengths_are_great_circle_arcs_on_a_sphere() -> None:
-    from litege_core.learned.fusion import arc_lengths
-
-    rng = np.random.default_rng(4)
-    points = rng.normal(size=(200, 3))
-    points /= np.linalg.norm(points, axis=1, keepdims=True)
-    starts, ends = np.arange(0, 100), np.arange(100, 200)
-    chords = np.linalg.norm(points[ends] - points[starts], axis=1)
-    angles = np.arccos(np.einsum("ij,ij->i", points[starts], points[ends]))
-    within = angles < np.pi / 2  # beyond 90° unoriented normals read the supplement
-    normals = points * rng.choice([-1.0, 1.0], size=(200, 1))  # the sign does not matter
-    arcs = arc_lengths(normals, starts, ends, chords, 1.0)
-    np.testing.assert_allclose(arcs[within], angles[within], rtol=1e-9)  # unit radius
-    np.testing.assert_array_equal(arc_lengths(normals, starts, ends, chords, 0.0), chords)
-    half = arc_lengths(normals, starts, ends, chords, 0.5)
-    np.testing.assert_allclose(half, 0.5 * (chords + arcs), rtol=1e-12)
-    # parallel normals (a plane) keep the chord; coincident points stay at zero
-    flat = np.tile([0.0, 0.0, 1.0], (200, 1))
-    np.testing.assert_array_equal(arc_lengths(flat, starts, ends, chords, 1.0), chords)
-    assert arc_lengths(normals, starts[:1], starts[:1], np.zeros(1), 1.0)[0] == 0.0
-
-
-def test_arc_weighted_graph_keeps_the_edges_and_lengthens_them() -> None:
-    from litege_core.learned.fusion import local_surface
-
-    rng = np.random.default_rng(5)
-    points = rng.normal(size=(400, 3))
-    points /= np.linalg.norm(points, axis=1, keepdims=True)
-    normals = local_surface(points)[1]
-    plain = pruned_knn_graph(points, 8, 1e9, None)
-    arcs = pruned_knn_graph(points, 8, 1e9, None, normals=normals, arc_weight=1.0)
-    np.testing.assert_array_equal(arcs.indices, plain.indices)
-    np.testing.assert_array_equal(arcs.indptr, plain.indptr)
-    ratio = arcs.data / plain.data
-    assert np.all(ratio >= 1.0) and np.median(ratio) > 1.001  # a sphere's chords all bend
-    chord_to_arc = np.arcsin(plain.data / 2) * 2 / plain.data  # exact on the unit sphere
-    np.testing.assert_allclose(ratio, chord_to_arc, rtol=0.02)  # estimated normals
-
-    # the veto compares the predicted geodesic with the arc: a prediction between chord and
-    # arc keeps the edge (exact normals: the arcs are exact)
-    def between(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        chord = np.linalg.norm(points[i] - points[j], axis=1)
-        return 0.5 * (chord + 2 * np.arcsin(chord / 2))
-
-    kept = pruned_knn_graph(points, 8, 1.0, between, normals=points, arc_weight=1.0)
-    cut = pruned_knn_graph(points, 8, 1.0, between)
-    assert kept.nnz == plain.nnz and cut.nnz < 0.01 * plain.nnz
-
-
-def test_graph_only_fusion_weighs_arcs_as_the_eager_graph_does(bundle_dir, blob) -> None:
-    from litege_core.learned.fusion import local_surface
-
-    bundle = load_bundle(bundle_dir)
-    calibration = dataclasses.replace(_graph_only(bundle.content_hash), arc_weight=0.7)
-    predictor = Predictor(bundle, fusion=calibration)
-    state = predictor.register(_cloud(blob(3)))
-    sources = np.array([0, 17, 200])
-    rows = predictor.distances(state, sources)
-    points = state.canonical_points
-    normals = local_surface(points)[1]
-    graph = pruned_knn_graph(points, 8, calibration.prune_ratio, None, normals=normals)
-    arcs = pruned_knn_graph(
-        points, 8, calibration.prune_ratio, None, normals=normals, arc_weight=0.7
-    )
-    expected = dijkstra(arcs, directed=False, indices=sources)
-    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
-    np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
-    chords = dijkstra(graph, directed=False, indices=sources)
-    chords /= calibration.graph_bias(state.n_points) * state.transform.scale
-    assert np.all(rows >= chords - 1e-6) and np.any(rows > 1.001 * chords)
 
 
 def test_graph_rows_of_free_points_on_nodes_equal_the_indexed_rows() -> None:
