@@ -2,14 +2,16 @@
 
 Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
     [--dataset data/rigged-cal ...] [--sources 12] [--prune-ratio 1.3,1.6]
-    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--write]
+    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--write]
 
 Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's category
 (generated on the fly, exact rows cached under ``--cache``) and the test split of every
 ``--dataset`` (collection datasets such as the rigged animals or MakeHuman bodies of
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
 network / pruned graph / fused errors per setting (each density's normal limit is the
-candidate whose graph errs least there; ``--normal-cos 1`` fits none); ``--write`` stores
+candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
+and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept);
+``--write`` stores
 ``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
 rewrites the model card's sidecar section.
 """
@@ -29,6 +31,7 @@ import torch
 from litege_core.evaluation.fusion import (
     CALIBRATION_SETTINGS,
     DEFAULT_K,
+    MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
     choose_normal_limits,
@@ -73,6 +76,13 @@ def main() -> None:
         "has the lowest error on the calibration shapes",
     )
     parser.add_argument(
+        "--mutual-k",
+        default=",".join(str(m) for m in MUTUAL_K_CANDIDATES),
+        help="comma-separated cloud-graph candidates (0: symmetric k-NN; M: mutual k-NN of M "
+        "neighbours); with the prune ratio, the pair whose fit has the lowest mean fused error "
+        "is kept",
+    )
+    parser.add_argument(
         "--veto-head",
         choices=("auto", "small", "full"),
         default="auto",
@@ -112,6 +122,7 @@ def main() -> None:
     }
     ratios = sorted(float(r) for r in args.prune_ratio.split(","))
     limits = sorted(float(c) for c in args.normal_cos.split(","))
+    mutuals = sorted(int(m) for m in args.mutual_k.split(","))
     by_variant = collect_samples(
         predictor,
         shapes,
@@ -119,24 +130,27 @@ def main() -> None:
         k=args.k,
         prune_ratios=ratios,
         normal_limits=limits,
+        mutual_ks=mutuals,
         veto_head=veto_head,
     )
-    candidates = []  # (mean fused error, prune ratio, samples, calibration)
+    candidates = []  # (mean fused error, (prune ratio, mutual k), samples, calibration)
     for prune_ratio in ratios:
-        chosen, samples = choose_normal_limits(
-            {limit: by_variant[(prune_ratio, limit)] for limit in limits}
-        )
-        calibration = fit_fusion(
-            samples,
-            bundle.content_hash,
-            k=args.k,
-            prune_ratio=prune_ratio,
-            veto_head=veto_head,
-            fitted_on=fitted_on,
-            normal_cos=chosen if limits != [1.0] else None,
-        )
-        error = mean_fused_error(samples, calibration)
-        candidates.append((error, prune_ratio, samples, calibration))
+        for mutual in mutuals:
+            chosen, samples = choose_normal_limits(
+                {limit: by_variant[(prune_ratio, limit, mutual)] for limit in limits}
+            )
+            calibration = fit_fusion(
+                samples,
+                bundle.content_hash,
+                k=args.k,
+                prune_ratio=prune_ratio,
+                veto_head=veto_head,
+                fitted_on=fitted_on,
+                normal_cos=chosen if limits != [1.0] else None,
+                mutual_k=mutual,
+            )
+            error = mean_fused_error(samples, calibration)
+            candidates.append((error, (prune_ratio, mutual), samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
@@ -149,7 +163,7 @@ def main() -> None:
         f"--model {args.model} --synthetic {args.synthetic} "
         + " ".join(f"--dataset {d}" for d in args.dataset)
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
-        + f" --normal-cos {args.normal_cos}`"
+        + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
@@ -167,15 +181,26 @@ def main() -> None:
     print(
         f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
         f"× chord (predicted by the {veto_head} head) and chords with |n·ĉ| above the normal "
-        f"limit ({normal}); median graph / geodesic: {knots}; "
+        f"limit ({normal}); "
+        + (
+            f"mutual k-NN graph of {calibration.mutual_k} neighbours; "
+            if calibration.mutual_k
+            else ""
+        )
+        + f"median graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
         f"graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
     )
     if len(candidates) > 1:
-        tried = ", ".join(f"{ratio}: {error:.3f}" for error, ratio, _, _ in candidates)
-        print(f"- prune ratio candidates (mean fused error over all calibration inputs): {tried}\n")
+        tried = ", ".join(
+            f"{ratio} / {mutual}: {error:.3f}" for error, (ratio, mutual), _, _ in candidates
+        )
+        print(
+            "- prune ratio / mutual k candidates (mean fused error over all calibration "
+            f"inputs): {tried}\n"
+        )
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))
     if args.write:

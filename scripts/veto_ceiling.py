@@ -151,7 +151,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     points, scale = state.canonical_points, state.transform.scale
     n = points.shape[0]
     k, ratio = calibration.k, calibration.prune_ratio
-    neighbours = knn_neighbours(points, k)
+    neighbours = knn_neighbours(points, max(k, calibration.mutual_k))
     flatness, normals = local_surface(points, nearest=neighbours[1])
     roughness = float(np.median(flatness))
     normal_cos = calibration.normal_limit(n)
@@ -183,7 +183,9 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     weight = calibration.network_weight(state.ood_score, n, roughness)
     out = {}
     for name, veto in vetoes.items():
-        graph = pruned_knn_graph(points, k, ratio, veto, neighbours, normals, normal_cos)
+        graph = pruned_knn_graph(
+            points, k, ratio, veto, neighbours, normals, normal_cos, calibration.mutual_k
+        )
         rows = dijkstra_rows(graph, cloud.sources) / scale  # user units
         corrected = rows / calibration.graph_bias(n)
         corrected = np.where(np.isfinite(corrected), corrected, network)

@@ -159,6 +159,49 @@ def knn_graph(
     return edge_graph(n, edges, lengths.reshape(-1))
 
 
+def mutual_knn_graph(
+    points: NDArray, k: int, neighbours: tuple[NDArray, NDArray] | None = None
+) -> sp.csr_array:
+    """Mutual k-NN graph: ``i ~ j`` when each is among the other's ``k`` nearest.
+
+    Sparser than :func:`knn_graph` where the density changes: a point on a thin part whose
+    nearest include points across a gap is not among *their* nearest (they have closer ones on
+    their own side), so fewer chords bridge thin parts and gaps; a point none of whose
+    neighbours return the favour is isolated.
+
+    Args:
+        points: ``(N, 3)`` float64.
+        k: neighbours per point (clamped to ``N - 1``).
+        neighbours: :func:`knn_neighbours` of ``points`` for ``k`` or more, if already known.
+
+    Returns:
+        ``(N, N)`` upper-triangular CSR of Euclidean edge lengths (see :func:`edge_graph`).
+    """
+    n = points.shape[0]
+    k = min(k, n - 1)
+    lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
+    lengths, nearest = lengths[:, 1 : k + 1], nearest[:, 1 : k + 1]  # without the point itself
+    starts = np.repeat(np.arange(n, dtype=np.int64), k)
+    ends = nearest.reshape(-1)
+    forward = starts * max(n, 1) + ends
+    mutual = np.isin(forward, ends * max(n, 1) + starts)  # the reverse edge is listed too
+    edges = np.column_stack([starts[mutual], ends[mutual]])
+    return edge_graph(n, edges, lengths.reshape(-1)[mutual])
+
+
+def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
+    """:func:`mutual_knn_graph` from brute-force distance ranks (the slow reference; ties
+    broken by index, as a stable sort of each row gives them)."""
+    n = points.shape[0]
+    k = min(k, n - 1)
+    distances = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    np.fill_diagonal(distances, np.inf)
+    nearest = [set(np.argsort(row, kind="stable")[:k].tolist()) for row in distances]
+    edges = [(i, j) for i in range(n) for j in nearest[i] if i < j and i in nearest[j]]
+    pairs = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
+
+
 def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
@@ -241,5 +284,7 @@ __all__ = [
     "knn_graph",
     "knn_neighbours",
     "mesh_ring_graph",
+    "mutual_knn_graph",
+    "mutual_knn_graph_reference",
     "run_minima",
 ]

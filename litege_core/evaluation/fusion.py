@@ -49,6 +49,11 @@ PRUNE_RATIO_CANDIDATES = (1.1, 1.2, 1.3, 1.6)
 fused error on the calibration shapes is kept. A lower threshold cuts more shortcuts between
 parts that touch (the network under-estimates them too), a too low one cuts true surface edges
 of sparse clouds where the veto head over-estimates."""
+MUTUAL_K_CANDIDATES = (0, 24)
+"""Cloud graphs ``scripts/calibrate_fusion.py`` tries: 0, the symmetric k-NN graph, or the
+mutual k-NN graph of that many neighbours (:func:`~litege_core.engines.graph.mutual_knn_graph`);
+the one whose fit has the lowest mean fused error on the calibration shapes is kept, as for the
+veto threshold."""
 
 
 @dataclass(frozen=True)
@@ -69,7 +74,12 @@ class FusionSample:
 
 
 def probe_calibration(
-    bundle_hash: str, k: int, prune_ratio: float, veto_head: str = "full", normal_cos: float = 1.0
+    bundle_hash: str,
+    k: int,
+    prune_ratio: float,
+    veto_head: str = "full",
+    normal_cos: float = 1.0,
+    mutual_k: int = 0,
 ) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
@@ -83,11 +93,12 @@ def probe_calibration(
         bundle_hash=bundle_hash,
         veto_head=veto_head,
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
+        mutual_k=mutual_k,
     )
 
 
-GraphVariant = tuple[float, float]
-"""``(prune_ratio, normal_cos)`` of a cloud graph."""
+GraphVariant = tuple[float, float, int]
+"""``(prune_ratio, normal_cos, mutual_k)`` of a cloud graph."""
 
 
 def collect_samples(
@@ -98,37 +109,42 @@ def collect_samples(
     k: int = DEFAULT_K,
     prune_ratios: Sequence[float] = (DEFAULT_PRUNE_RATIO,),
     normal_limits: Sequence[float] = (1.0,),
+    mutual_ks: Sequence[int] = (0,),
     veto_head: str = "full",
     seed: int = 0,
 ) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
-    them (``make_input(shape, setting, seed + i)``), for each veto threshold and normal limit.
+    them (``make_input(shape, setting, seed + i)``), for each veto threshold, normal limit and
+    neighbour rule.
 
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
         shapes: calibration shapes (exact rows at unit area).
         prune_ratios: veto thresholds of the cloud graphs (the network rows are shared).
         normal_limits: normal limits of the cloud graphs (1: none).
+        mutual_ks: the cloud graphs' neighbour rules (0: symmetric k-NN; else mutual k-NN of
+            that many neighbours).
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
 
     Returns:
-        ``{(prune_ratio, normal_cos): samples}``, the samples in the same order for every
-        variant.
+        ``{(prune_ratio, normal_cos, mutual_k): samples}``, the samples in the same order
+        for every variant.
     """
     from litege_core.learned import Predictor
 
     bundle = predictor.bundle
     graph_predictors = {
-        (ratio, limit): Predictor(
+        (ratio, limit, mutual): Predictor(
             bundle,
             predictor.device,
             descriptor_lattice=predictor.descriptor_lattice,
             head=predictor.head,
-            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit),
+            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit, mutual),
         )
         for ratio in prune_ratios
         for limit in normal_limits
+        for mutual in mutual_ks
     }
     samples: dict[GraphVariant, list[FusionSample]] = {key: [] for key in graph_predictors}
     for setting in settings:
@@ -244,11 +260,13 @@ def fit_fusion(
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
     normal_cos: dict[str, float] | None = None,
+    mutual_k: int = 0,
 ) -> FusionCalibration:
     """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
     mesh samples the mesh bias is 1.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
-    built with (:func:`choose_normal_limits`), or ``None``: no normal limit."""
+    built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
+    the neighbour rule they were built with."""
     from scipy.optimize import minimize
 
     clouds = [s for s in samples if not s.mesh]
@@ -273,6 +291,7 @@ def fit_fusion(
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
         normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
+        mutual_k=mutual_k,
     )
 
     def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
@@ -351,6 +370,7 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 
 __all__ = [
     "CALIBRATION_SETTINGS",
+    "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
     "FusionSample",
     "GraphVariant",

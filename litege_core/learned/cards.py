@@ -267,8 +267,13 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             "with the network alone. A mesh is answered by a Dijkstra over chords between "
             f"vertices at most {MESH_RINGS} edges apart (the network only between parts it "
             "cannot join); on a point cloud the network's distances are blended with a "
-            f"Dijkstra over its k = {data['k']} nearest-neighbour graph whose "
-            f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
+            + (
+                f"Dijkstra over its mutual {data['mutual_k']}-nearest-neighbour graph (a chord "
+                "where each end is among the other's nearest) whose "
+                if data.get("mutual_k")
+                else f"Dijkstra over its k = {data['k']} nearest-neighbour graph whose "
+            )
+            + f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
             f"exceeds {data['prune_ratio']} × the chord)"
             + (
                 " and whose chords that run along the surface normal are cut (where |n · ĉ| "

@@ -17,7 +17,9 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
                in log10 N from calibration knots: looser on sparse clouds, whose chords bend
-               with the surface)
+               with the surface); where the calibration says so (``mutual_k``), the graph is
+               the *mutual* k-NN graph of that many neighbours instead (fewer chords across
+               thin parts: :func:`~litege_core.engines.graph.mutual_knn_graph`)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
@@ -71,11 +73,12 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 5
+FUSION_FORMAT = 6
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
-``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored)."""
-READABLE_FORMATS = (3, 4, FUSION_FORMAT)
+``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
+added ``mutual_k`` (older files read as 0: the symmetric k-NN graph)."""
+READABLE_FORMATS = (3, 4, 5, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -110,6 +113,8 @@ class FusionCalibration:
             or ``"full"``; whatever head answers the queries.
         normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
             ``|n · ĉ| > c`` at either end), or empty: no normal limit.
+        mutual_k: 0: a cloud's graph joins each point to its ``k`` nearest (symmetric k-NN);
+            else the mutual k-NN graph of this many neighbours.
     """
 
     k: int
@@ -122,6 +127,7 @@ class FusionCalibration:
     fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
     veto_head: str = "full"
     normal_cos: tuple[float, ...] = ()
+    mutual_k: int = 0
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -143,6 +149,8 @@ class FusionCalibration:
         valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
         if limits.size and not valid:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
+        if not (isinstance(self.mutual_k, int) and self.mutual_k >= 0):
+            raise ArtifactError(f"fusion mutual_k must be an integer >= 0, got {self.mutual_k!r}")
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
         """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
@@ -191,6 +199,7 @@ class FusionCalibration:
                 fitted_on=dict(data.get("fitted_on") or {}),
                 veto_head=str(data["veto_head"]),
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
+                mutual_k=int(data.get("mutual_k", 0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -270,7 +279,7 @@ def shape_graph(
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
-            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>``.
+            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>.<mutual>``.
         veto_key: names the veto head (its verdicts are kept in the graph).
     """
     if faces is not None:
@@ -281,19 +290,22 @@ def shape_graph(
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
     normal_cos = calibration.normal_limit(points.shape[0])
-    k, ratio = calibration.k, calibration.prune_ratio
-    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}"
+    k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
+    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}.{mutual}"
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
         from litege_core.engines.graph import knn_neighbours  # scipy: on first use
 
-        neighbours = knn_neighbours(points, k)
+        reach = max(k, mutual)
+        neighbours = knn_neighbours(points, reach)
         if surface is None:
-            shared = k == ROUGHNESS_NEIGHBOURS  # the shipped calibrations
+            shared = reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
             flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:
-            unvetoed = pruned_knn_graph(points, k, ratio, None, neighbours, surface[1], normal_cos)
+            unvetoed = pruned_knn_graph(
+                points, k, ratio, None, neighbours, surface[1], normal_cos, mutual
+            )
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio)
     return graph, surface[0]
 
@@ -362,9 +374,11 @@ def pruned_knn_graph(
     neighbours: tuple[NDArray, NDArray] | None = None,
     normals: NDArray | None = None,
     normal_cos: float = 1.0,
+    mutual_k: int = 0,
 ) -> sp.csr_array:
-    """The symmetric k-NN graph of ``points`` without the edges the network calls shortcuts
-    and, with ``normals``, without the chords that run along the surface normal. With
+    """The symmetric k-NN graph of ``points`` (with ``mutual_k``: the mutual k-NN graph of that
+    many neighbours) without the edges the network calls shortcuts and, with ``normals``,
+    without the chords that run along the surface normal. With
     ``edge_geodesics`` it is the eager reference of the lazy veto of :func:`graph_rows` (which
     the fusion runs); without, the graph that veto starts from.
 
@@ -378,6 +392,8 @@ def pruned_knn_graph(
         normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`), or ``None``.
         normal_cos: cut an edge whose unit chord ``ĉ`` has ``|n · ĉ| > normal_cos`` at either
             end (1: keep every edge).
+        mutual_k: 0: the symmetric k-NN graph; else the mutual k-NN graph of ``mutual_k``
+            neighbours (``neighbours`` then covers ``mutual_k`` or more).
 
     Returns:
         ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
@@ -385,9 +401,12 @@ def pruned_knn_graph(
     """
     import scipy.sparse as sp
 
-    from litege_core.engines.graph import knn_graph
+    from litege_core.engines.graph import knn_graph, mutual_knn_graph
 
-    graph = knn_graph(points, k, neighbours)
+    if mutual_k:
+        graph = mutual_knn_graph(points, mutual_k, neighbours)
+    else:
+        graph = knn_graph(points, k, neighbours)
     cut_normals = normals is not None and normal_cos < 1.0
     if (edge_geodesics is None and not cut_normals) or graph.nnz == 0:
         return graph

@@ -6,7 +6,13 @@ import scipy.sparse as sp
 
 from litege_core.engines import EdgeDijkstraEngine, KnnGraphEngine, compute_distances
 from litege_core.engines import graph as graph_module
-from litege_core.engines.graph import edge_graph, knn_graph, run_minima
+from litege_core.engines.graph import (
+    edge_graph,
+    knn_graph,
+    mutual_knn_graph,
+    mutual_knn_graph_reference,
+    run_minima,
+)
 from litege_core.errors import InputError
 from litege_core.shape import Shape
 
@@ -62,6 +68,38 @@ def test_knn_graph_is_symmetric_union():
     assert np.all(np.tril(dense) == 0)  # stored once, upper triangle
     # 0-1 (mutual), 2 -> 1, 3 -> 2
     assert {tuple(e) for e in np.argwhere(dense > 0)} == {(0, 1), (1, 2), (2, 3)}
+
+
+@pytest.mark.parametrize("k", [1, 4, 9])
+def test_mutual_knn_graph_equals_the_brute_force_reference(k):
+    rng = np.random.default_rng(k)
+    points = rng.normal(size=(120, 3)) * [1.0, 0.3, 2.0]
+    fast, slow = mutual_knn_graph(points, k), mutual_knn_graph_reference(points, k)
+    assert (fast != slow).nnz == 0 and fast.nnz > 0
+    np.testing.assert_allclose(fast.data, slow.data, rtol=1e-12)
+    # a subgraph of the symmetric k-NN graph, with the same edge lengths there
+    union = knn_graph(points, k)
+    assert (fast.astype(bool) > union.astype(bool)).nnz == 0
+    np.testing.assert_allclose(union[fast.astype(bool)], fast[fast.astype(bool)])
+    # known neighbours give the same graph
+    from litege_core.engines.graph import knn_neighbours
+
+    assert (mutual_knn_graph(points, k, knn_neighbours(points, k + 3)) != fast).nnz == 0
+
+
+def test_mutual_knn_graph_leaves_a_thin_part_alone():
+    # a dense sheet and, above it, a sparse row of points: each row point's nearest are sheet
+    # points, which have nearer sheet neighbours, so no chord joins the row to the sheet
+    xs, ys = np.meshgrid(np.linspace(0, 1, 20), np.linspace(0, 1, 20))
+    sheet = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(400)])
+    row = np.column_stack([np.linspace(0.2, 0.8, 4), np.full(4, 0.5), np.full(4, 0.1)])
+    points = np.vstack([sheet, row])
+
+    def across(graph) -> int:
+        coo = graph.tocoo()
+        return int(np.count_nonzero((coo.row < 400) != (coo.col < 400)))
+
+    assert across(knn_graph(points, 6)) > 0 and across(mutual_knn_graph(points, 6)) == 0
 
 
 def test_edge_graph_keeps_shortest_repeat_and_drops_loops():

@@ -125,9 +125,12 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
         k=8,
         prune_ratios=(3.0, 1e9),  # untrained: 3 × chord cuts some edges
         normal_limits=(0.3, 1.0),
+        mutual_ks=(0, 8),
     )
-    assert sorted(by_variant) == [(3.0, 0.3), (3.0, 1.0), (1e9, 0.3), (1e9, 1.0)]
-    strict, loose = by_variant[(3.0, 1.0)], by_variant[(1e9, 1.0)]
+    assert sorted(by_variant) == [
+        (ratio, limit, mutual) for ratio in (3.0, 1e9) for limit in (0.3, 1.0) for mutual in (0, 8)
+    ]
+    strict, loose = by_variant[(3.0, 1.0, 0)], by_variant[(1e9, 1.0, 0)]
     assert [(s.setting, s.mesh) for s in strict] == [("mesh", True), ("cloud_300", False)]
     for a, b in zip(strict, loose, strict=True):
         np.testing.assert_array_equal(a.network, b.network)
@@ -140,8 +143,16 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     assert np.all(strict[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
     assert np.any(strict[1].graph[joined] > loose[1].graph[joined] + 1e-6)
 
+    # the mutual k-NN graph is a subgraph of the symmetric one: a cloud's paths lengthen,
+    # a mesh's stay
+    mutual = by_variant[(1e9, 1.0, 8)]
+    np.testing.assert_array_equal(mutual[0].graph, loose[0].graph)
+    joined = mutual[1].graph != mutual[1].network
+    assert np.all(mutual[1].graph[joined] >= loose[1].graph[joined] - 1e-9)
+    assert np.any(mutual[1].graph[joined] > loose[1].graph[joined] + 1e-6)
+
     # the normal limit only cuts edges too: a cloud's paths lengthen, a mesh's stay
-    normal = by_variant[(1e9, 0.3)]
+    normal = by_variant[(1e9, 0.3, 0)]
     np.testing.assert_array_equal(normal[0].graph, loose[0].graph)
     joined = normal[1].graph != normal[1].network
     assert np.all(normal[1].graph[joined] >= loose[1].graph[joined] - 1e-9)

@@ -38,6 +38,12 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "normal_cos": limits}))
         named = "exceeds 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
         assert named == bool(limits)
+    # so is the mutual k-NN graph
+    for mutual in (24, 0):
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "mutual_k": mutual}))
+        section = sidecar_section(tmp_path)
+        assert ("mutual 24-nearest-neighbour graph" in section) == bool(mutual)
+        assert ("k = 16 nearest-neighbour graph" in section) == (not mutual)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")

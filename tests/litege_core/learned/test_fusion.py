@@ -65,6 +65,8 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"normal_cos": (0.7, 0.8)},
         {"normal_cos": (0.7, 0.0, 0.8)},
         {"normal_cos": (0.7, 1.2, 0.8)},
+        {"mutual_k": -1},
+        {"mutual_k": 1.5},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -170,6 +172,11 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     older = {**calibration.to_json(), "format_version": 4, "mesh_gate": -5.5}
     assert FusionCalibration.from_json(older) == calibration
     assert "mesh_gate" not in calibration.to_json()
+    # a format-5 file (no mutual_k) reads as the symmetric k-NN graph; mutual_k round-trips
+    del older["mutual_k"]
+    assert FusionCalibration.from_json({**older, "format_version": 5}).mutual_k == 0
+    mutual = dataclasses.replace(calibration, mutual_k=24)
+    assert FusionCalibration.from_json(json.loads(json.dumps(mutual.to_json()))) == mutual
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -437,6 +444,25 @@ def test_graph_only_fusion_equals_an_independent_dijkstra(bundle_dir, blob) -> N
     expected /= calibration.graph_bias(state.n_points) * state.transform.scale
     np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
     assert np.all(rows[np.arange(3), sources] == 0.0)
+
+
+def test_graph_only_fusion_reads_the_mutual_knn_graph(bundle_dir, blob) -> None:
+    from litege_core.engines.graph import mutual_knn_graph
+
+    bundle = load_bundle(bundle_dir)
+    calibration = dataclasses.replace(_graph_only(bundle.content_hash), mutual_k=12)
+    predictor = Predictor(bundle, fusion=calibration)
+    state = predictor.register(_cloud(blob(3)))
+    sources = np.array([0, 17, 200])
+    rows = predictor.distances(state, sources)
+    points = state.canonical_points
+    graph = mutual_knn_graph(points, 12)
+    assert graph.nnz != knn_graph(points, 8).nnz
+    expected = dijkstra(graph, directed=False, indices=sources)
+    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(rows[finite], expected[finite], rtol=1e-5, atol=1e-5)
+    assert np.isfinite(rows).all()  # pairs the graph cannot join keep the network's value
 
 
 def test_graph_only_fusion_applies_the_normal_limit(bundle_dir, blob) -> None:
