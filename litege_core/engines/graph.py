@@ -169,24 +169,39 @@ def mutual_knn_graph(
     their own side), so fewer chords bridge thin parts and gaps; a point none of whose
     neighbours return the favour is isolated.
 
+    Each point's list is sorted by index, so the upper-triangular CSR is written row by row
+    without a global sort; whether ``i`` is among ``j``'s nearest is read from ``j``'s row
+    (blocks of :data:`MUTUAL_BLOCK` edges bound the ``(E, k + 1)`` comparison).
+
     Args:
         points: ``(N, 3)`` float64.
         k: neighbours per point (clamped to ``N - 1``).
         neighbours: :func:`knn_neighbours` of ``points`` for ``k`` or more, if already known.
 
     Returns:
-        ``(N, N)`` upper-triangular CSR of Euclidean edge lengths (see :func:`edge_graph`).
+        ``(N, N)`` upper-triangular CSR of Euclidean edge lengths, as :func:`edge_graph` builds
+        them (indices sorted within rows, explicit zeros for coincident points).
     """
     n = points.shape[0]
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
-    lengths, nearest = lengths[:, 1 : k + 1], nearest[:, 1 : k + 1]  # without the point itself
-    starts = np.repeat(np.arange(n, dtype=np.int64), k)
+    order = np.argsort(nearest[:, : k + 1], axis=1)  # the point itself is among them
+    nearest = np.take_along_axis(nearest[:, : k + 1], order, axis=1)
+    lengths = np.take_along_axis(lengths[:, : k + 1], order, axis=1)
+    starts = np.repeat(np.arange(n, dtype=np.int64), k + 1)
     ends = nearest.reshape(-1)
-    forward = starts * max(n, 1) + ends
-    mutual = np.isin(forward, ends * max(n, 1) + starts)  # the reverse edge is listed too
-    edges = np.column_stack([starts[mutual], ends[mutual]])
-    return edge_graph(n, edges, lengths.reshape(-1)[mutual])
+    keep = starts < ends  # each pair once, from its smaller end; no self-loops
+    for block in range(0, ends.size, MUTUAL_BLOCK):
+        part = slice(block, block + MUTUAL_BLOCK)
+        candidates = keep[part]
+        back = (nearest[ends[part][candidates]] == starts[part][candidates, None]).any(axis=1)
+        candidates[candidates] = back  # a view: writes into keep
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(starts[keep], minlength=n))])
+    return sp.csr_array((lengths.reshape(-1)[keep], ends[keep], indptr), shape=(n, n))
+
+
+MUTUAL_BLOCK = 65_536
+"""Edges per block of :func:`mutual_knn_graph`'s back-link test."""
 
 
 def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:

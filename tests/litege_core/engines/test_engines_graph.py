@@ -74,6 +74,7 @@ def test_knn_graph_is_symmetric_union():
 def test_mutual_knn_graph_equals_the_brute_force_reference(k):
     rng = np.random.default_rng(k)
     points = rng.normal(size=(120, 3)) * [1.0, 0.3, 2.0]
+    points[7] = points[3]  # coincident points: a zero-length edge, kept
     fast, slow = mutual_knn_graph(points, k), mutual_knn_graph_reference(points, k)
     assert (fast != slow).nnz == 0 and fast.nnz > 0
     np.testing.assert_allclose(fast.data, slow.data, rtol=1e-12)
