@@ -159,6 +159,10 @@ def knn_graph(
     return edge_graph(n, edges, lengths.reshape(-1))
 
 
+MUTUAL_BLOCK = 65_536
+"""Edges per block of :func:`mutual_knn_graph`'s back-link test."""
+
+
 def mutual_knn_graph(
     points: NDArray, k: int, neighbours: tuple[NDArray, NDArray] | None = None
 ) -> sp.csr_array:
@@ -198,10 +202,6 @@ def mutual_knn_graph(
         candidates[candidates] = back  # a view: writes into keep
     indptr = np.concatenate([[0], np.cumsum(np.bincount(starts[keep], minlength=n))])
     return sp.csr_array((lengths.reshape(-1)[keep], ends[keep], indptr), shape=(n, n))
-
-
-MUTUAL_BLOCK = 65_536
-"""Edges per block of :func:`mutual_knn_graph`'s back-link test."""
 
 
 def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:

@@ -9,6 +9,7 @@ from litege_core.engines import graph as graph_module
 from litege_core.engines.graph import (
     edge_graph,
     knn_graph,
+    knn_neighbours,
     mutual_knn_graph,
     mutual_knn_graph_reference,
     run_minima,
@@ -83,8 +84,6 @@ def test_mutual_knn_graph_equals_the_brute_force_reference(k):
     assert (fast.astype(bool) > union.astype(bool)).nnz == 0
     np.testing.assert_allclose(union[fast.astype(bool)], fast[fast.astype(bool)])
     # known neighbours give the same graph
-    from litege_core.engines.graph import knn_neighbours
-
     assert (mutual_knn_graph(points, k, knn_neighbours(points, k + 3)) != fast).nnz == 0
 
 
