@@ -41,7 +41,7 @@ from litege_core.evaluation.fusion import (
     fusion_table,
     mean_fused_error,
 )
-from litege_core.evaluation.geodesic import collection_eval_shapes, generated_eval_shapes
+from litege_core.evaluation.geodesic import dataset_eval_shapes, generated_eval_shapes
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_model
 from litege_core.learned.cards import write_sidecar_section
@@ -60,7 +60,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="quadrupeds", help="shipped name or bundle dir")
     parser.add_argument("--synthetic", type=int, default=16)
-    parser.add_argument("--dataset", action="append", default=[], help="collection dataset")
+    parser.add_argument(
+        "--dataset",
+        action="append",
+        default=[],
+        help="calibration dataset (its test split; a collection or template dataset)",
+    )
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--k", type=int, default=DEFAULT_K)
     parser.add_argument(
@@ -108,7 +113,7 @@ def main() -> None:
     for dataset in args.dataset:
         shapes += [
             dataclasses.replace(s, sources=s.sources[: args.sources], gt=s.gt[: args.sources])
-            for s in collection_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
+            for s in dataset_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
         ]
     settings = tuple(args.settings.split(","))
     groups = sorted({s.group for s in shapes})

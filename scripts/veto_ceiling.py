@@ -14,8 +14,9 @@ ways and reports the graph error (``graph / b``) and the fused error of each:
                at R × the chord instead of the calibration's ratio (a method: it reads no truth)
 
 A set is a real dev set (``tosca``, ``faust``, ...) or ``DIR@MODEL``: the test split of a
-calibration dataset (e.g. ``data/folder-cal@quadrupeds``), to compare what the dev set and the
-data the fusion is fitted on say about the same graph.
+calibration dataset, a collection or a template one (e.g. ``data/folder-cal@quadrupeds``, or
+procedural quadrupeds in steep poses, ``data/quadruped-steep-cal@quadrupeds``), to compare what
+the dev set and the data the fusion is fitted on say about the same graph.
 
 and, beside them, ``shipped, best w``: the shipped graph fused with the constant network weight
 ``w`` (of 0, 0.05, …, 1) that gives each shape its lowest error. That is the fusion rule's
@@ -49,7 +50,7 @@ from litege_core.engines.graph import dijkstra_rows, knn_neighbours, mesh_ring_g
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
     EvalShape,
-    collection_eval_shapes,
+    dataset_eval_shapes,
     real_eval_shapes,
     real_shape_paths,
 )
@@ -255,7 +256,7 @@ def main() -> None:
     for key in args.sets.split(","):
         if "@" in key:  # a calibration dataset's test split
             directory, model = key.split("@")
-            shapes = collection_eval_shapes(directory, "test", args.limit)
+            shapes = dataset_eval_shapes(directory, "test", args.limit)
             group = f"{Path(directory).name} (test, calibration data)"
         else:
             real = REAL_SETS[key]

@@ -115,8 +115,14 @@ def unit_area(vertices: NDArray, faces: NDArray) -> tuple[NDArray, float]:
     return (vertices - vertices.mean(axis=0)) * scale, float(scale)
 
 
-def synthetic_eval_shapes(dataset_dir: str | Path, limit: int, split: str = "test") -> list:
-    """Shapes of a dataset split with their stored exact rows, at unit area."""
+def synthetic_eval_shapes(
+    dataset_dir: str | Path,
+    limit: int | None,
+    split: str = "test",
+    group: str = "synthetic (held-out seeds)",
+) -> list:
+    """The first ``limit`` shapes (``None``: all) of a template dataset's split with their
+    stored exact rows, at unit area; ``group`` names them in the results."""
     from litege_core.datasets import GeodesicDataset
 
     dataset = GeodesicDataset(dataset_dir)
@@ -124,13 +130,14 @@ def synthetic_eval_shapes(dataset_dir: str | Path, limit: int, split: str = "tes
         raise InputError(f"{dataset_dir}: synthetic evaluation needs a template dataset")
     table = dataset.load_split(split)
     shapes = []
-    for i in range(min(limit, table["vertices"].shape[0])):
+    count = table["vertices"].shape[0]
+    for i in range(count if limit is None else min(limit, count)):
         vertices, scale = unit_area(table["vertices"][i].astype(np.float64), dataset.faces)
         family = dataset.spec.families[int(table["family"][i])]
         shapes.append(
             EvalShape(
                 name=f"{family}-{int(table['seed'][i])}",
-                group="synthetic (held-out seeds)",
+                group=group,
                 vertices=vertices,
                 faces=dataset.faces,
                 sources=table["sources"][i].astype(np.int64),
@@ -391,6 +398,22 @@ def results_table(results: Sequence[SettingResult]) -> str:
 # --------------------------------------------------------------------------- model comparison
 
 
+def dataset_eval_shapes(
+    dataset_dir: str | Path, split: str = "test", limit: int | None = None, group: str | None = None
+) -> list[EvalShape]:
+    """Shapes of one split of any geodesic dataset with their stored exact rows, at unit area:
+    :func:`collection_eval_shapes` of a collection, :func:`synthetic_eval_shapes` of a
+    template dataset (e.g. procedural quadrupeds in steep poses). ``group`` names them in the
+    results (default: the dataset name and split)."""
+    from litege_core.datasets import GeodesicDataset
+
+    dataset = GeodesicDataset(dataset_dir)
+    label = group or f"{dataset.spec.name} ({split})"
+    if dataset.is_collection:
+        return collection_eval_shapes(dataset_dir, split, limit, label)
+    return synthetic_eval_shapes(dataset_dir, limit, split, label)
+
+
 def collection_eval_shapes(
     dataset_dir: str | Path,
     split: str = "test",
@@ -576,6 +599,7 @@ __all__ = [
     "collection_eval_shapes",
     "comparison_methods",
     "comparison_table",
+    "dataset_eval_shapes",
     "evaluate",
     "evaluate_methods",
     "frame_turns",

@@ -233,3 +233,69 @@ def test_eval_geodesic_cli_gives_each_real_set_its_categorys_model(monkeypatch, 
     evaluated.clear()
     assert main(["eval", "geodesic", "--model", "quadrupeds", "--real", "tosca", "faust"]) == 0
     assert [(name, len(shapes)) for name, shapes in evaluated] == [("quadrupeds", 2)]
+
+
+class _Icospheres:
+    """Stretched icospheres: a template family (one triangulation) or, with ``collection``,
+    each shape its own subdivision level."""
+
+    category = "toy"
+    version = "toy-eval-1"
+
+    def __init__(self, collection: bool) -> None:
+        import trimesh
+
+        self._sphere = trimesh.creation.icosphere
+        self.collection = collection
+
+    def _vertices(self, sphere, seed):
+        scale = [np.random.default_rng(seed).uniform(1.2, 1.8), 1.0, 0.8]
+        return np.asarray(sphere.vertices) * scale
+
+    def template(self):
+        sphere = self._sphere(subdivisions=2)
+        return np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+    def generate(self, family, seed):
+        return self._vertices(self._sphere(subdivisions=2), seed)
+
+    def generate_mesh(self, family, seed):
+        sphere = self._sphere(subdivisions=1 + seed % 2)
+        return self._vertices(sphere, seed), np.asarray(sphere.faces)
+
+
+@pytest.mark.parametrize("kind", ["template", "collection"])
+def test_dataset_eval_shapes_reads_either_kind_of_dataset_at_unit_area(tmp_path, kind):
+    """A template and a collection dataset give the same thing: their test split's shapes at
+    unit area, each with its stored rows scaled to match (rows of the unit-area mesh)."""
+    from litege_core.datasets import DatasetSpec, build_dataset
+    from litege_core.evaluation.geodesic import dataset_eval_shapes
+
+    spec = DatasetSpec(
+        name=f"toy-{kind}",
+        category="toy",
+        families=("round",),
+        n_shapes={"train": 1, "val": 0, "test": 3},
+        n_shared_sources=4,
+        n_extra_sources=0,
+        kind=kind,
+    )
+
+    def rows(vertices, faces, sources):
+        return compute_distances(
+            Shape.from_arrays(vertices, faces), sources, method="exact"
+        ).distances
+
+    build_dataset(
+        spec, tmp_path, _Icospheres(kind == "collection"), distance_fn=rows, progress=False
+    )
+    shapes = dataset_eval_shapes(tmp_path, "test")
+    assert [s.group for s in shapes] == [f"toy-{kind} (test)"] * 3
+    assert len(dataset_eval_shapes(tmp_path, "test", limit=2, group="named")) == 2
+    for shape in shapes:
+        unit = Shape.from_arrays(shape.vertices, shape.faces)
+        assert unit.area == pytest.approx(1.0)
+        expected = compute_distances(unit, shape.sources, method="exact").distances
+        np.testing.assert_allclose(shape.gt, expected, rtol=1e-4, atol=1e-6)
+    if kind == "collection":  # each shape its own triangulation
+        assert len({s.faces.shape for s in shapes}) == 2
