@@ -21,7 +21,7 @@ Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes �
 (one pair each); a **1K × 1K** matrix (1000 × 1000 distinct vertices of the 5K mesh);
 **1K correspondences** (5K dog → 5K cat, 1000 query vertices).
 
-Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in six configurations: the
+Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in eight configurations: the
 network alone with the default head and lattice (row ``LiteGE``: float32, ``head="auto"`` and
 ``descriptor_lattice="auto"``: for the shipped model the distilled small head and the UDF at the
 1/8 of the voxels of the ``stride2`` lattice; ``fusion="none"``), the
@@ -30,7 +30,8 @@ trained head on that lattice (``head="full"``), the trained network as trained (
 product where the CPU has AMX / AVX512-BF16), and ``fusion="graph"`` (the calibrated graph
 fusion: row ``LiteGE graph fusion`` is the library's, the CLI's and the service's default
 configuration since 2026-11-29, ``fusion="auto"`` on a shipped model) with the default head and
-lattice or the trained network;
+lattice or the trained network; the network alone and the fusion each also with
+``embed_precision="int8"`` (the point MLP's ``n × n`` products in dynamic int8);
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -74,14 +75,23 @@ from litege_core.synth import families, generate_shape
 from litege_core.variants import isotropic_remesh, point_cloud
 
 LITEGE = {
-    "LiteGE": ("float32", "auto", "auto", "none"),
-    "LiteGE full head": ("float32", "auto", "full", "none"),
-    "LiteGE full head + full lattice": ("float32", "full", "full", "none"),
-    "LiteGE full head + auto precision": ("auto", "auto", "full", "none"),
-    "LiteGE graph fusion": ("float32", "auto", "auto", "graph"),
-    "LiteGE graph fusion + full head + full lattice": ("float32", "full", "full", "graph"),
+    "LiteGE": ("float32", "auto", "auto", "none", "float32"),
+    "LiteGE int8 point MLP": ("float32", "auto", "auto", "none", "int8"),
+    "LiteGE full head": ("float32", "auto", "full", "none", "float32"),
+    "LiteGE full head + full lattice": ("float32", "full", "full", "none", "float32"),
+    "LiteGE full head + auto precision": ("auto", "auto", "full", "none", "float32"),
+    "LiteGE graph fusion": ("float32", "auto", "auto", "graph", "float32"),
+    "LiteGE graph fusion + int8 point MLP": ("float32", "auto", "auto", "graph", "int8"),
+    "LiteGE graph fusion + full head + full lattice": (
+        "float32",
+        "full",
+        "full",
+        "graph",
+        "float32",
+    ),
 }
-"""Name → (precision, descriptor lattice, head, fusion) of each LiteGE configuration."""
+"""Name → (precision, descriptor lattice, head, fusion, embed precision) of each LiteGE
+configuration."""
 REFERENCE = "kNN Dijkstra"
 
 
@@ -155,8 +165,15 @@ def litege_predictors(bundle) -> dict[str, Predictor]:
 
     has_fusion = bundle.path is not None and (bundle.path / FUSION_CONFIG).is_file()
     return {
-        name: Predictor(bundle, precision=p, descriptor_lattice=lattice, head=head, fusion=fusion)
-        for name, (p, lattice, head, fusion) in LITEGE.items()
+        name: Predictor(
+            bundle,
+            precision=p,
+            embed_precision=embed,
+            descriptor_lattice=lattice,
+            head=head,
+            fusion=fusion,
+        )
+        for name, (p, lattice, head, fusion, embed) in LITEGE.items()
         if (head == "full" or small_head_config(bundle) is not None)
         and (fusion == "none" or has_fusion)
     }

@@ -13,8 +13,9 @@ trained network as trained), and ``fusion`` (the calibrated graph fusion,
 although the library's default is ``auto``: the labels of earlier runs keep their meaning) and
 ``ttaC`` / ``ttaCxD`` (test-time augmentation: the distances averaged over the PCA frame and
 ``C`` turns of it by at most ``D`` degrees, default 10,
-``litege_core.evaluation.geodesic.frame_turns``); ``--no-baselines`` leaves out heat and kNN;
-``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
+``litege_core.evaluation.geodesic.frame_turns``) and ``int8`` (the point MLP's products in
+dynamic int8, ``Predictor(bundle, embed_precision="int8")``); ``--no-baselines`` leaves out
+heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
@@ -67,11 +68,12 @@ def frame_turns_of(name: str) -> NDArray | None:
 def load_predictor(name: str) -> Predictor:
     """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
     ``small`` / ``fullhead`` (head; default ``auto``), ``full`` / ``bcc`` / ``stride2``
-    (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion);
+    (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion),
+    ``int8`` (the point MLP in dynamic int8, ``embed_precision="int8"``);
     ``ttaC[xD]`` is read by :func:`frame_turns_of`."""
     name, _, text = name.partition("@")
     options = {o for o in text.split("+") if o and not TTA_OPTION.fullmatch(o)}
-    unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion"}
+    unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion", "int8"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
     lattices = options & {"full", "stride2", "bcc"}
@@ -83,6 +85,7 @@ def load_predictor(name: str) -> Predictor:
         head={"small": "small", "fullhead": "full"}[heads.pop()] if heads else "auto",
         descriptor_lattice=lattices.pop() if lattices else "auto",
         fusion="graph" if "fusion" in options else "none",
+        embed_precision="int8" if "int8" in options else "float32",
     )
 
 

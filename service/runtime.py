@@ -496,6 +496,7 @@ class Runtime:
                     bundle,
                     device,
                     head=settings.geodesic_head,
+                    embed_precision=settings.geodesic_embed_precision,
                     descriptor_lattice=settings.descriptor_lattice,
                     fusion=settings.geodesic_fusion,
                 )
@@ -574,6 +575,7 @@ class Runtime:
                         "fusion": "none" if p.fusion is None else "graph",
                         "head": p.head,
                         "lattice": p.descriptor_lattice,
+                        "embed_precision": p.embed_precision,
                     }
                     for name, p in self.repository.predictors.items()
                 },

@@ -121,6 +121,8 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
+EMBED_PRECISIONS = ("float32", "int8")
+"""Values of :class:`Predictor`'s ``embed_precision``."""
 
 TABLE_FRACTION = 0.25
 """A query of more than this fraction of a shape's points builds (and keeps) the shape's whole
@@ -143,6 +145,11 @@ class Predictor:
             in int8) or ``"auto"`` (bfloat16 where the device multiplies it natively, else
             float32); see :mod:`litege_core.nets.folded` and BENCHMARKS.md
             ``predictor-accuracy``.
+        embed_precision: arithmetic of the point MLP (the per-point cost of a distance
+            field) without autograd: ``"float32"`` (default) or ``"int8"`` (CPU only: its
+            ``n × n`` products in dynamic int8, ~1.5–2× faster on an AVX2 CPU, real-shape
+            error within 0.06: BENCHMARKS ``int8-point-mlp``); a predictor keeps its own
+            feature tables per setting.
         descriptor_lattice: the informative voxels the UDF is evaluated at: ``"auto"``
             (default: ``"stride2"`` where the basis keeps enough voxels there, as the shipped
             ones do, else ``"full"``; :meth:`~litege_core.descriptor.basis.UdfPcaBasis.
@@ -194,6 +201,7 @@ class Predictor:
         *,
         chunk_pairs: int = DEFAULT_CHUNK_PAIRS,
         precision: str = DEFAULT_PRECISION,
+        embed_precision: str = DEFAULT_PRECISION,
         descriptor_lattice: str = AUTO_LATTICE,
         head: str | SmallHead = AUTO_HEAD,
         fusion: str | FusionCalibration = DEFAULT_FUSION,
@@ -210,7 +218,14 @@ class Predictor:
         self.precision = resolve_precision(precision, self.device)
         self.descriptor_lattice = bundle.basis.resolve_lattice(descriptor_lattice)
         self.engine = bundle.basis.engine(self.device, udf_backend, self.descriptor_lattice)
-        self.folded = FoldedGeodesicNet(self.network, self.device, precision=self.precision)
+        if embed_precision not in EMBED_PRECISIONS:
+            raise InputError(
+                f"embed_precision must be one of {EMBED_PRECISIONS}, got {embed_precision!r}"
+            )
+        self.embed_precision = embed_precision
+        self.folded = FoldedGeodesicNet(
+            self.network, self.device, precision=self.precision, embed_precision=embed_precision
+        )
         self.small_head_config: dict[str, Any] | None = None
         self._net: FoldedGeodesicNet | FoldedSmallHead = self.folded
         self._table_key = "features"
@@ -226,6 +241,8 @@ class Predictor:
         if student is not None:
             self._net = FoldedSmallHead(student.eval(), self.folded)
             self._table_key = f"features.small.{_fingerprint(student)}"
+        if embed_precision != DEFAULT_PRECISION:  # tables of another arithmetic
+            self._table_key += f".{embed_precision}"
         self.fusion = self._fusion_of(fusion)
         self._shape_mlp = FoldedShapeMlp(self.network, self.device)
         self.target_scale = float(pipeline.target_scale)
@@ -244,6 +261,7 @@ class Predictor:
                 device,
                 chunk_pairs=chunk_pairs,
                 precision=precision,
+                embed_precision=embed_precision,
                 descriptor_lattice=descriptor_lattice,
                 head=self.fusion.veto_head,
                 fusion="none",
@@ -263,8 +281,12 @@ class Predictor:
         lattice = self.descriptor_lattice
         lattice = "" if lattice == "full" else f", descriptor_lattice={lattice!r}"
         fusion = "" if self.fusion is None else ", fusion='graph'"
+        embed = "" if self.embed_precision == "float32" else ", embed_precision='int8'"
         device = str(self.device)
-        return f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{lattice}{fusion})"
+        return (
+            f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{lattice}{fusion}"
+            f"{embed})"
+        )
 
     # ----------------------------------------------------------------- registration
 

@@ -17,7 +17,12 @@ precision when no gradient is needed (the path tracer's autograd calls always ru
   symmetric int8 weights, per-row dynamic int8 activations (the activations are ≥ 0 after
   the ReLU), int32 accumulation (``torch._int_mm``).
 * ``embed_precision="bfloat16"``: the point MLP and the head-feature product in bfloat16
-  (float32 accumulation); the features are returned float32.
+  (float32 accumulation); the features are returned float32. ``"int8"`` (CPU): the point
+  MLP's three ``n × n`` products with per-output-channel symmetric int8 weights and int8
+  activations quantized per call, int32 accumulation (the CPU quantized engine's dynamic
+  linear: ``torch.ops.quantized.linear_dynamic``, oneDNN where available); the ``3 → n``
+  first layer and the head-feature product stay float32. ~1.5–2× faster than float32 on an
+  AVX2 CPU, where bfloat16 is slower (BENCHMARKS "int8-point-mlp").
 * ``head_rank=r``: the ``2n × 2n`` product replaced by its best rank-``r`` approximation
   (truncated SVD, no retraining): ``2 · 2n · r`` instead of ``(2n)²`` multiply-adds per pair;
   it applies to every call, gradients included (it is a different, smaller head).
@@ -28,6 +33,7 @@ Speed and accuracy of each are measured side by side by ``scripts/bench_predicto
 
 from __future__ import annotations
 
+import warnings
 from typing import Literal
 
 import torch
@@ -38,7 +44,16 @@ from litege_core.nets.geodesic import GeodesicNet, apply_output
 
 Precision = Literal["float32", "bfloat16", "int8"]
 PRECISIONS: tuple[str, ...] = ("float32", "bfloat16", "int8")
-"""Values of :class:`FoldedGeodesicNet`'s ``precision`` (``embed_precision``: the first two)."""
+"""Values of :class:`FoldedGeodesicNet`'s ``precision`` and ``embed_precision``."""
+
+INT8_MIN_ROWS = 512
+"""Fewest points the int8 point MLP quantizes (fewer run float32): the dynamic linear's fixed
+cost per call exceeds its saving below ~256 rows of a ``200 × 200`` product (2-core AMD EPYC,
+2026-11-30: 1 row 0.10 ms against 0.015 ms float32; 2000 rows 2.2 ms against 3.0 ms)."""
+
+INT8_ENGINES = ("onednn", "x86", "fbgemm", "qnnpack")
+"""CPU quantized engines the int8 point MLP packs its weights for, the first supported one
+(oneDNN's dynamic linear was 1.3x faster than fbgemm's on a 2-core AMD EPYC, 2026-11-30)."""
 
 _INT_MM_MIN_ROWS = 17  # torch._int_mm needs more than 16 rows
 
@@ -92,6 +107,39 @@ def _quantize_rows(weight: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return q.T.contiguous(), scale
 
 
+def int8_engine() -> str | None:
+    """The CPU quantized engine the int8 point MLP uses (:data:`INT8_ENGINES`), or ``None``
+    where this torch build has none."""
+    supported = torch.backends.quantized.supported_engines
+    return next((name for name in INT8_ENGINES if name in supported), None)
+
+
+def _pack_int8(weight: torch.Tensor, bias: torch.Tensor | None) -> object:
+    """``x Wᵀ + b`` packed for the quantized engine's dynamic linear: ``weight`` ``(out, in)``
+    as per-output-channel symmetric int8, ``bias`` ``(out,)`` float32 or ``None``.
+
+    Raises:
+        InputError: this torch build has no CPU quantized engine.
+    """
+    engine = int8_engine()
+    if engine is None:
+        raise InputError("this torch build has no quantized CPU engine for the int8 point MLP")
+    weight = weight.to(torch.float32).contiguous()
+    scale = (weight.abs().amax(dim=1).clamp_min(1e-30) / 127.0).double()
+    zero = torch.zeros(weight.shape[0], dtype=torch.long)
+    previous = torch.backends.quantized.engine
+    with warnings.catch_warnings():  # quantized tensors are deprecated; torch is pinned
+        warnings.simplefilter("ignore", UserWarning)
+        try:
+            torch.backends.quantized.engine = engine  # the packing follows the engine
+            q = torch.quantize_per_channel(weight, scale, zero, 0, torch.qint8)
+            return torch.ops.quantized.linear_prepack(
+                q, None if bias is None else bias.to(torch.float32).contiguous()
+            )
+        finally:
+            torch.backends.quantized.engine = previous
+
+
 def _bn_affine(bn: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
     """Eval-mode BatchNorm as ``y = a ⊙ x + c`` (float64)."""
     if bn.running_mean is None or bn.running_var is None:
@@ -130,7 +178,7 @@ class FoldedGeodesicNet:
         precision: arithmetic of the head's per-pair product without autograd:
             ``"float32"`` (default), ``"bfloat16"`` or ``"int8"`` (module docstring).
         embed_precision: arithmetic of the point MLP without autograd: ``"float32"``
-            (default) or ``"bfloat16"``.
+            (default), ``"bfloat16"`` or ``"int8"`` (CPU only; module docstring).
         head_rank: replace the head's ``2n × 2n`` product by its rank-``head_rank`` SVD
             truncation (``None``: full rank, the trained head).
 
@@ -152,10 +200,12 @@ class FoldedGeodesicNet:
     ) -> None:
         if precision not in PRECISIONS:
             raise InputError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-        if embed_precision not in PRECISIONS[:2]:
+        if embed_precision not in PRECISIONS:
             raise InputError(
-                f"embed_precision must be one of {PRECISIONS[:2]}, got {embed_precision!r}"
+                f"embed_precision must be one of {PRECISIONS}, got {embed_precision!r}"
             )
+        if embed_precision == "int8" and torch.device(device).type != "cpu":
+            raise InputError("the int8 point MLP runs on a CPU only (use bfloat16 on a GPU)")
         if head_rank is not None and (
             isinstance(head_rank, bool) or not 1 <= int(head_rank) <= 2 * net.width
         ):
@@ -219,6 +269,13 @@ class FoldedGeodesicNet:
             if precision == "int8":
                 q, scale = _quantize_rows(h2_w)
                 self._int8 = (q.to(self.device), scale.to(self.device, torch.float32))
+            self._packed: dict[str, object] = {}
+            if embed_precision == "int8":
+                self._packed = {
+                    "c2": _pack_int8(w2, b2),
+                    "p1": _pack_int8(p1_w, None),
+                    "p2": _pack_int8(w4, b4),
+                }
 
     def _bfloat16_weights(
         self,
@@ -274,11 +331,35 @@ class FoldedGeodesicNet:
         """
         if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
             return self._embed_bf16(points, shape_bias)
+        if self._runs_int8(points, shape_bias):
+            return torch.addmm(self.e_b, self._hidden_int8(points, shape_bias), self.e_wt)
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
         h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
         h = (h @ self.p1_wt + shape_bias).relu()
         h = torch.addmm(self.p2_b, h, self.p2_wt).relu()
         return torch.addmm(self.e_b, h, self.e_wt)
+
+    def _runs_int8(self, points: torch.Tensor, shape_bias: torch.Tensor) -> bool:
+        """Whether the point MLP runs its int8 products on these points: with
+        ``embed_precision="int8"``, without autograd, at least :data:`INT8_MIN_ROWS` of them."""
+        return (
+            bool(self._packed)
+            and points.shape[0] >= INT8_MIN_ROWS
+            and not _needs_grad(points, shape_bias)
+        )
+
+    def _hidden_int8(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
+        """:meth:`hidden` with the three ``n × n`` products in dynamic int8 (float32 in and
+        out; module docstring)."""
+        linear, linear_relu = (
+            torch.ops.quantized.linear_dynamic,
+            torch.ops.quantized.linear_relu_dynamic,
+        )
+        packed = self._packed
+        h = torch.addmm(self.c1_b, points, self.c1_wt).relu_()
+        h = linear_relu(h, packed["c2"], False)
+        h = linear(h, packed["p1"], False).add_(shape_bias).relu_()
+        return linear_relu(h, packed["p2"], False)
 
     def _embed_bf16(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """:meth:`embed` with bfloat16 products (the first layer, ``3 → n``, stays float32:
@@ -297,6 +378,8 @@ class FoldedGeodesicNet:
         float32 rounding). Differentiable in ``points``."""
         if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
             return self.features(self._embed_bf16(points, shape_bias))
+        if self._runs_int8(points, shape_bias):
+            return torch.addmm(self.pf_b, self._hidden_int8(points, shape_bias), self.pf_wt)
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
         h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
         h = (h @ self.p1_wt + shape_bias).relu()
@@ -307,7 +390,11 @@ class FoldedGeodesicNet:
         """``(R, 3)`` canonical coordinates → ``(R, n)`` last hidden layer of the point MLP
         (after its last ReLU, before ``project_embed``), float32; the input of every linear
         map a head reads (the distilled head folds its own into it,
-        :class:`~litege_core.nets.small_head.FoldedSmallHead`). Differentiable in ``points``."""
+        :class:`~litege_core.nets.small_head.FoldedSmallHead`). Differentiable in ``points``
+        (with ``embed_precision="int8"``, the int8 products run only where no gradient is
+        needed)."""
+        if self._runs_int8(points, shape_bias):
+            return self._hidden_int8(points, shape_bias)
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
         h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
         h = (h @ self.p1_wt + shape_bias).relu()
@@ -438,11 +525,14 @@ class FoldedShapeMlp:
 
 
 __all__ = [
+    "INT8_ENGINES",
+    "INT8_MIN_ROWS",
     "PAIR_TILE",
     "PRECISIONS",
     "FoldedGeodesicNet",
     "FoldedShapeMlp",
     "Precision",
     "fast_bfloat16",
+    "int8_engine",
     "resolve_precision",
 ]

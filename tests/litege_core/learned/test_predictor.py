@@ -26,6 +26,7 @@ from litege_core.learned import (
     shape_samples,
 )
 from litege_core.nets import TARGET_SCALE
+from litege_core.nets.folded import INT8_MIN_ROWS, int8_engine
 from litege_core.nets.testing import random_geodesic_net
 from litege_core.shape import Shape
 from litege_core.variants import random_rotation
@@ -125,6 +126,25 @@ def test_distances_equal_the_network_forward(bundle, predictor, mesh_state):
     expected = _reference(bundle, mesh_state, sources, targets)
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6 * np.abs(expected).max())
     assert (got[[0, 1, 2], [0, 1, 2]] == 0).all()
+
+
+@pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
+def test_int8_point_mlp_predictor_stays_close_and_keeps_its_own_tables(bundle, mesh):
+    """``embed_precision="int8"``: a distance field within a few per cent of float32's; a
+    state shared with a float32 predictor keeps one feature table per arithmetic, so neither
+    predictor answers from the other's table."""
+    exact, int8 = Predictor(bundle), Predictor(bundle, embed_precision="int8")
+    assert "embed_precision='int8'" in repr(int8) and "int8" not in repr(exact)
+    state = exact.register(mesh, seed=3)
+    assert state.n_points >= INT8_MIN_ROWS
+    want = exact.distances(state, [0, 5])  # builds the float32 table
+    got = int8.distances(state, [0, 5])
+    assert not np.array_equal(got, want)  # its own table, in int8
+    assert np.abs(got - want).mean() < 0.03 * np.abs(want).mean()
+    # not from the int8 table (row counts may move float32 rounding: 1e-7)
+    np.testing.assert_allclose(exact.distances(state, [0, 5]), want, rtol=1e-5, atol=1e-6)
+    with pytest.raises(InputError):
+        Predictor(bundle, embed_precision="bfloat16")
 
 
 def test_cached_state_equals_fresh_computation(bundle, predictor, mesh, mesh_state):

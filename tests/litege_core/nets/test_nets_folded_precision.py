@@ -8,7 +8,13 @@ import torch
 
 from litege_core.errors import InputError
 from litege_core.nets import FoldedGeodesicNet, GeodesicNet
-from litege_core.nets.folded import PRECISIONS, fast_bfloat16, resolve_precision
+from litege_core.nets.folded import (
+    INT8_MIN_ROWS,
+    PRECISIONS,
+    fast_bfloat16,
+    int8_engine,
+    resolve_precision,
+)
 
 WIDTH = 32
 K = 12
@@ -103,6 +109,32 @@ def test_bfloat16_embeddings_stay_close_to_float32(net) -> None:
     torch.testing.assert_close(grad_features.detach(), want[:4], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
+def test_int8_point_mlp_stays_close_to_float32_on_large_batches_only(net) -> None:
+    """The int8 point MLP answers every entry point (hidden layer, embeddings, head
+    features) within a few per cent of float32, and runs only where it pays: batches of
+    INT8_MIN_ROWS points or more, without autograd; elsewhere the float32 path, exactly."""
+    exact = FoldedGeodesicNet(net)
+    folded = FoldedGeodesicNet(net, embed_precision="int8")
+    points = torch.rand(INT8_MIN_ROWS + 88, 3, generator=torch.Generator().manual_seed(2)) - 0.5
+    with torch.no_grad():
+        bias = exact.shape_bias(net.shape_embedding(torch.randn(1, K))[0])
+        for method in ("hidden", "embed", "point_features"):
+            want = getattr(exact, method)(points, bias)
+            got = getattr(folded, method)(points, bias)
+            assert got.dtype == torch.float32 and got.shape == want.shape
+            assert not torch.equal(got, want), method  # the int8 products ran
+            assert (got - want).abs().mean() < 0.03 * want.abs().mean(), method
+            assert (got - want).abs().max() < 0.1 * want.abs().max(), method
+            small = getattr(folded, method)(points[: INT8_MIN_ROWS - 1], bias)
+            torch.testing.assert_close(small, want[: INT8_MIN_ROWS - 1], rtol=1e-5, atol=1e-6)
+    positions = points.clone().requires_grad_(True)  # the path tracer's gradient: float32
+    traced = folded.point_features(positions, bias)
+    torch.testing.assert_close(traced.detach(), exact.point_features(points, bias))
+    traced.sum().backward()
+    assert positions.grad is not None and torch.isfinite(positions.grad).all()
+
+
 def test_full_rank_head_equals_the_trained_head_and_low_rank_is_the_svd(net, inputs) -> None:
     src, dst = inputs
     exact = _all_pairs(FoldedGeodesicNet(net), src, dst)
@@ -123,7 +155,9 @@ def test_options_are_checked(net) -> None:
     with pytest.raises(InputError):
         FoldedGeodesicNet(net, precision="float16")
     with pytest.raises(InputError):
-        FoldedGeodesicNet(net, embed_precision="int8")
+        FoldedGeodesicNet(net, embed_precision="float16")
+    with pytest.raises(InputError, match="CPU only"):  # checked before anything moves
+        FoldedGeodesicNet(net, "cuda", embed_precision="int8")
     for rank in (0, 2 * WIDTH + 1, True):
         with pytest.raises(InputError):
             FoldedGeodesicNet(net, head_rank=rank)
