@@ -31,7 +31,8 @@ product where the CPU has AMX / AVX512-BF16), and ``fusion="graph"`` (the calibr
 fusion: row ``LiteGE graph fusion`` is the library's, the CLI's and the service's default
 configuration since 2026-11-29, ``fusion="auto"`` on a shipped model) with the default head and
 lattice or the trained network; the network alone and the fusion each also with
-``embed_precision="int8"`` (the point MLP's ``n × n`` products in dynamic int8);
+``precision="int8", embed_precision="int8"`` (the point MLP's ``n × n`` products and the small
+head's per-pair product in dynamic int8);
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -76,12 +77,12 @@ from litege_core.variants import isotropic_remesh, point_cloud
 
 LITEGE = {
     "LiteGE": ("float32", "auto", "auto", "none", "float32"),
-    "LiteGE int8 point MLP": ("float32", "auto", "auto", "none", "int8"),
+    "LiteGE int8": ("int8", "auto", "auto", "none", "int8"),
     "LiteGE full head": ("float32", "auto", "full", "none", "float32"),
     "LiteGE full head + full lattice": ("float32", "full", "full", "none", "float32"),
     "LiteGE full head + auto precision": ("auto", "auto", "full", "none", "float32"),
     "LiteGE graph fusion": ("float32", "auto", "auto", "graph", "float32"),
-    "LiteGE graph fusion + int8 point MLP": ("float32", "auto", "auto", "graph", "int8"),
+    "LiteGE graph fusion + int8": ("int8", "auto", "auto", "graph", "int8"),
     "LiteGE graph fusion + full head + full lattice": (
         "float32",
         "full",

@@ -14,7 +14,8 @@ although the library's default is ``auto``: the labels of earlier runs keep thei
 ``ttaC`` / ``ttaCxD`` (test-time augmentation: the distances averaged over the PCA frame and
 ``C`` turns of it by at most ``D`` degrees, default 10,
 ``litege_core.evaluation.geodesic.frame_turns``) and ``int8`` (the point MLP's products in
-dynamic int8, ``Predictor(bundle, embed_precision="int8")``); ``--no-baselines`` leaves out
+dynamic int8, ``Predictor(bundle, precision="int8", embed_precision="int8")``: the small
+head's product too); ``--no-baselines`` leaves out
 heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
@@ -69,7 +70,7 @@ def load_predictor(name: str) -> Predictor:
     """``NAME_OR_DIR`` (defaults) or ``NAME_OR_DIR@OPTIONS`` with ``+``-joined options:
     ``small`` / ``fullhead`` (head; default ``auto``), ``full`` / ``bcc`` / ``stride2``
     (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion),
-    ``int8`` (the point MLP in dynamic int8, ``embed_precision="int8"``);
+    ``int8`` (the point MLP and the small head in dynamic int8);
     ``ttaC[xD]`` is read by :func:`frame_turns_of`."""
     name, _, text = name.partition("@")
     options = {o for o in text.split("+") if o and not TTA_OPTION.fullmatch(o)}
@@ -85,6 +86,7 @@ def load_predictor(name: str) -> Predictor:
         head={"small": "small", "fullhead": "full"}[heads.pop()] if heads else "auto",
         descriptor_lattice=lattices.pop() if lattices else "auto",
         fusion="graph" if "fusion" in options else "none",
+        precision="int8" if "int8" in options else "float32",
         embed_precision="int8" if "int8" in options else "float32",
     )
 

@@ -496,7 +496,8 @@ class Runtime:
                     bundle,
                     device,
                     head=settings.geodesic_head,
-                    embed_precision=settings.geodesic_embed_precision,
+                    precision=settings.geodesic_precision,
+                    embed_precision=settings.geodesic_precision,
                     descriptor_lattice=settings.descriptor_lattice,
                     fusion=settings.geodesic_fusion,
                 )
@@ -575,6 +576,7 @@ class Runtime:
                         "fusion": "none" if p.fusion is None else "graph",
                         "head": p.head,
                         "lattice": p.descriptor_lattice,
+                        "precision": p.precision,
                         "embed_precision": p.embed_precision,
                     }
                     for name, p in self.repository.predictors.items()

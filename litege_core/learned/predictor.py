@@ -147,8 +147,8 @@ class Predictor:
             ``predictor-accuracy``.
         embed_precision: arithmetic of the point MLP (the per-point cost of a distance
             field) without autograd: ``"float32"`` (default) or ``"int8"`` (CPU only: its
-            ``n × n`` products in dynamic int8, ~1.5–2× faster on an AVX2 CPU, real-shape
-            error within 0.06: BENCHMARKS ``int8-point-mlp``); a predictor keeps its own
+            ``n × n`` products in dynamic int8, fields ~1.2–1.4× faster on an AVX2 CPU, real-shape
+            error within 0.07: BENCHMARKS ``int8-point-mlp``); a predictor keeps its own
             feature tables per setting.
         descriptor_lattice: the informative voxels the UDF is evaluated at: ``"auto"``
             (default: ``"stride2"`` where the basis keeps enough voxels there, as the shipped
@@ -168,7 +168,9 @@ class Predictor:
             the small head, distances, distance fields, batches and paths all use it (a
             path then follows the small head's distance, and its ``predicted_distance``
             equals :meth:`distances` without fusion); ``precision`` applies to the full head
-            only (the small head runs float32). Registrations (records, states) do not depend on the
+            (the small head runs float32, except under ``"int8"``: its per-pair product in
+            dynamic int8 on a CPU, :class:`~litege_core.nets.small_head.FoldedSmallHead`;
+            BENCHMARKS ``int8-point-mlp``). Registrations (records, states) do not depend on the
             head: a state may be queried by a full-head and a small-head predictor of the
             same bundle, each building its own feature table.
         fusion: ``"auto"`` (default: ``"graph"`` where the bundle ships a calibration, as
@@ -239,7 +241,7 @@ class Predictor:
             student = None
         self.head = "full" if student is None else "small"
         if student is not None:
-            self._net = FoldedSmallHead(student.eval(), self.folded)
+            self._net = FoldedSmallHead(student.eval(), self.folded, precision=self.precision)
             self._table_key = f"features.small.{_fingerprint(student)}"
         if embed_precision != DEFAULT_PRECISION:  # tables of another arithmetic
             self._table_key += f".{embed_precision}"

@@ -21,8 +21,9 @@ precision when no gradient is needed (the path tracer's autograd calls always ru
   MLP's three ``n × n`` products with per-output-channel symmetric int8 weights and int8
   activations quantized per call, int32 accumulation (the CPU quantized engine's dynamic
   linear: ``torch.ops.quantized.linear_dynamic``, oneDNN where available); the ``3 → n``
-  first layer and the head-feature product stay float32. ~1.5–2× faster than float32 on an
-  AVX2 CPU, where bfloat16 is slower (BENCHMARKS "int8-point-mlp").
+  first layer and the head-feature product stay float32. The products run ~1.3–1.6× faster
+  than float32 on an AVX2 CPU from 512 rows up, where bfloat16 is slower (BENCHMARKS
+  "int8-point-mlp").
 * ``head_rank=r``: the ``2n × 2n`` product replaced by its best rank-``r`` approximation
   (truncated SVD, no retraining): ``2 · 2n · r`` instead of ``(2n)²`` multiply-adds per pair;
   it applies to every call, gradients included (it is a different, smaller head).
@@ -114,7 +115,7 @@ def int8_engine() -> str | None:
     return next((name for name in INT8_ENGINES if name in supported), None)
 
 
-def _pack_int8(weight: torch.Tensor, bias: torch.Tensor | None) -> object:
+def pack_int8(weight: torch.Tensor, bias: torch.Tensor | None) -> object:
     """``x Wᵀ + b`` packed for the quantized engine's dynamic linear: ``weight`` ``(out, in)``
     as per-output-channel symmetric int8, ``bias`` ``(out,)`` float32 or ``None``.
 
@@ -272,9 +273,9 @@ class FoldedGeodesicNet:
             self._packed: dict[str, object] = {}
             if embed_precision == "int8":
                 self._packed = {
-                    "c2": _pack_int8(w2, b2),
-                    "p1": _pack_int8(p1_w, None),
-                    "p2": _pack_int8(w4, b4),
+                    "c2": pack_int8(w2, b2),
+                    "p1": pack_int8(p1_w, None),
+                    "p2": pack_int8(w4, b4),
                 }
 
     def _bfloat16_weights(
@@ -534,5 +535,6 @@ __all__ = [
     "Precision",
     "fast_bfloat16",
     "int8_engine",
+    "pack_int8",
     "resolve_precision",
 ]

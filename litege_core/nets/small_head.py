@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from litege_core.errors import InputError
-from litege_core.nets.folded import FoldedGeodesicNet
+from litege_core.nets.folded import INT8_MIN_ROWS, FoldedGeodesicNet, pack_int8
 from litege_core.nets.geodesic import OUTPUT_KINDS, apply_output
 
 SMALL_PAIR_TILE = 8192
@@ -117,13 +117,22 @@ class FoldedSmallHead:
         head: the trained student (its ``width`` must be the teacher's).
         teacher: the folded teacher whose point MLP the student reads.
         dtype: of the folded tensors.
+        precision: arithmetic of the per-pair ``m → k`` product without autograd:
+            ``"float32"`` (default) or ``"int8"`` (CPU: the quantized engine's dynamic linear
+            on blocks of :data:`~litege_core.nets.folded.INT8_MIN_ROWS` pairs or more, as the
+            teacher's int8 point MLP; smaller blocks run float32). ``"bfloat16"`` runs
+            float32 (the product is too small to gain).
 
     Raises:
         InputError: the student does not fit the teacher (width or output convention).
     """
 
     def __init__(
-        self, head: SmallHead, teacher: FoldedGeodesicNet, dtype: torch.dtype = torch.float32
+        self,
+        head: SmallHead,
+        teacher: FoldedGeodesicNet,
+        dtype: torch.dtype = torch.float32,
+        precision: str = "float32",
     ) -> None:
         if head.width != teacher.width or head.output != teacher.output:
             raise InputError(
@@ -148,6 +157,11 @@ class FoldedSmallHead:
             self.h_wt, self.h_b = put(head.hidden.weight.double().T), put(head.hidden.bias)
             self.f_w = put(head.final.weight.double()[0])  # (k,)
             self.f_b = put(head.final.bias.double()[0])
+            self._packed = None
+            if precision == "int8":
+                if self.device.type != "cpu":
+                    raise InputError("the small head's int8 product runs on a CPU only")
+                self._packed = pack_int8(head.hidden.weight.double(), head.hidden.bias.double())
 
     def point_features(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical coordinates → ``(R, m)`` student features
@@ -161,9 +175,23 @@ class FoldedSmallHead:
         """``(R, m)`` differences ``g_s − g_d`` → ``(R,)`` outputs (≥ 0); ``inplace=True``
         reuses ``diff`` as scratch memory (not with autograd)."""
         h = diff.add_(self.b1).relu_() if inplace else (diff + self.b1).relu()
+        if self._int8_rows(h):
+            return self._finish(self._hidden_int8(h) @ self.f_w)
         h = torch.addmm(self.h_b, h, self.h_wt)
         h = h.relu_() if inplace else h.relu()
         return self._finish(h @ self.f_w)
+
+    def _int8_rows(self, activations: torch.Tensor) -> bool:
+        """Whether the ``m → k`` product of these ``(R, m)`` activations runs in int8."""
+        return (
+            self._packed is not None
+            and activations.shape[0] >= INT8_MIN_ROWS
+            and not (torch.is_grad_enabled() and activations.requires_grad)
+        )
+
+    def _hidden_int8(self, activations: torch.Tensor) -> torch.Tensor:
+        """``relu(activations · Hᵀ + h_b)`` ``(R, k)`` by the quantized engine (int8)."""
+        return torch.ops.quantized.linear_relu_dynamic(activations, self._packed, False)
 
     def pair_head(
         self, src: torch.Tensor, dst: torch.Tensor, *, tile_pairs: int = SMALL_PAIR_TILE
@@ -192,9 +220,12 @@ class FoldedSmallHead:
                 pairs = a.shape[0] * c.shape[0]
                 diff = scratch[: pairs * width].view(a.shape[0], c.shape[0], width)
                 torch.sub(a[:, None, :], c[None, :, :], out=diff)
-                h = hidden[: pairs * self.hidden].view(pairs, self.hidden)
-                torch.addmm(self.h_b, diff.view(pairs, width).relu_(), self.h_wt, out=h)
-                value = h.relu_() @ self.f_w
+                active = diff.view(pairs, width).relu_()
+                if self._int8_rows(active):
+                    value = self._hidden_int8(active) @ self.f_w
+                else:
+                    h = hidden[: pairs * self.hidden].view(pairs, self.hidden)
+                    value = torch.addmm(self.h_b, active, self.h_wt, out=h).relu_() @ self.f_w
                 out[i0 : i0 + rows, j0 : j0 + cols] = value.view(a.shape[0], c.shape[0])
         if self.output == "abs":  # in place on the (S, T) block: no copy of it
             return out.add_(self.f_b).abs_()

@@ -23,7 +23,8 @@ def test_load_predictor_reads_the_other_options_beside_tta(eval_real_ablation):
     predictor = eval_real_ablation.load_predictor("quadrupeds@fullhead+full+tta4")
     assert predictor.head == "full" and predictor.descriptor_lattice == "full"
     assert predictor.embed_precision == "float32"
-    assert eval_real_ablation.load_predictor("quadrupeds@int8").embed_precision == "int8"
+    int8 = eval_real_ablation.load_predictor("quadrupeds@int8")
+    assert (int8.precision, int8.embed_precision) == ("int8", "int8")
     with pytest.raises(SystemExit, match="unknown model options"):
         eval_real_ablation.load_predictor("quadrupeds@tta")
 

@@ -1,6 +1,6 @@
 """``LITEGE_GEODESIC_HEAD``, ``LITEGE_DESCRIPTOR_LATTICE`` and
-``LITEGE_GEODESIC_EMBED_PRECISION`` (issue 17) over real HTTP: by default each model runs its
-own speed configuration (the shipped ones: small head, stride2 lattice; float32 point MLP); the
+``LITEGE_GEODESIC_PRECISION`` (issue 17) over real HTTP: by default each model runs its
+own speed configuration (the shipped ones: small head, stride2 lattice; float32); the
 service answers as the library does, says so on ``/readyz``, and stores the sparser lattice's
 records under their own key, so a service on the full lattice never restores one."""
 
@@ -30,11 +30,11 @@ def dog() -> Shape:
 def test_the_settings_default_to_each_models_own_speed_configuration() -> None:
     settings = Settings()
     assert (settings.geodesic_head, settings.descriptor_lattice) == ("auto", "auto")
-    assert settings.geodesic_embed_precision == "float32"
+    assert settings.geodesic_precision == "float32"
     with pytest.raises(ValueError):
         Settings(geodesic_head="tiny")
     with pytest.raises(ValueError):
-        Settings(geodesic_embed_precision="bfloat16")
+        Settings(geodesic_precision="bfloat16")
     with pytest.raises(ValueError):
         Settings(descriptor_lattice="sparse")
 
@@ -99,15 +99,19 @@ def test_a_default_service_runs_each_shipped_models_speed_configuration(
 
 @pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
 def test_an_int8_point_mlp_service_answers_as_the_library_does(live_service_factory, dog) -> None:
-    service = live_service_factory(geodesic_embed_precision="int8", geodesic_fusion="none")
+    service = live_service_factory(geodesic_precision="int8", geodesic_fusion="none")
     library = Predictor(
-        load_shipped(TEST_MODEL), torch.device("cpu"), embed_precision="int8", fusion="none"
+        load_shipped(TEST_MODEL),
+        torch.device("cpu"),
+        precision="int8",
+        embed_precision="int8",
+        fusion="none",
     )
     with LiteGEClient(service.base_url) as client:
         ready = client.ready()["models"][TEST_MODEL]
         shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
         field = client.geodesic(shape_id, [0])
     service.stop()
-    assert ready["embed_precision"] == "int8"
+    assert (ready["precision"], ready["embed_precision"]) == ("int8", "int8")
     expected = library.distances(library.register(dog), [0])
     np.testing.assert_allclose(field, expected, rtol=1e-5, atol=1e-6)

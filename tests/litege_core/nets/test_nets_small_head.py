@@ -8,6 +8,7 @@ import torch
 
 from litege_core.errors import InputError
 from litege_core.nets import FoldedGeodesicNet, GeodesicNet
+from litege_core.nets.folded import INT8_MIN_ROWS, int8_engine
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
 
 WIDTH = 32
@@ -138,3 +139,24 @@ def test_config_round_trip_and_validation() -> None:
             SmallHead(WIDTH, **{"features": M, "hidden": H, **bad})
     with pytest.raises(InputError, match="does not fit"):
         FoldedSmallHead(SmallHead(WIDTH + 1, M, H), FoldedGeodesicNet(GeodesicNet(WIDTH, K)))
+
+
+@pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
+def test_int8_pair_product_stays_close_on_large_blocks_only(student, setting) -> None:
+    """``precision="int8"``: blocks of INT8_MIN_ROWS pairs or more run the ``m → k`` product
+    in int8 (a few per cent from float32), smaller tiles and the autograd path float32."""
+    teacher, folded, bias, points = setting
+    int8 = FoldedSmallHead(student, teacher, precision="int8")
+    src, dst = points[:30], points[30:]
+    with torch.no_grad():
+        g_src, g_dst = folded.point_features(src, bias), folded.point_features(dst, bias)
+        want = folded.pair_head(g_src, g_dst)
+        got = int8.pair_head(g_src, g_dst)  # one tile of 1350 pairs
+        assert not torch.equal(got, want)
+        assert (got - want).abs().mean() < 0.03 * want.abs().mean()
+        diff = (g_src[:, None, :] - g_dst[None, :, :]).reshape(-1, M)
+        torch.testing.assert_close(int8.head(diff.clone(), inplace=True).reshape(30, 45), got)
+        small = int8.pair_head(g_src, g_dst, tile_pairs=INT8_MIN_ROWS // 2)
+        torch.testing.assert_close(small, want, rtol=1e-5, atol=1e-6)
+    graded = int8.pair_head(g_src, folded.point_features(dst.clone().requires_grad_(True), bias))
+    torch.testing.assert_close(graded.detach(), want, rtol=1e-5, atol=1e-6)
