@@ -48,12 +48,13 @@ PRECISIONS: tuple[str, ...] = ("float32", "bfloat16", "int8")
 """Values of :class:`FoldedGeodesicNet`'s ``precision`` and ``embed_precision``."""
 
 INT8_MIN_ROWS = 512
-"""Fewest points the int8 point MLP quantizes (fewer run float32): the dynamic linear's fixed
-cost per call exceeds its saving below ~256 rows of a ``200 × 200`` product (2-core AMD EPYC,
-2026-11-30: 1 row 0.10 ms against 0.015 ms float32; 2000 rows 2.2 ms against 3.0 ms)."""
+"""Fewest rows an int8 product quantizes (the point MLP's points, the small head's pairs; fewer
+run float32): the dynamic linear's fixed cost per call exceeds its saving below ~256 rows of a
+``200 × 200`` product (2-core AMD EPYC, 2026-11-30: 1 row 0.10 ms against 0.015 ms float32;
+2000 rows 2.2 ms against 3.0 ms)."""
 
 INT8_ENGINES = ("onednn", "x86", "fbgemm", "qnnpack")
-"""CPU quantized engines the int8 point MLP packs its weights for, the first supported one
+"""CPU quantized engines int8 products pack their weights for, the first supported one
 (oneDNN's dynamic linear was 1.3x faster than fbgemm's on a 2-core AMD EPYC, 2026-11-30)."""
 
 _INT_MM_MIN_ROWS = 17  # torch._int_mm needs more than 16 rows
@@ -124,7 +125,7 @@ def pack_int8(weight: torch.Tensor, bias: torch.Tensor | None) -> object:
     """
     engine = int8_engine()
     if engine is None:
-        raise InputError("this torch build has no quantized CPU engine for the int8 point MLP")
+        raise InputError("this torch build has no quantized CPU engine for int8 products")
     weight = weight.to(torch.float32).contiguous()
     scale = (weight.abs().amax(dim=1).clamp_min(1e-30) / 127.0).double()
     zero = torch.zeros(weight.shape[0], dtype=torch.long)

@@ -118,10 +118,10 @@ class FoldedSmallHead:
         teacher: the folded teacher whose point MLP the student reads.
         dtype: of the folded tensors.
         precision: arithmetic of the per-pair ``m → k`` product without autograd:
-            ``"float32"`` (default) or ``"int8"`` (CPU: the quantized engine's dynamic linear
-            on blocks of :data:`~litege_core.nets.folded.INT8_MIN_ROWS` pairs or more, as the
-            teacher's int8 point MLP; smaller blocks run float32). ``"bfloat16"`` runs
-            float32 (the product is too small to gain).
+            ``"int8"`` on a CPU: the quantized engine's dynamic linear on blocks of
+            :data:`~litege_core.nets.folded.INT8_MIN_ROWS` pairs or more, as the teacher's
+            int8 point MLP (smaller blocks run float32); anything else, or a GPU: float32
+            (the product is too small for bfloat16 to gain).
 
     Raises:
         InputError: the student does not fit the teacher (width or output convention).
@@ -158,9 +158,7 @@ class FoldedSmallHead:
             self.f_w = put(head.final.weight.double()[0])  # (k,)
             self.f_b = put(head.final.bias.double()[0])
             self._packed = None
-            if precision == "int8":
-                if self.device.type != "cpu":
-                    raise InputError("the small head's int8 product runs on a CPU only")
+            if precision == "int8" and self.device.type == "cpu":
                 self._packed = pack_int8(head.hidden.weight.double(), head.hidden.bias.double())
 
     def point_features(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
