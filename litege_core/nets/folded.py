@@ -333,13 +333,7 @@ class FoldedGeodesicNet:
         """
         if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
             return self._embed_bf16(points, shape_bias)
-        if self._runs_int8(points, shape_bias):
-            return torch.addmm(self.e_b, self._hidden_int8(points, shape_bias), self.e_wt)
-        h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
-        h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
-        h = (h @ self.p1_wt + shape_bias).relu()
-        h = torch.addmm(self.p2_b, h, self.p2_wt).relu()
-        return torch.addmm(self.e_b, h, self.e_wt)
+        return torch.addmm(self.e_b, self.hidden(points, shape_bias), self.e_wt)
 
     def _runs_int8(self, points: torch.Tensor, shape_bias: torch.Tensor) -> bool:
         """Whether the point MLP runs its int8 products on these points: with
@@ -380,13 +374,7 @@ class FoldedGeodesicNet:
         float32 rounding). Differentiable in ``points``."""
         if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
             return self.features(self._embed_bf16(points, shape_bias))
-        if self._runs_int8(points, shape_bias):
-            return torch.addmm(self.pf_b, self._hidden_int8(points, shape_bias), self.pf_wt)
-        h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
-        h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
-        h = (h @ self.p1_wt + shape_bias).relu()
-        h = torch.addmm(self.p2_b, h, self.p2_wt).relu()
-        return torch.addmm(self.pf_b, h, self.pf_wt)
+        return torch.addmm(self.pf_b, self.hidden(points, shape_bias), self.pf_wt)
 
     def hidden(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical coordinates → ``(R, n)`` last hidden layer of the point MLP
