@@ -152,7 +152,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     points, scale = state.canonical_points, state.transform.scale
     n = points.shape[0]
     k, ratio = calibration.k, calibration.prune_ratio
-    neighbours = knn_neighbours(points, max(k, calibration.mutual_k))
+    neighbours = knn_neighbours(points, calibration.reach)
     flatness, normals = local_surface(points, nearest=neighbours[1])
     roughness = float(np.median(flatness))
     normal_cos = calibration.normal_limit(n)

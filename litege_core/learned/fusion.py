@@ -159,6 +159,12 @@ class FusionCalibration:
             return self.mesh_bias
         return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
 
+    @property
+    def reach(self) -> int:
+        """Neighbours per point a cloud's graph searches: ``k``, or ``mutual_k`` for a
+        larger mutual graph (:func:`pruned_knn_graph` takes a search of at least this many)."""
+        return max(self.k, self.mutual_k)
+
     def normal_limit(self, n_points: int) -> float:
         """The normal limit ``c`` of a cloud of ``n_points`` (clamped to the knots; 1: none)."""
         if not self.normal_cos:
@@ -296,10 +302,9 @@ def shape_graph(
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
         from litege_core.engines.graph import knn_neighbours  # scipy: on first use
 
-        reach = max(k, mutual)
-        neighbours = knn_neighbours(points, reach)
+        neighbours = knn_neighbours(points, calibration.reach)
         if surface is None:
-            shared = reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
+            shared = calibration.reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
             flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:

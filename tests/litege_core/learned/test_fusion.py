@@ -177,6 +177,7 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json({**older, "format_version": 5}).mutual_k == 0
     mutual = dataclasses.replace(calibration, mutual_k=24)
     assert FusionCalibration.from_json(json.loads(json.dumps(mutual.to_json()))) == mutual
+    assert (calibration.reach, mutual.reach) == (calibration.k, 24)  # what the graph searches
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
