@@ -9,9 +9,8 @@ Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's c
 ``--dataset`` (collection datasets such as the rigged animals or MakeHuman bodies of
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
 network / pruned graph / fused errors per setting (each density's normal limit is the
-candidate whose graph errs least there, jointly with its ``--prune-ratio`` veto threshold;
-``--normal-cos 1`` fits none; of the ``--mutual-k`` candidates, the one whose fit has the
-lowest mean fused error is kept);
+candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
+and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept);
 ``--write`` stores
 ``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
 rewrites the model card's sidecar section.
@@ -35,7 +34,7 @@ from litege_core.evaluation.fusion import (
     MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
-    choose_graph_knots,
+    choose_normal_limits,
     collect_samples,
     fit_fusion,
     fusion_summary,
@@ -72,20 +71,21 @@ def main() -> None:
     parser.add_argument(
         "--prune-ratio",
         default=",".join(str(r) for r in PRUNE_RATIO_CANDIDATES),
-        help="comma-separated veto thresholds: each density keeps the one whose graph (with its "
-        "normal limit) has the lowest error on the calibration shapes",
+        help="comma-separated candidates: the one whose fit has the lowest mean fused error on "
+        "the calibration shapes is kept",
     )
     parser.add_argument(
         "--normal-cos",
         default=",".join(str(c) for c in NORMAL_COS_CANDIDATES),
         help="comma-separated normal limits (1: none): each density keeps the one whose graph "
-        "(with its veto threshold) has the lowest error on the calibration shapes",
+        "has the lowest error on the calibration shapes",
     )
     parser.add_argument(
         "--mutual-k",
         default=",".join(str(m) for m in MUTUAL_K_CANDIDATES),
         help="comma-separated cloud-graph candidates (0: symmetric k-NN; M: mutual k-NN of M "
-        "neighbours): the one whose fit has the lowest mean fused error is kept",
+        "neighbours); with the prune ratio, the pair whose fit has the lowest mean fused error "
+        "is kept",
     )
     parser.add_argument(
         "--veto-head",
@@ -138,27 +138,24 @@ def main() -> None:
         mutual_ks=mutuals,
         veto_head=veto_head,
     )
-    candidates = []  # (mean fused error, mutual k, samples, calibration)
-    for mutual in mutuals:
-        chosen, samples = choose_graph_knots(
-            {
-                (ratio, limit): by_variant[(ratio, limit, mutual)]
-                for ratio in ratios
-                for limit in limits
-            }
-        )
-        calibration = fit_fusion(
-            samples,
-            bundle.content_hash,
-            k=args.k,
-            prune_ratio={setting: ratio for setting, (ratio, _) in chosen.items()},
-            veto_head=veto_head,
-            fitted_on=fitted_on,
-            normal_cos={s: c for s, (_, c) in chosen.items()} if limits != [1.0] else None,
-            mutual_k=mutual,
-        )
-        error = mean_fused_error(samples, calibration)
-        candidates.append((error, mutual, samples, calibration))
+    candidates = []  # (mean fused error, (prune ratio, mutual k), samples, calibration)
+    for prune_ratio in ratios:
+        for mutual in mutuals:
+            chosen, samples = choose_normal_limits(
+                {limit: by_variant[(prune_ratio, limit, mutual)] for limit in limits}
+            )
+            calibration = fit_fusion(
+                samples,
+                bundle.content_hash,
+                k=args.k,
+                prune_ratio=prune_ratio,
+                veto_head=veto_head,
+                fitted_on=fitted_on,
+                normal_cos=chosen if limits != [1.0] else None,
+                mutual_k=mutual,
+            )
+            error = mean_fused_error(samples, calibration)
+            candidates.append((error, (prune_ratio, mutual), samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
@@ -177,22 +174,19 @@ def main() -> None:
         f"{10**x:.0f} pts: {b:.4f}"
         for x, b in zip(calibration.bias_log10_points, calibration.bias, strict=True)
     )
-
-    def per_knot(values: tuple[float, ...]) -> str:
-        if not values:
-            return "none"
-        if len(values) == 1:
-            return f"{values[0]:g}"
-        return ", ".join(
-            f"{10**x:.0f} pts: {v:g}"
-            for x, v in zip(calibration.bias_log10_points, values, strict=True)
+    normal = (
+        ", ".join(
+            f"{10**x:.0f} pts: {c:g}"
+            for x, c in zip(calibration.bias_log10_points, calibration.normal_cos, strict=True)
         )
-
+        if calibration.normal_cos
+        else "none"
+    )
     a, c_z, c_n, c_r = calibration.gate
     print(
-        f"- graph of a cloud: k = {calibration.k}, edges cut above r × chord (predicted by the "
-        f"{veto_head} head; r: {per_knot(calibration.prune_ratio)}) and chords with |n·ĉ| "
-        f"above the normal limit ({per_knot(calibration.normal_cos)}); "
+        f"- graph of a cloud: k = {calibration.k}, edges cut above {calibration.prune_ratio} "
+        f"× chord (predicted by the {veto_head} head) and chords with |n·ĉ| above the normal "
+        f"limit ({normal}); "
         + (
             f"mutual k-NN graph of {calibration.mutual_k} neighbours; "
             if calibration.mutual_k
@@ -205,8 +199,13 @@ def main() -> None:
         f"graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
     )
     if len(candidates) > 1:
-        tried = ", ".join(f"{mutual}: {error:.3f}" for error, mutual, _, _ in candidates)
-        print(f"- mutual k candidates (mean fused error over all calibration inputs): {tried}\n")
+        tried = ", ".join(
+            f"{ratio} / {mutual}: {error:.3f}" for error, (ratio, mutual), _, _ in candidates
+        )
+        print(
+            "- prune ratio / mutual k candidates (mean fused error over all calibration "
+            f"inputs): {tried}\n"
+        )
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))
     if args.write:

@@ -280,8 +280,8 @@ def print_graph_table(
     limits = [float(c) for c in args.graph_limits.split(",")]
     settings = [s for s in args.settings.split(",") if s != "mesh"]
     print(
-        f"\nThe fusion's cloud graph (k = {calibration.k}, edges cut above the calibration's "
-        f"veto threshold × chord by the {calibration.veto_head} head, then chords "
+        f"\nThe fusion's cloud graph (k = {calibration.k}, edges cut above "
+        f"{calibration.prune_ratio} × chord by the {calibration.veto_head} head, then chords "
         "with |n·ĉ| above each normal limit; rows / the fitted graph bias): mean |error| / mean "
         "signed error (GT mean 100 per shape)\n"
     )
@@ -293,24 +293,20 @@ def print_graph_table(
             shapes,
             settings,
             k=calibration.k,
-            prune_ratios=calibration.prune_ratio,
+            prune_ratios=(calibration.prune_ratio,),
             normal_limits=limits,
-            mutual_ks=(calibration.mutual_k,),
             veto_head=calibration.veto_head,
         )
-        mutual = calibration.mutual_k
-        reference = by_limit[(calibration.prune_ratio[0], limits[0], mutual)]
         for label, chosen in by_class(name, shapes).items():
             names = {shape.name for shape in chosen}
             for setting in settings:
-                members = [
-                    i for i, s in enumerate(reference) if s.setting == setting and s.shape in names
-                ]
-                target = calibration.veto_ratio(reference[members[0]].n_points)
-                ratio = min(calibration.prune_ratio, key=lambda r: abs(r - target))
                 cells = []
                 for limit in limits:
-                    samples = [by_limit[(ratio, limit, mutual)][i] for i in members]
+                    samples = [
+                        s
+                        for s in by_limit[(calibration.prune_ratio, limit)]
+                        if s.setting == setting and s.shape in names
+                    ]
                     absolute, signed = graph_row(samples, calibration)
                     cells.append(f"{absolute:.2f} / {signed:+.2f}")
                 print(f"| {label} | {setting} | " + " | ".join(cells) + " |")

@@ -151,7 +151,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     calibration = predictor.fusion
     points, scale = state.canonical_points, state.transform.scale
     n = points.shape[0]
-    k, ratio = calibration.k, calibration.veto_ratio(n)
+    k, ratio = calibration.k, calibration.prune_ratio
     neighbours = knn_neighbours(points, calibration.reach)
     flatness, normals = local_surface(points, nearest=neighbours[1])
     roughness = float(np.median(flatness))

@@ -6,10 +6,9 @@ graph's rows are computed once (:func:`collect_samples`); the graph's bias knots
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
 the same median over the mesh inputs, whose graph follows the mesh's connectivity, and which
 the graph answers alone), and the four cloud gate constants minimise the mean per-shape error
-of the fused rows (Nelder–Mead, from ``w = 1/2``). The veto threshold and normal limit of each
-clean-cloud knot are the candidate pair whose bias-corrected graph has the lowest mean
-per-shape error at that density (:func:`choose_graph_knots`); noisy clouds take those of their
-point count.
+of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
+is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
+density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
 """
 
 from __future__ import annotations
@@ -86,7 +85,7 @@ def probe_calibration(
     :func:`collect_samples` queries to read the graph through the predictor itself."""
     return FusionCalibration(
         k,
-        (prune_ratio,),
+        prune_ratio,
         (3.0,),
         (1.0,),
         (-60.0, 0.0, 0.0, 0.0),
@@ -182,54 +181,42 @@ def _median_ratio(members: Sequence[FusionSample]) -> float:
     return float(np.median(ratios))
 
 
-GraphKnot = tuple[float, float]
-"""``(prune_ratio, normal_cos)`` of a cloud graph at one density knot."""
+def choose_normal_limits(
+    by_limit: dict[float, Sequence[FusionSample]],
+) -> tuple[dict[str, float], list[FusionSample]]:
+    """Per clean-cloud setting, the normal limit whose graph (divided by its median bias at
+    that setting) has the lowest mean per-shape error, and the samples of every setting with
+    their chosen graphs (meshes ignore the limit; a noisy or cut cloud of N points takes the
+    candidate nearest the limit interpolated at N, as the fitted calibration applies it).
 
-
-def choose_graph_knots(
-    by_knot: dict[GraphKnot, Sequence[FusionSample]],
-) -> tuple[dict[str, GraphKnot], list[FusionSample]]:
-    """Per clean-cloud setting, the veto threshold and normal limit whose graph (divided by its
-    median bias at that setting) has the lowest mean per-shape error, and the samples of every
-    setting with their chosen graphs (meshes ignore both; a noisy or cut cloud of N points
-    takes, of each, the candidate nearest the value interpolated at N, as the fitted
-    calibration applies it). Ties go to the loosest (highest) threshold and limit.
-
-    ``by_knot``: ``{(prune_ratio, normal_cos): samples}``, the same samples in the same order
-    for each.
+    ``by_limit``: ``{normal_cos: samples}``, the same samples in the same order for each.
     """
-    candidates = sorted(by_knot)
-    ratios = sorted({ratio for ratio, _ in candidates})
-    limits = sorted({limit for _, limit in candidates})
-    reference = list(by_knot[candidates[-1]])
-    chosen: dict[str, GraphKnot] = {}
+    limits = sorted(by_limit)
+    reference = list(by_limit[limits[-1]])
+    chosen: dict[str, float] = {}
     for setting in sorted({s.setting for s in reference if s.setting.startswith("cloud_")}):
         index = [i for i, s in enumerate(reference) if s.setting == setting]
 
-        def error(knot: GraphKnot, index: list[int] = index) -> float:
-            members = [by_knot[knot][i] for i in index]
+        def error(limit: float, index: list[int] = index) -> float:
+            members = [by_limit[limit][i] for i in index]
             bias = _median_ratio(members)
             return float(np.mean([_error(_graph_or_network(s) / bias, s.truth) for s in members]))
 
-        chosen[setting] = min(candidates, key=lambda knot: (error(knot), -knot[0], -knot[1]))
+        chosen[setting] = min(limits, key=lambda limit: (error(limit), -limit))
     if not chosen:
         return chosen, reference
     knots = sorted(
         (float(np.log10(np.mean([s.n_points for s in reference if s.setting == setting]))), c)
         for setting, c in chosen.items()
     )
-    log_points = [x for x, _ in knots]
-
-    def nearest(values: list[float], which: int, n_points: int) -> float:
-        target = float(np.interp(np.log10(n_points), log_points, [c[which] for _, c in knots]))
-        return min(values, key=lambda v: (abs(v - target), -v))
-
+    log_points, knot_limits = [x for x, _ in knots], [c for _, c in knots]
     merged = []
     for i, sample in enumerate(reference):
-        knot = candidates[-1]
+        limit = limits[-1]
         if not sample.mesh:
-            knot = (nearest(ratios, 0, sample.n_points), nearest(limits, 1, sample.n_points))
-        merged.append(by_knot[knot][i])
+            target = float(np.interp(np.log10(sample.n_points), log_points, knot_limits))
+            limit = min(limits, key=lambda c: (abs(c - target), -c))
+        merged.append(by_limit[limit][i])
     return chosen, merged
 
 
@@ -269,7 +256,7 @@ def fit_fusion(
     bundle_hash: str,
     *,
     k: int = DEFAULT_K,
-    prune_ratio: float | dict[str, float] = DEFAULT_PRUNE_RATIO,
+    prune_ratio: float = DEFAULT_PRUNE_RATIO,
     veto_head: str = "full",
     fitted_on: dict[str, Any] | None = None,
     normal_cos: dict[str, float] | None = None,
@@ -277,10 +264,9 @@ def fit_fusion(
 ) -> FusionCalibration:
     """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
     mesh samples the mesh bias is 1.
-    ``prune_ratio``: the veto threshold the samples' graphs were built with, one for every
-    density or one per clean-cloud setting (:func:`choose_graph_knots`); ``normal_cos``: the
-    normal limit of each clean-cloud setting, or ``None``: no normal limit; ``mutual_k``: the
-    neighbour rule they were built with."""
+    ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
+    built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
+    the neighbour rule they were built with."""
     from scipy.optimize import minimize
 
     clouds = [s for s in samples if not s.mesh]
@@ -293,16 +279,10 @@ def fit_fusion(
             _median_ratio(members),
             1.0 if normal_cos is None else normal_cos[setting],
         )
-    order = sorted(knots, key=lambda setting: knots[setting])
-    ordered = [knots[setting] for setting in order]
-    if isinstance(prune_ratio, dict):
-        ratios = tuple(float(prune_ratio[setting]) for setting in order)
-        ratios = ratios[:1] if len(set(ratios)) == 1 else ratios  # one for every density
-    else:
-        ratios = (float(prune_ratio),)
+    ordered = sorted(knots.values())
     base = FusionCalibration(
         k,
-        ratios,
+        prune_ratio,
         tuple(x for x, _, _ in ordered),
         tuple(b for _, b, _ in ordered),
         (0.0, 0.0, 0.0, 0.0),
@@ -393,9 +373,8 @@ __all__ = [
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
     "FusionSample",
-    "GraphKnot",
     "GraphVariant",
-    "choose_graph_knots",
+    "choose_normal_limits",
     "collect_samples",
     "fit_fusion",
     "fusion_summary",

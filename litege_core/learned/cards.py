@@ -274,7 +274,7 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else f"Dijkstra over its k = {data['k']} nearest-neighbour graph whose "
             )
             + f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
-            + _veto_ratios(data["prune_ratio"], data["bias_log10_points"])
+            f"exceeds {data['prune_ratio']} × the chord)"
             + (
                 " and whose chords that run along the surface normal are cut (where |n · ĉ| "
                 "exceeds "
@@ -299,16 +299,6 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
         if credits:
             items.append(f"- Calibration shapes credit: {'; '.join(credits)}.")
     return "\n".join(items) if items else None
-
-
-def _veto_ratios(ratios: float | list[float], log10_points: list[float]) -> str:
-    """The veto threshold of a fusion file in words: one ratio, or one per bias knot."""
-    if isinstance(ratios, (int, float)) or len(ratios) == 1:
-        return f"exceeds {ratios if isinstance(ratios, (int, float)) else ratios[0]:g} × the chord)"
-    knots = ", ".join(
-        f"{r:g} at {10**x:.0f} points" for r, x in zip(ratios, log10_points, strict=True)
-    )
-    return f"exceeds r × the chord; r = {knots})"
 
 
 def write_sidecar_section(directory: str | os.PathLike) -> None:

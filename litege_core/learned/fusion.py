@@ -10,12 +10,9 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                mesh edges apart (the mesh's connectivity: no shortcut between parts that
                touch); for a point cloud, on the symmetric k-NN graph of the points
                (canonical frame) after cutting every edge whose predicted geodesic exceeds
-               ``r(N)`` × its chord (the network vetoes shortcuts between touching parts;
-               ``r(N)`` interpolated in log10 N from calibration knots, or one ratio for every
-               density: dense clouds afford a tighter veto than sparse ones, whose veto head
-               over-estimates their true edges; the veto is the bundle's small head where the
-               calibration says so: it costs one head evaluation per edge, ~8 N for N points)
-               and, where the
+               ``prune_ratio`` × its chord (the network vetoes shortcuts between touching
+               parts; the veto is the bundle's small head where the calibration says so: it
+               costs one head evaluation per edge, ~8 N for N points) and, where the
                calibration has normal limits, every edge whose chord runs along the surface
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
@@ -76,14 +73,12 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 7
+FUSION_FORMAT = 6
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
-added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7 made
-``prune_ratio`` a list, one ratio per bias knot or one for every density (older files' number
-reads as the one)."""
-READABLE_FORMATS = (3, 4, 5, 6, FUSION_FORMAT)
+added ``mutual_k`` (older files read as 0: the symmetric k-NN graph)."""
+READABLE_FORMATS = (3, 4, 5, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -106,9 +101,7 @@ class FusionCalibration:
 
     Attributes:
         k: neighbours per point of the graph.
-        prune_ratio: the veto threshold ``r`` at each bias knot, or one threshold for every
-            density: a cloud edge is cut when its predicted geodesic exceeds ``r`` × its
-            chord (a bare number reads as the one threshold).
+        prune_ratio: an edge is cut when its predicted geodesic exceeds this × its chord.
         bias_log10_points: increasing knots of ``log10 N``.
         bias: the graph's median distance / true distance at each knot.
         gate: ``(a, c_z, c_n, c_r)`` of the network's weight ``w`` on a point cloud.
@@ -125,7 +118,7 @@ class FusionCalibration:
     """
 
     k: int
-    prune_ratio: tuple[float, ...]
+    prune_ratio: float
     bias_log10_points: tuple[float, ...]
     bias: tuple[float, ...]
     gate: tuple[float, float, float, float]
@@ -140,18 +133,10 @@ class FusionCalibration:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
         if not (isinstance(self.k, int) and self.k >= 1):
             raise ArtifactError(f"fusion k must be a positive integer, got {self.k!r}")
+        if not (math.isfinite(self.prune_ratio) and self.prune_ratio >= 1.0):
+            raise ArtifactError(f"fusion prune_ratio must be >= 1, got {self.prune_ratio!r}")
         if knots.size < 1 or knots.shape != bias.shape or np.any(np.diff(knots) <= 0):
             raise ArtifactError("fusion bias knots must be increasing, one bias per knot")
-        try:
-            ratios = np.atleast_1d(np.asarray(self.prune_ratio, dtype=np.float64))
-        except (TypeError, ValueError):
-            ratios = np.array([np.nan])
-        if ratios.ndim != 1 or ratios.size not in (1, knots.size) or not np.all(ratios >= 1.0):
-            raise ArtifactError(
-                "fusion prune_ratio must be one ratio >= 1 or one per bias knot, got "
-                f"{self.prune_ratio!r}"
-            )
-        object.__setattr__(self, "prune_ratio", tuple(float(r) for r in ratios))
         if not (np.all(np.isfinite(bias)) and np.all(bias > 0)):
             raise ArtifactError("fusion bias values must be positive and finite")
         if self.veto_head not in VETO_HEADS:
@@ -179,12 +164,6 @@ class FusionCalibration:
         """Neighbours per point a cloud's graph searches: ``k``, or ``mutual_k`` for a
         larger mutual graph (:func:`pruned_knn_graph` takes a search of at least this many)."""
         return max(self.k, self.mutual_k)
-
-    def veto_ratio(self, n_points: int) -> float:
-        """The veto threshold ``r`` of a cloud of ``n_points`` (clamped to the knots)."""
-        if len(self.prune_ratio) == 1:
-            return self.prune_ratio[0]
-        return float(np.interp(np.log10(n_points), self.bias_log10_points, self.prune_ratio))
 
     def normal_limit(self, n_points: int) -> float:
         """The normal limit ``c`` of a cloud of ``n_points`` (clamped to the knots; 1: none)."""
@@ -217,7 +196,7 @@ class FusionCalibration:
         try:
             return cls(
                 k=int(data["k"]),
-                prune_ratio=tuple(float(v) for v in np.atleast_1d(data["prune_ratio"])),
+                prune_ratio=float(data["prune_ratio"]),
                 bias_log10_points=tuple(float(v) for v in data["bias_log10_points"]),
                 bias=tuple(float(v) for v in data["bias"]),
                 gate=tuple(float(v) for v in data["gate"]),  # type: ignore[arg-type]
@@ -317,7 +296,7 @@ def shape_graph(
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
     normal_cos = calibration.normal_limit(points.shape[0])
-    k, ratio, mutual = calibration.k, calibration.veto_ratio(points.shape[0]), calibration.mutual_k
+    k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}.{mutual}"
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)

@@ -912,8 +912,7 @@ class Predictor:
         fusion = self.fusion
         if fusion is None or state.faces is not None:
             return default_router(state)
-        ratio = fusion.veto_ratio(state.n_points)
-        key = f"surface_router.{self._veto._table_key}.{fusion.k}.{ratio}"
+        key = f"surface_router.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
         router = state._lazy.get(key)
         if router is None:
             lazy, _ = shape_graph(

@@ -9,7 +9,7 @@ import pytest
 
 from litege_core.evaluation.fusion import (
     FusionSample,
-    choose_graph_knots,
+    choose_normal_limits,
     fit_fusion,
     fusion_summary,
     fusion_table,
@@ -54,11 +54,7 @@ def _samples() -> list[FusionSample]:
 def test_the_fit_recovers_the_bias_and_picks_the_better_input_per_shape() -> None:
     samples = _samples()
     calibration = fit_fusion(samples, "h" * 64, k=8, prune_ratio=1.5, fitted_on={"n": 24})
-    assert (calibration.k, calibration.prune_ratio, calibration.fitted_on) == (
-        8,
-        (1.5,),
-        {"n": 24},
-    )
+    assert (calibration.k, calibration.prune_ratio, calibration.fitted_on) == (8, 1.5, {"n": 24})
     assert calibration.bias_log10_points == pytest.approx((np.log10(300), 3.0))
     assert calibration.bias == pytest.approx((1.10, 1.05), abs=0.01)
     assert calibration.network_weight(0.0, 1000, 0.1) > 0.8
@@ -199,39 +195,16 @@ def _limit_samples(limit: float, rng_seed: int = 0) -> list[FusionSample]:
 
 
 def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
-    by_knot = {(1.5, limit): _limit_samples(limit) for limit in (0.7, 1.0)}
-    chosen, merged = choose_graph_knots(by_knot)
-    assert chosen == {"cloud_2000": (1.5, 0.7), "cloud_300": (1.5, 1.0)}
+    by_limit = {limit: _limit_samples(limit) for limit in (0.7, 1.0)}
+    chosen, merged = choose_normal_limits(by_limit)
+    assert chosen == {"cloud_2000": 0.7, "cloud_300": 1.0}
     settings = [s.setting for s in merged]
-    assert settings == [s.setting for s in by_knot[(1.5, 1.0)]]
-    for sample, plain, cut in zip(merged, by_knot[(1.5, 1.0)], by_knot[(1.5, 0.7)], strict=True):
+    assert settings == [s.setting for s in by_limit[1.0]]
+    for sample, plain, cut in zip(merged, by_limit[1.0], by_limit[0.7], strict=True):
         expected = cut if sample.setting in ("cloud_2000", "noise_0.01") else plain
         assert sample is expected
-    limits = {setting: limit for setting, (_, limit) in chosen.items()}
-    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, normal_cos=limits)
+    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5, normal_cos=chosen)
     assert calibration.bias_log10_points == pytest.approx((np.log10(300), np.log10(2000)))
     assert calibration.normal_cos == (1.0, 0.7)
     assert calibration.normal_limit(2000) == pytest.approx(0.7)
     assert fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5).normal_cos == ()
-
-
-def test_each_density_keeps_the_veto_threshold_whose_graph_errs_least() -> None:
-    """A tight threshold (1.1) cuts the 2000-point shortcuts as the limit 0.7 does above and
-    the 300-point surface edges; the normal limit changes nothing here (ties keep the loosest)."""
-    by_knot = {
-        (ratio, limit): _limit_samples(0.7 if ratio == 1.1 else 1.0)
-        for ratio in (1.1, 1.6)
-        for limit in (0.7, 1.0)
-    }
-    chosen, merged = choose_graph_knots(by_knot)
-    assert chosen == {"cloud_2000": (1.1, 1.0), "cloud_300": (1.6, 1.0)}
-    for i, sample in enumerate(merged):  # a noisy 2000-point cloud takes the 2000-point knot
-        tight = sample.setting in ("cloud_2000", "noise_0.01")
-        assert sample is by_knot[(1.1 if tight else 1.6, 1.0)][i]
-    ratios = {setting: ratio for setting, (ratio, _) in chosen.items()}
-    calibration = fit_fusion(merged, "h" * 64, k=8, prune_ratio=ratios)
-    assert calibration.prune_ratio == (1.6, 1.1)
-    assert calibration.veto_ratio(2000) == pytest.approx(1.1)
-    assert calibration.veto_ratio(300) == pytest.approx(1.6)
-    same = fit_fusion(merged, "h" * 64, k=8, prune_ratio=dict.fromkeys(ratios, 1.3))
-    assert same.prune_ratio == (1.3,)  # one threshold for every density

@@ -38,13 +38,6 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "normal_cos": limits}))
         named = "exceeds 0.9, 0.8, 0.7, 0.7, 0.6 from sparse" in sidecar_section(tmp_path)
         assert named == bool(limits)
-    # one veto threshold, or one per density
-    for ratios, words in (
-        (1.3, "exceeds 1.3 × the chord)"),
-        ([1.6, 1.3, 1.1, 1.1, 1.1], "r = 1.6 at 300 points, 1.3 at 500 points, 1.1 at 1000"),
-    ):
-        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "prune_ratio": ratios}))
-        assert words in sidecar_section(tmp_path)
     # so is the mutual k-NN graph
     for mutual in (24, 0):
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "mutual_k": mutual}))

@@ -54,9 +54,6 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"k": 0},
         {"prune_ratio": 0.9},
         {"prune_ratio": float("nan")},
-        {"prune_ratio": (1.2, 1.3)},
-        {"prune_ratio": (1.2, 0.9, 1.3)},
-        {"prune_ratio": "strict"},
         {"bias_log10_points": (3.0, 2.5, 3.5)},
         {"bias": (1.0, 1.0)},
         {"bias": (1.0, -1.0, 1.0)},
@@ -91,16 +88,6 @@ def test_normal_limit_interpolates_in_log_points_and_defaults_to_none() -> None:
     assert calibration.normal_limit(1000) == pytest.approx(0.7)
     assert calibration.normal_limit(10**3.25) == pytest.approx(0.65)
     assert calibration.normal_limit(50) == pytest.approx(0.9)
-
-
-def test_veto_ratio_is_one_for_every_density_or_interpolated_per_knot() -> None:
-    assert _calibration().prune_ratio == (1.6,)
-    assert _calibration().veto_ratio(50) == _calibration().veto_ratio(10**6) == 1.6
-    calibration = _calibration(prune_ratio=(1.6, 1.2, 1.1))
-    assert calibration.veto_ratio(1000) == pytest.approx(1.2)
-    assert calibration.veto_ratio(10**2.75) == pytest.approx(1.4)
-    assert calibration.veto_ratio(50) == pytest.approx(1.6)
-    assert calibration.veto_ratio(10**6) == pytest.approx(1.1)
 
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
@@ -188,11 +175,6 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     # a format-5 file (no mutual_k) reads as the symmetric k-NN graph; mutual_k round-trips
     del older["mutual_k"]
     assert FusionCalibration.from_json({**older, "format_version": 5}).mutual_k == 0
-    # a format-6 file's one number is the threshold of every density; per-knot ones round-trip
-    single = {**calibration.to_json(), "format_version": 6, "prune_ratio": 1.6}
-    assert FusionCalibration.from_json(single) == calibration
-    per_knot = dataclasses.replace(calibration, prune_ratio=(1.6, 1.2, 1.1))
-    assert FusionCalibration.from_json(json.loads(json.dumps(per_knot.to_json()))) == per_knot
     mutual = dataclasses.replace(calibration, mutual_k=24)
     assert FusionCalibration.from_json(json.loads(json.dumps(mutual.to_json()))) == mutual
     assert (calibration.reach, mutual.reach) == (calibration.k, 24)  # what the graph searches
@@ -778,15 +760,10 @@ def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, bl
         state.canonical_points, 8, prune_ratio, lambda i, j: predicted[i, j]
     )
     calibration = _graph_only(bundle.content_hash, prune_ratio)
-    # the same threshold where this cloud's density sits, a far looser one elsewhere
-    log_points = np.log10(state.n_points)
-    ratios = tuple(
-        prune_ratio if abs(x - log_points) < 0.5 else 50.0 for x in calibration.bias_log10_points
-    )
-    per_knot = dataclasses.replace(calibration, prune_ratio=ratios)
-    assert 50.0 in ratios and per_knot.veto_ratio(state.n_points) == pytest.approx(prune_ratio)
-    for head, chosen in (("full", calibration), ("small", calibration), ("small", per_knot)):
-        fused = Predictor(bundle, head=head, fusion=dataclasses.replace(chosen, veto_head="small"))
+    for head in ("full", "small"):
+        fused = Predictor(
+            bundle, head=head, fusion=dataclasses.replace(calibration, veto_head="small")
+        )
         rows = fused.distances(fused.register(shape), np.array([0, 9]))
         expected = dijkstra(expected_graph, directed=False, indices=[0, 9])
         expected /= calibration.graph_bias(state.n_points) * state.transform.scale
