@@ -295,6 +295,7 @@ def print_graph_table(
             k=calibration.k,
             prune_ratios=(calibration.prune_ratio,),
             normal_limits=limits,
+            mutual_ks=(calibration.mutual_k,),
             veto_head=calibration.veto_head,
         )
         for label, chosen in by_class(name, shapes).items():
@@ -304,7 +305,7 @@ def print_graph_table(
                 for limit in limits:
                     samples = [
                         s
-                        for s in by_limit[(calibration.prune_ratio, limit)]
+                        for s in by_limit[(calibration.prune_ratio, limit, calibration.mutual_k)]
                         if s.setting == setting and s.shape in names
                     ]
                     absolute, signed = graph_row(samples, calibration)

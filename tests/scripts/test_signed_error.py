@@ -74,3 +74,39 @@ def test_graph_row_reads_the_graph_as_the_fusion_does(signed_error) -> None:
     absolute, signed = signed_error.graph_row([sample, sample], calibration)
     # after the bias: errors 0, 0, −80 and the network's 0 where the graph is cut
     assert np.isclose(signed, -80.0 / 4 / 1.5) and np.isclose(absolute, 80.0 / 4 / 1.5)
+
+
+def test_the_graph_table_reads_the_calibrations_own_graph(
+    signed_error, blob, toy_bundle_dir_with_ood, tmp_path, capsys
+) -> None:
+    """``--graph-limits``: one row per setting, one cell per limit, on the calibration's
+    mutual k-NN graph (the samples are keyed by its neighbour rule too)."""
+    import argparse
+    import shutil
+
+    from litege_core.engines import compute_distances
+    from litege_core.evaluation.fusion import probe_calibration
+    from litege_core.evaluation.geodesic import unit_area
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.learned.fusion import save_fusion
+    from litege_core.sampling import farthest_point_sampling
+    from litege_core.shape import Shape
+
+    directory = tmp_path / "toy"
+    shutil.copytree(toy_bundle_dir_with_ood, directory)
+    bundle = load_bundle(directory)
+    save_fusion(directory, probe_calibration(bundle.content_hash, 8, 1.5, mutual_k=12))
+    shape = blob(7, subdivisions=3)
+    vertices, _ = unit_area(shape.vertices, shape.faces)
+    sources = farthest_point_sampling(vertices, 3)
+    gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
+    shapes = [EvalShape("blob0", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+    args = argparse.Namespace(model=str(directory), graph_limits="1,0.5", settings="mesh,cloud_300")
+    signed_error.print_graph_table(Predictor(load_bundle(directory)), {"toy": shapes}, args)
+    table = capsys.readouterr().out
+    row = next(line for line in table.splitlines() if line.startswith("| toy | cloud_300 |"))
+    cells = row.strip("|").split("|")[2:]
+    assert len(cells) == 2
+    for cell in cells:  # "mean |error| / mean signed error"
+        absolute, signed = (float(v) for v in cell.split("/"))
+        assert absolute >= abs(signed) >= 0.0 and np.isfinite(absolute)
