@@ -295,9 +295,9 @@ def shape_graph(
 
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
-    normal_cos = calibration.normal_limit(points.shape[0])
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
-    key = f"fusion.graph.{veto_key}.{k}.{ratio}.{normal_cos}.{mutual}"
+    normal_cos = calibration.normal_limit(points.shape[0])
+    key = cloud_graph_key(calibration, veto_key, points.shape[0])
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
         from litege_core.engines.graph import knn_neighbours  # scipy: on first use
@@ -313,6 +313,14 @@ def shape_graph(
             )
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio)
     return graph, surface[0]
+
+
+def cloud_graph_key(calibration: FusionCalibration, veto_key: str, n_points: int) -> str:
+    """The memo key of a cloud's fusion graph (:func:`shape_graph`): everything that shapes
+    it (the veto head, ``k``, the veto threshold, the normal limit at ``n_points`` and the
+    neighbour rule), so predictors with other calibrations sharing a state keep apart."""
+    c = calibration
+    return f"fusion.graph.{veto_key}.{c.k}.{c.prune_ratio}.{c.normal_limit(n_points)}.{c.mutual_k}"
 
 
 def fused_distances(
@@ -702,6 +710,7 @@ __all__ = [
     "FUSION_CONFIG",
     "MESH_RINGS",
     "FusionCalibration",
+    "cloud_graph_key",
     "corrected_graph",
     "fuse",
     "fused_distances",

@@ -79,6 +79,7 @@ from litege_core.learned.fusion import (
     DEFAULT_FUSION,
     EdgeGeodesics,
     FusionCalibration,
+    cloud_graph_key,
     fused_distances,
     resolve_fusion,
     route_trees,
@@ -912,7 +913,7 @@ class Predictor:
         fusion = self.fusion
         if fusion is None or state.faces is not None:
             return default_router(state)
-        key = f"surface_router.{self._veto._table_key}.{fusion.k}.{fusion.prune_ratio}"
+        key = f"surface_router.{cloud_graph_key(fusion, self._veto._table_key, state.n_points)}"
         router = state._lazy.get(key)
         if router is None:
             lazy, _ = shape_graph(

@@ -619,6 +619,18 @@ def test_paths_of_a_fused_shape_follow_its_surface(bundle_dir, blob) -> None:
         assert any(path.n_steps > 0 for path in paths)
 
 
+def test_predictors_with_other_cloud_graphs_keep_their_routers_apart(bundle_dir, blob) -> None:
+    """A state shared by two fused predictors of one bundle whose calibrations differ only in
+    the neighbour rule: each routes on its own graph (the memo keys name all of it)."""
+    bundle = load_bundle(bundle_dir)
+    symmetric = Predictor(bundle, fusion=_graph_only(bundle.content_hash))
+    mutual = Predictor(bundle, fusion=dataclasses.replace(symmetric.fusion, mutual_k=12))
+    state = symmetric.register(_cloud(blob(3)))
+    first, second = symmetric.surface_router(state), mutual.surface_router(state)
+    assert first is not second and first.graph.nnz != second.graph.nnz
+    assert symmetric.surface_router(state) is first  # kept with the state
+
+
 def test_a_mesh_of_two_parts_takes_the_network_between_them(bundle_dir, blob) -> None:
     bundle = load_bundle(bundle_dir)
     first, second = blob(3), blob(4)
