@@ -173,9 +173,10 @@ def mutual_knn_graph(
     their own side), so fewer chords bridge thin parts and gaps; a point none of whose
     neighbours return the favour is isolated.
 
-    Each point's list is sorted by index, so the upper-triangular CSR is written row by row
-    without a global sort; whether ``i`` is among ``j``'s nearest is read from ``j``'s row
-    (blocks of :data:`MUTUAL_BLOCK` edges bound the ``(E, k + 1)`` comparison).
+    ``i`` is among ``j``'s nearest exactly when ``|i − j|`` is below ``j``'s ``k``-th neighbour
+    distance; at that distance (a tie) ``j``'s list is read (blocks of :data:`MUTUAL_BLOCK`
+    edges bound the ``(E, k + 1)`` comparison). The kept edges come out row by row, each row
+    then sorted by index.
 
     Args:
         points: ``(N, 3)`` float64.
@@ -189,19 +190,19 @@ def mutual_knn_graph(
     n = points.shape[0]
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
-    order = np.argsort(nearest[:, : k + 1], axis=1)  # the point itself is among them
-    nearest = np.take_along_axis(nearest[:, : k + 1], order, axis=1)
-    lengths = np.take_along_axis(lengths[:, : k + 1], order, axis=1)
+    lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
     starts = np.repeat(np.arange(n, dtype=np.int64), k + 1)
-    ends = nearest.reshape(-1)
-    keep = starts < ends  # each pair once, from its smaller end; no self-loops
-    for block in range(0, ends.size, MUTUAL_BLOCK):
-        part = slice(block, block + MUTUAL_BLOCK)
-        candidates = keep[part]
-        back = (nearest[ends[part][candidates]] == starts[part][candidates, None]).any(axis=1)
-        candidates[candidates] = back  # a view: writes into keep
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(starts[keep], minlength=n))])
-    return sp.csr_array((lengths.reshape(-1)[keep], ends[keep], indptr), shape=(n, n))
+    ends, chords = nearest.reshape(-1), lengths.reshape(-1)
+    reach = lengths[:, k][ends]  # the k-th neighbour distance of each edge's far end
+    keep = (starts < ends) & (chords <= reach)  # each pair once, from its smaller end
+    ties = np.flatnonzero(keep & (chords == reach))
+    for block in range(0, ties.size, MUTUAL_BLOCK):
+        part = ties[block : block + MUTUAL_BLOCK]
+        keep[part] = (nearest[ends[part]] == starts[part, None]).any(axis=1)
+    indptr = np.concatenate([[0], np.cumsum(np.count_nonzero(keep.reshape(n, -1), axis=1))])
+    graph = sp.csr_array((chords[keep], ends[keep], indptr), shape=(n, n))
+    graph.sort_indices()
+    return graph
 
 
 def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:

@@ -87,6 +87,26 @@ def test_mutual_knn_graph_equals_the_brute_force_reference(k):
     assert (mutual_knn_graph(points, k, knn_neighbours(points, k + 3)) != fast).nnz == 0
 
 
+@pytest.mark.parametrize("k", [4, 6, 8])
+def test_mutual_knn_graph_reads_the_lists_at_ties(k, monkeypatch):
+    """On a lattice many neighbours sit at the k-th distance: an edge is kept exactly when
+    each end is in the other's list (the lists the graph was given), also with small blocks."""
+    from litege_core.engines import graph as graph_module
+
+    monkeypatch.setattr(graph_module, "MUTUAL_BLOCK", 7)
+    axis = np.arange(6.0)
+    points = np.stack(np.meshgrid(axis, axis, axis[:3]), axis=-1).reshape(-1, 3)
+    lengths, nearest = knn_neighbours(points, k)
+    lists = [set(row.tolist()) for row in nearest]
+    expected = {(i, j) for i in range(len(points)) for j in lists[i] if i < j and i in lists[j]}
+    graph = mutual_knn_graph(points, k, (lengths, nearest)).tocoo()
+    assert {(int(i), int(j)) for i, j in zip(graph.row, graph.col, strict=True)} == expected
+    assert np.all(np.diff(graph.tocsr().indices[: graph.tocsr().indptr[1]]) > 0)  # rows sorted
+    np.testing.assert_allclose(
+        graph.data, np.linalg.norm(points[graph.row] - points[graph.col], axis=1)
+    )
+
+
 def test_mutual_knn_graph_leaves_a_thin_part_alone():
     # a dense sheet and, above it, a sparse row of points: each row point's nearest are sheet
     # points, which have nearer sheet neighbours, so no chord joins the row to the sheet
