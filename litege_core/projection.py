@@ -271,8 +271,18 @@ class CloudProjector:
 
     @cached_property
     def mean_spacing(self) -> float:
-        """Mean distance from each point to its nearest other point."""
+        """Mean distance from each point to its nearest other point at another position
+        (repeated points count once: a cloud whose every point is sent twice keeps its
+        spacing, not 0); 0 only when all points coincide."""
         distances, _ = self._tree.query(self.points, k=2)
+        if np.all(distances[:, 1] > 0):
+            return float(distances[:, 1].mean())
+        from scipy.spatial import cKDTree
+
+        distinct = np.unique(self.points, axis=0)
+        if distinct.shape[0] < 2:
+            return 0.0
+        distances, _ = cKDTree(distinct).query(distinct, k=2)
         return float(distances[:, 1].mean())
 
     @cached_property

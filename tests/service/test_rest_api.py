@@ -128,6 +128,17 @@ def test_path_goes_from_source_to_target(client, registered, reference):
     np.testing.assert_allclose(points, expected.points, atol=1e-5)
 
 
+def test_a_cloud_of_repeated_points_has_paths(client, test_shape):
+    """Every point sent twice (a client that concatenates a scan with itself): the default
+    step is the cloud's spacing between distinct points, so the walk answers instead of
+    failing on a zero step."""
+    points = np.asarray(test_shape(3).vertices)
+    shape_id = client.register_arrays(np.vstack([points, points]))["shape_id"]
+    path = client.path(shape_id, 0, 200)
+    assert len(path["points"]) >= 2 and path["length"] > 0
+    np.testing.assert_allclose(path["points"][-1], points[200], atol=1e-9)
+
+
 def test_get_and_delete(client, mesh_bytes):
     info = client.register_file(mesh_bytes(3, "off"), file_format="off")
     assert client.get_shape(info["shape_id"])["shape_id"] == info["shape_id"]

@@ -211,6 +211,10 @@ def test_cloud_projector_snaps_to_the_nearest_point():
     brute4 = np.argsort(np.linalg.norm(queries[:, None] - cloud[None], axis=2), axis=1)[:, :4]
     np.testing.assert_array_equal(neighbours, brute4)
     assert projector.mean_spacing > 0
+    # repeated points count once: a cloud sent twice keeps its spacing
+    twice = CloudProjector(np.vstack([cloud, cloud]))
+    assert twice.mean_spacing == pytest.approx(projector.mean_spacing, rel=1e-12)
+    assert CloudProjector(np.zeros((5, 3))).mean_spacing == 0.0
 
 
 # ------------------------------------------------------------------------ paths
@@ -325,6 +329,17 @@ def test_point_cloud_paths_hop_between_cloud_points(sphere_predictor):
         np.testing.assert_array_equal(path.points[[0, -1]], points[[s, t]])
         assert path.converged and path.n_steps > 3
         assert 0.85 < path.length / path.predicted_distance < 1.35
+
+
+def test_a_cloud_of_repeated_points_walks_as_the_cloud_itself(sphere_predictor):
+    """Every point sent twice: the nearest other point is at distance 0, the step is not."""
+    points = shape_samples(_sphere(4), 1500, seed=1)
+    once = sphere_predictor.register(Shape.from_arrays(points))
+    twice = sphere_predictor.register(Shape.from_arrays(np.vstack([points, points])))
+    assert twice.spacing == pytest.approx(once.spacing, rel=1e-9) and twice.spacing > 0
+    path = sphere_predictor.path(twice, 0, 1000)
+    assert path.converged and path.n_steps > 3
+    np.testing.assert_array_equal(path.points[[0, -1]], points[[0, 1000]])
 
 
 def test_degenerate_and_capped_walks(sphere_predictor, sphere):
