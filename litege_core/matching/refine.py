@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from litege_core.errors import InputError, MissingDependencyError
+from litege_core.errors import DegenerateShapeError, InputError, MissingDependencyError
 from litege_core.matching.deform import register_displacement, smooth_displacement
 from litege_core.sampling import farthest_point_sampling
 
@@ -214,11 +214,13 @@ def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
     key = f"spectrum:{settings.n_eigen}:{settings.n_samples}"
     cached = prepared._lazy.get(key)
     if cached is None:
-        TriMesh, _, _ = import_pyfm()
         vertices = np.asarray(prepared.aligned, dtype=np.float64)
-        mesh = TriMesh(vertices, np.asarray(prepared.faces))
-        k = min(settings.n_eigen, vertices.shape[0] - 2)
-        mesh.process(k=k, robust=prepared.scaling == "broken_mesh", verbose=False)
+        mesh = _laplacian_eigenpairs(
+            vertices,
+            np.asarray(prepared.faces),
+            min(settings.n_eigen, vertices.shape[0] - 2),
+            robust=prepared.scaling == "broken_mesh",
+        )
         samples = farthest_point_sampling(vertices, min(settings.n_samples, vertices.shape[0]))
         cached = Spectrum(
             np.asarray(mesh.eigenvectors, dtype=np.float64),
@@ -229,6 +231,34 @@ def spectrum(prepared: PreparedShape, settings: ZoomOutSettings) -> Spectrum:
         )
         prepared._lazy[key] = cached
     return cached
+
+
+def _laplacian_eigenpairs(vertices: NDArray, faces: NDArray, k: int, robust: bool) -> Any:
+    """A pyFM mesh of ``vertices`` ``(N, 3)`` and ``faces`` ``(F, 3)`` with its first ``k``
+    Laplace–Beltrami eigenpairs. Faces that repeat a vertex are dropped (they have no area);
+    where the cotangent Laplacian's eigensolver fails (zero-area faces, isolated vertices) the
+    robust Laplacian (intrinsic mollification) is tried before giving up.
+
+    Raises:
+        DegenerateShapeError: neither Laplacian gives finite eigenpairs.
+    """
+    TriMesh, _, _ = import_pyfm()
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
+    faces = faces[faces[:, 0] != faces[:, 2]]
+    for attempt in (True,) if robust else (False, True):
+        mesh = TriMesh(vertices, faces)
+        try:  # a third-party solver: any failure means these eigenpairs are unusable
+            mesh.process(k=k, robust=attempt, verbose=False)
+        except Exception:
+            continue
+        values, vectors = np.asarray(mesh.eigenvalues), np.asarray(mesh.eigenvectors)
+        finite = np.isfinite(values).all() and np.isfinite(vectors).all()
+        if finite and vectors.shape == (vertices.shape[0], k):
+            return mesh
+    raise DegenerateShapeError(
+        "refine='zoomout' could not compute this mesh's Laplace-Beltrami spectrum (degenerate "
+        "faces or isolated vertices); clean the mesh or match without refine"
+    )
 
 
 def _zoomout(fmap: NDArray, source: Spectrum, target: Spectrum, settings: ZoomOutSettings):

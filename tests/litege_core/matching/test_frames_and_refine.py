@@ -672,3 +672,41 @@ def test_smoothing_a_refined_map_averages_its_vertex_noise(lumpy):
             ZoomOutSettings(**bad)
     with pytest.raises(InputError, match="registration_smoothing"):
         ZoomOutSettings(registration_smoothing=0.0)
+
+
+def test_the_spectrum_ignores_faces_that_repeat_a_vertex(lumpy):
+    pytest.importorskip("pyFM")
+    vertices, faces = lumpy
+    settings = ZoomOutSettings(k_init=8, n_eigen=30, step=2, n_samples=100)
+    clean = spectrum(_Prepared(vertices, faces), settings)
+    broken = np.vstack([faces, [[0, 0, 1], [2, 2, 2], [5, 6, 5]]])  # no area: a 500 before
+    kept = spectrum(_Prepared(vertices, broken), settings)
+    np.testing.assert_allclose(kept.eigenvalues, clean.eigenvalues, rtol=1e-6, atol=1e-9)
+
+
+def test_the_spectrum_falls_back_to_the_robust_laplacian_then_says_why(lumpy, monkeypatch):
+    pytest.importorskip("pyFM")
+    from pyFM.mesh import TriMesh
+
+    from litege_core.errors import DegenerateShapeError
+
+    vertices, faces = lumpy
+    settings = ZoomOutSettings(k_init=8, n_eigen=30, step=2, n_samples=100)
+    process, calls = TriMesh.process, []
+
+    def cotangent_fails(self, *args, robust=False, **kwargs):
+        calls.append(robust)
+        if not robust:
+            raise ValueError("eigh has failed in lobpcg postprocessing")
+        return process(self, *args, robust=robust, **kwargs)
+
+    monkeypatch.setattr(TriMesh, "process", cotangent_fails)
+    result = spectrum(_Prepared(vertices, faces), settings)
+    assert calls == [False, True] and np.isfinite(result.eigenvalues).all()
+
+    def always_fails(self, *args, **kwargs):
+        raise RuntimeError("Factor is exactly singular")
+
+    monkeypatch.setattr(TriMesh, "process", always_fails)
+    with pytest.raises(DegenerateShapeError, match="spectrum"):
+        spectrum(_Prepared(vertices, faces), settings)
