@@ -28,7 +28,12 @@ from litege_core.engines.base import (
     ParamValue,
     wrap_foreign,
 )
-from litege_core.errors import InputError, LiteGEError, MissingDependencyError
+from litege_core.errors import (
+    InputError,
+    LiteGEError,
+    MethodNotApplicableError,
+    MissingDependencyError,
+)
 from litege_core.shape import Shape
 
 
@@ -106,12 +111,24 @@ class HeatGeodesicEngine(MeshGeodesicEngine):
         return topology.scatter_rows(sources, dict(zip(todo, solved, strict=True)))
 
 
+POINT_CLOUD_HEAT_NEIGHBOURS = 30
+"""Neighbours of each point in potpourri3d's point-cloud Laplacian: the heat method on a cloud
+needs more distinct points than that."""
+
+
 class PointCloudHeatEngine(GeodesicEngine):
     """Heat-method distances on a point cloud (a mesh shape is used through its vertices).
+
+    Repeated points are solved once (the solver's neighbourhoods degenerate on them), the
+    distinct points in the order they first appear (the solver's answer depends on the order),
+    and share their rows.
 
     Args:
         shape: any :class:`~litege_core.shape.Shape`.
         t_coef: diffusion time coefficient (potpourri3d's convention, default 1.0).
+
+    Raises (on the first query):
+        MethodNotApplicableError: :data:`POINT_CLOUD_HEAT_NEIGHBOURS` or fewer distinct points.
 
     Cost on 2K points: build tens of ms, then about 1 ms per source.
     """
@@ -122,6 +139,7 @@ class PointCloudHeatEngine(GeodesicEngine):
         super().__init__(shape)
         self._t_coef = _check_t_coef(t_coef)
         self._solver: Any = None
+        self._distinct: NDArray | None = None  # point → its distinct point, where repeated
 
     @property
     def params(self) -> Mapping[str, ParamValue]:
@@ -131,21 +149,38 @@ class PointCloudHeatEngine(GeodesicEngine):
         """Build the point-cloud Laplacian and factorise it now."""
         if self._solver is None:
             pp3d = _import_pp3d()
-            try:
-                self._solver = pp3d.PointCloudHeatSolver(
-                    np.ascontiguousarray(self._shape.vertices), self._t_coef
+            points = np.ascontiguousarray(self._shape.vertices, dtype=np.float64)
+            _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
+            order = np.argsort(first)  # distinct points in the order they first appear
+            rank = np.empty_like(order)
+            rank[order] = np.arange(order.size)
+            distinct = points[first[order]]
+            if distinct.shape[0] <= POINT_CLOUD_HEAT_NEIGHBOURS:
+                raise MethodNotApplicableError(
+                    f"the heat method on a point cloud needs more than "
+                    f"{POINT_CLOUD_HEAT_NEIGHBOURS} distinct points (its Laplacian joins each "
+                    f"point to {POINT_CLOUD_HEAT_NEIGHBOURS} neighbours) and this one has "
+                    f"{distinct.shape[0]}; use method='graph'",
+                    method="heat",
                 )
+            if distinct.shape[0] < points.shape[0]:
+                points, self._distinct = np.ascontiguousarray(distinct), rank[inverse.reshape(-1)]
+            try:
+                self._solver = pp3d.PointCloudHeatSolver(points, self._t_coef)
             except (RuntimeError, ValueError, TypeError, MemoryError) as exc:
                 raise wrap_foreign(self.method, exc) from exc
         return self
 
     def _rows(self, sources: NDArray) -> NDArray:
-        rows = _solve_rows(self.method, self.prepare()._solver, sources.tolist())
-        rows[np.arange(sources.size), sources] = 0.0
-        return rows
+        solver = self.prepare()._solver
+        solved = sources if self._distinct is None else self._distinct[sources]
+        rows = _solve_rows(self.method, solver, solved.tolist())
+        rows[np.arange(sources.size), solved] = 0.0
+        return rows if self._distinct is None else rows[:, self._distinct]
 
 
 __all__ = [
+    "POINT_CLOUD_HEAT_NEIGHBOURS",
     "HeatGeodesicEngine",
     "PointCloudHeatEngine",
 ]

@@ -389,6 +389,20 @@ def test_exact_on_a_point_cloud_says_why(http, shape_ids):
     assert problem["code"] == "method-not-applicable" and "point cloud" in problem["detail"]
 
 
+def test_heat_on_a_cloud_of_few_distinct_points_says_why(http):
+    """Point-cloud heat joins each point to 30 neighbours: a cloud of 20 points (sent
+    twice, so 40 rows) is a 422 that names the fix, not the solver's failure as a 500."""
+    points = np.random.default_rng(4).normal(size=(20, 3))
+    response = http.post("/shapes", json={"vertices": np.vstack([points, points]).tolist()})
+    assert response.status_code in (200, 201), response.text
+    body = {"shape_id": response.json()["shape_id"], "sources": [0], "method": "heat"}
+    problem = http.post("/geodesic", json=body).json()
+    assert problem["status"] == 422 and problem["code"] == "method-not-applicable", problem
+    assert "20" in problem["detail"] and "method='graph'" in problem["detail"]
+    graph = http.post("/geodesic", json={**body, "method": "graph"})
+    assert graph.status_code == 200, graph.text
+
+
 # --------------------------------------------------------------------------- gRPC
 
 GrpcCase = Callable[[Any, Any, list[str]], Any]

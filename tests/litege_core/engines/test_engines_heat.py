@@ -51,6 +51,33 @@ def test_pointcloud_heat_close_to_great_circle(sphere_cloud):
     assert result.params["t_coef"] == 1.0
 
 
+def test_pointcloud_heat_solves_repeated_points_once(sphere_cloud):
+    """Each point sent twice: the rows are the cloud's own, repeated (the solver would
+    otherwise see degenerate neighbourhoods)."""
+    points = np.asarray(sphere_cloud.vertices)[:600]
+    once = PointCloudHeatEngine(Shape.from_arrays(points)).distances([0, 7]).distances
+    twice = PointCloudHeatEngine(Shape.from_arrays(np.vstack([points, points])))
+    rows = twice.distances([0, 607]).distances  # point 607 repeats point 7
+    np.testing.assert_array_equal(rows[:, :600], once)  # the same solver input, in order
+    np.testing.assert_array_equal(rows[:, 600:], rows[:, :600])
+    assert rows[0, 600] == rows[1, 7] == 0.0
+
+
+def test_pointcloud_heat_needs_more_distinct_points_than_its_neighbourhood():
+    from litege_core.engines.heat import POINT_CLOUD_HEAT_NEIGHBOURS
+    from litege_core.errors import MethodNotApplicableError
+
+    rng = np.random.default_rng(0)
+    few = rng.normal(size=(POINT_CLOUD_HEAT_NEIGHBOURS, 3))
+    crowded = np.vstack([np.zeros((300, 3)), few])  # 331 points, 31 distinct
+    with pytest.raises(MethodNotApplicableError, match=r"distinct points.*method='graph'"):
+        PointCloudHeatEngine(Shape.from_arrays(few)).distances([0])
+    rows = PointCloudHeatEngine(Shape.from_arrays(crowded)).distances([0, 300]).distances
+    assert np.isfinite(rows).all() and np.all(rows[0, :300] == 0.0)
+    with pytest.raises(MethodNotApplicableError):
+        PointCloudHeatEngine(Shape.from_arrays(crowded[:-1])).distances([0])  # 30 distinct
+
+
 def test_pointcloud_heat_accepts_a_mesh_through_its_vertices(sphere3):
     rows = compute_distances(sphere3, [0], "pointcloud_heat").distances
     cloud_rows = compute_distances(sphere3.as_point_cloud(), [0], "pointcloud_heat").distances
