@@ -222,6 +222,19 @@ def test_refine_zoomout_on_two_meshes(service, client, small_pair, reference):
 
 
 @NEEDS_PYFM
+@NEEDS_PYFM
+def test_refine_zoomout_on_a_mesh_with_faces_that_repeat_a_vertex(client, small_pair, blob):
+    """Faces without area (a vertex repeated) are dropped from the spectrum's mesh, so the
+    refinement answers (pyFM's eigensolver failed on them: a 500)."""
+    shape = blob(21, subdivisions=2)
+    faces = np.vstack([np.asarray(shape.faces), [[0, 0, 1], [2, 2, 2]]])
+    broken = client.register_arrays(shape.vertices, faces)["shape_id"]
+    target = small_pair["ids"][1]
+    got = client.correspondences(broken, target, [0, 7, 100], refine="zoomout")
+    assert got["refinement"] == "zoomout" and got["matches"].shape == (3,)
+    assert got["matches"].min() >= 0 and got["matches"].max() < small_pair["shapes"][1].n_points
+
+
 def test_refine_zoomout_hybrid_names_the_kept_seed(client, small_pair):
     src, tgt = small_pair["ids"]
     got = client.correspondences(src, tgt, [0, 1, 2], refine="zoomout-hybrid")
