@@ -5,6 +5,7 @@ Usage::
 
     python scripts/bench_workloads.py [--runs 5] [--exact-sources 20] [--no-cli]
         [--only-methods "LiteGE,LiteGE full head"] [--only-workloads "1K × 1K,distance field"]
+        [--warm 3]
 
 ``--only-methods`` / ``--only-workloads`` run a subset of the cases (comma-separated names;
 a quick look at a few rows: the targets table and the memory check then cover what ran).
@@ -40,7 +41,10 @@ in its aligned frame, and ZoomOut (pyFM) as in ``litege eval matching``. The exa
 extrapolated from ``--exact-sources`` sources (its build plus per-source time × 1000).
 
 Time: median process CPU time over ``--runs`` rounds after a warm-up round; the rounds
-interleave the methods, so load from other jobs hits them alike. Wall-clock medians are shown
+interleave the methods, so load from other jobs hits them alike. With ``--warm N`` each round
+also repeats each case N times right after its timed call (a "warm" column: the case with its
+own data and weights in the caches; the interleaved figure has the other cases' there, which
+costs LiteGE more than kNN Dijkstra). Wall-clock medians are shown
 too. The ratio column divides by the kNN Dijkstra time of the same workload and input
 (correspondences: by ZoomOut). One torch thread, ``OMP_NUM_THREADS=1``.
 """
@@ -108,6 +112,7 @@ class Case:
     offset: Callable[[], float] | None = None
     cpu: list[float] = field(default_factory=list)
     wall: list[float] = field(default_factory=list)
+    warm: list[float] = field(default_factory=list)  # CPU ms of back-to-back repeats
 
 
 def _inputs():
@@ -349,7 +354,11 @@ def _matching_cases(data) -> list[Case]:
     return cases
 
 
-def run_cases(cases: list[Case], runs: int) -> None:
+def run_cases(cases: list[Case], runs: int, warm: int = 0) -> None:
+    """Time every case in ``runs`` interleaved rounds after a warm-up round; with ``warm``,
+    each round also repeats a case ``warm`` times right after its timed call (the mean CPU
+    time of the repeats: the case with its own data and weights in the caches, as a stream of
+    queries of one kind meets it), except the one-round cases."""
     rounds = runs + 1
     for r in range(rounds):
         for case in cases:
@@ -363,6 +372,11 @@ def run_cases(cases: list[Case], runs: int) -> None:
             if r:
                 case.cpu.append(cpu)
                 case.wall.append(wall)
+            if r and warm and not case.runs:
+                start_cpu = time.process_time()
+                for _ in range(warm):
+                    case.fn()
+                case.warm.append(1000.0 * (time.process_time() - start_cpu) * case.scale / warm)
         print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
 
 
@@ -374,11 +388,17 @@ def main() -> None:
     parser.add_argument("--no-cli", action="store_true")
     parser.add_argument("--only-methods", default="", help="comma-separated method names")
     parser.add_argument("--only-workloads", default="", help="comma-separated workload names")
+    parser.add_argument(
+        "--warm",
+        type=int,
+        default=0,
+        help="also time N back-to-back repeats of each case per round (a 'warm' column)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     data = _inputs()
     cases = build_cases(args, data)
-    run_cases(cases, args.runs)
+    run_cases(cases, args.runs, args.warm)
 
     bundle = load_shipped("quadrupeds")
     memory = {}
@@ -420,23 +440,41 @@ def main() -> None:
         "exact 1K × 1K and ZoomOut: 1 round), preprocessing included, nothing cached between "
         "runs; CPU = process CPU time (the steadier figure on this shared machine), wall in "
         f"brackets; command `python scripts/bench_workloads.py --runs {args.runs} "
-        f"--exact-sources {args.exact_sources}{subset}`"
+        f"--exact-sources {args.exact_sources}{subset}"
+        + (f" --warm {args.warm}`" if args.warm else "`")
     )
+    if args.warm:
+        print(
+            f"- warm: the mean CPU time of {args.warm} back-to-back repeats right after each "
+            "timed call (median over the rounds; the one-round cases have none): the case "
+            "with its own data and weights in the caches, as a stream of queries of one kind "
+            "meets it; the interleaved figure has the other cases' data there"
+        )
     print(
         "- ratio: the method's CPU time over kNN Dijkstra's on the same workload and input "
         "(correspondences: over ZoomOut); < 1 is faster\n"
     )
-    print("| workload | input | method | CPU ms | (wall ms) | ratio | note |")
-    print("|---|---|---|---:|---:|---:|---|")
+    warm_head = " warm CPU ms | warm ratio |" if args.warm else ""
+    print(f"| workload | input | method | CPU ms | (wall ms) | ratio |{warm_head} note |")
+    print("|---|---|---|---:|---:|---:|" + ("---:|---:|" if args.warm else "") + "---|")
     for case in cases:
         ms = statistics.median(case.cpu)
         wall = statistics.median(case.wall)
         ref_name = "ZoomOut (pyFM)" if case.workload == "1K correspondences" else REFERENCE
         ref = med.get((case.workload, case.data, ref_name))
         ratio = f"{ms / statistics.median(ref.cpu):.2f}×" if ref is not None else "—"
+        warm_cells = ""
+        if args.warm:
+            warm_ms = statistics.median(case.warm) if case.warm else None
+            ref_warm = statistics.median(ref.warm) if ref is not None and ref.warm else None
+            warm_cells = (
+                " — | — |"
+                if warm_ms is None
+                else f" {warm_ms:.1f} | " + (f"{warm_ms / ref_warm:.2f}× |" if ref_warm else "— |")
+            )
         print(
             f"| {case.workload} | {case.data} | {case.method} | {ms:.1f} | ({wall:.1f}) | "
-            f"{ratio} | {case.note} |"
+            f"{ratio} |{warm_cells} {case.note} |"
         )
 
     print("\n**Targets** (2-core shared CPU, one thread, preprocessing included)\n")
@@ -457,6 +495,13 @@ def main() -> None:
                 f"| 2K cloud, field ÷ kNN Dijkstra field | {name} | {field_ratio:.2f}× | "
                 f"≤ 2.0× | {_ok(field_ratio <= 2.0)} |"
             )
+            fields = med[("distance field", "2K cloud", name)].warm, med[ref_field].warm
+            if all(fields):
+                warm_ratio = statistics.median(fields[0]) / statistics.median(fields[1])
+                print(
+                    f"| 2K cloud, field ÷ kNN Dijkstra field, warm | {name} | "
+                    f"{warm_ratio:.2f}× | ≤ 2.0× | {_ok(warm_ratio <= 2.0)} |"
+                )
         if name in memory:
             mem = memory[name].cpu_mb
             print(

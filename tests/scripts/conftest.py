@@ -60,3 +60,8 @@ def contact_error() -> ModuleType:
 @pytest.fixture(scope="module")
 def signed_error() -> ModuleType:
     return load_script("signed_error")
+
+
+@pytest.fixture(scope="module")
+def bench_workloads() -> ModuleType:
+    return load_script("bench_workloads")
