@@ -284,7 +284,8 @@ class Predictor:
         lattice = self.descriptor_lattice
         lattice = "" if lattice == "full" else f", descriptor_lattice={lattice!r}"
         fusion = "" if self.fusion is None else ", fusion='graph'"
-        embed = "" if self.embed_precision == "float32" else ", embed_precision='int8'"
+        embed = self.embed_precision
+        embed = "" if embed == DEFAULT_PRECISION else f", embed_precision={embed!r}"
         device = str(self.device)
         return (
             f"Predictor(bundle={self.bundle.name!r}, device={device!r}{head}{lattice}{fusion}"

@@ -116,6 +116,17 @@ def int8_engine() -> str | None:
     return next((name for name in INT8_ENGINES if name in supported), None)
 
 
+def runs_int8(packed: object, activations: torch.Tensor, *inputs: torch.Tensor) -> bool:
+    """Whether a product with ``packed`` int8 weights (``None``: none packed) runs in
+    int8 on these ``(R, ·)`` activations: :data:`INT8_MIN_ROWS` rows or more, and no gradient
+    needed through them or ``inputs`` (the other tensors the result depends on)."""
+    return (
+        packed is not None
+        and activations.shape[0] >= INT8_MIN_ROWS
+        and not _needs_grad(activations, *inputs)
+    )
+
+
 def pack_int8(weight: torch.Tensor, bias: torch.Tensor | None) -> object:
     """``x Wᵀ + b`` packed for the quantized engine's dynamic linear: ``weight`` ``(out, in)``
     as per-output-channel symmetric int8, ``bias`` ``(out,)`` float32 or ``None``.
@@ -271,7 +282,7 @@ class FoldedGeodesicNet:
             if precision == "int8":
                 q, scale = _quantize_rows(h2_w)
                 self._int8 = (q.to(self.device), scale.to(self.device, torch.float32))
-            self._packed: dict[str, object] = {}
+            self._packed: dict[str, object] | None = None
             if embed_precision == "int8":
                 self._packed = {
                     "c2": pack_int8(w2, b2),
@@ -335,15 +346,6 @@ class FoldedGeodesicNet:
             return self._embed_bf16(points, shape_bias)
         return torch.addmm(self.e_b, self.hidden(points, shape_bias), self.e_wt)
 
-    def _runs_int8(self, points: torch.Tensor, shape_bias: torch.Tensor) -> bool:
-        """Whether the point MLP runs its int8 products on these points: with
-        ``embed_precision="int8"``, without autograd, at least :data:`INT8_MIN_ROWS` of them."""
-        return (
-            bool(self._packed)
-            and points.shape[0] >= INT8_MIN_ROWS
-            and not _needs_grad(points, shape_bias)
-        )
-
     def _hidden_int8(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """:meth:`hidden` with the three ``n × n`` products in dynamic int8 (float32 in and
         out; module docstring)."""
@@ -352,6 +354,7 @@ class FoldedGeodesicNet:
             torch.ops.quantized.linear_relu_dynamic,
         )
         packed = self._packed
+        assert packed is not None  # runs_int8 said so
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu_()
         h = linear_relu(h, packed["c2"], False)
         h = linear(h, packed["p1"], False).add_(shape_bias).relu_()
@@ -383,7 +386,7 @@ class FoldedGeodesicNet:
         :class:`~litege_core.nets.small_head.FoldedSmallHead`). Differentiable in ``points``
         (with ``embed_precision="int8"``, the int8 products run only where no gradient is
         needed)."""
-        if self._runs_int8(points, shape_bias):
+        if runs_int8(self._packed, points, shape_bias):
             return self._hidden_int8(points, shape_bias)
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu()
         h = torch.addmm(self.c2_b, h, self.c2_wt).relu()
@@ -526,4 +529,5 @@ __all__ = [
     "int8_engine",
     "pack_int8",
     "resolve_precision",
+    "runs_int8",
 ]

@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from litege_core.errors import InputError
-from litege_core.nets.folded import INT8_MIN_ROWS, FoldedGeodesicNet, pack_int8
+from litege_core.nets.folded import FoldedGeodesicNet, pack_int8, runs_int8
 from litege_core.nets.geodesic import OUTPUT_KINDS, apply_output
 
 SMALL_PAIR_TILE = 8192
@@ -173,19 +173,11 @@ class FoldedSmallHead:
         """``(R, m)`` differences ``g_s − g_d`` → ``(R,)`` outputs (≥ 0); ``inplace=True``
         reuses ``diff`` as scratch memory (not with autograd)."""
         h = diff.add_(self.b1).relu_() if inplace else (diff + self.b1).relu()
-        if self._int8_rows(h):
+        if runs_int8(self._packed, h):
             return self._finish(self._hidden_int8(h) @ self.f_w)
         h = torch.addmm(self.h_b, h, self.h_wt)
         h = h.relu_() if inplace else h.relu()
         return self._finish(h @ self.f_w)
-
-    def _int8_rows(self, activations: torch.Tensor) -> bool:
-        """Whether the ``m → k`` product of these ``(R, m)`` activations runs in int8."""
-        return (
-            self._packed is not None
-            and activations.shape[0] >= INT8_MIN_ROWS
-            and not (torch.is_grad_enabled() and activations.requires_grad)
-        )
 
     def _hidden_int8(self, activations: torch.Tensor) -> torch.Tensor:
         """``relu(activations · Hᵀ + h_b)`` ``(R, k)`` by the quantized engine (int8)."""
@@ -219,7 +211,7 @@ class FoldedSmallHead:
                 diff = scratch[: pairs * width].view(a.shape[0], c.shape[0], width)
                 torch.sub(a[:, None, :], c[None, :, :], out=diff)
                 active = diff.view(pairs, width).relu_()
-                if self._int8_rows(active):
+                if runs_int8(self._packed, active):
                     value = self._hidden_int8(active) @ self.f_w
                 else:
                     h = hidden[: pairs * self.hidden].view(pairs, self.hidden)
