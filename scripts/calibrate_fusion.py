@@ -2,7 +2,8 @@
 
 Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
     [--dataset data/rigged-cal ...] [--sources 12] [--prune-ratio 1.3,1.6]
-    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--write]
+    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--ood-dataset data/primitives-cal]
+    [--veto-max-z 1,2,3,4,6,8] [--write]
 
 Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's category
 (generated on the fly, exact rows cached under ``--cache``) and the test split of every
@@ -10,7 +11,13 @@ Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's c
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
 network / pruned graph / fused errors per setting (each density's normal limit is the
 candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
-and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept);
+and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept; then
+the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
+the lowest mean fused error, the gate refitted with it. The test split of every
+``--ood-dataset`` (shapes of no training family, e.g. ``data/primitives-cal`` of
+``scripts/build_folder_cal.py --primitives``) joins only that last step: these shapes choose
+the limit and join the gate's fit, while the other constants stay those of the ``--dataset``
+and synthetic shapes);
 ``--write`` stores
 ``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
 rewrites the model card's sidecar section.
@@ -34,7 +41,10 @@ from litege_core.evaluation.fusion import (
     MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
+    VETO_MAX_Z_CANDIDATES,
     choose_normal_limits,
+    choose_veto_limit,
+    collect_ood_samples,
     collect_samples,
     fit_fusion,
     fusion_summary,
@@ -56,6 +66,15 @@ def dataset_category(directory: str) -> str:
     return str(manifest["spec"]["category"])
 
 
+def test_shapes(datasets: list[str], sources: int) -> list:
+    """The test-split shapes of ``datasets`` with their first ``sources`` exact rows."""
+    return [
+        dataclasses.replace(s, sources=s.sources[:sources], gt=s.gt[:sources])
+        for dataset in datasets
+        for s in dataset_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="quadrupeds", help="shipped name or bundle dir")
@@ -65,6 +84,13 @@ def main() -> None:
         action="append",
         default=[],
         help="calibration dataset (its test split; a collection or template dataset)",
+    )
+    parser.add_argument(
+        "--ood-dataset",
+        action="append",
+        default=[],
+        help="dataset of shapes unlike the training families (its test split): they choose the "
+        "veto's OOD limit and join the gate's fit only",
     )
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--k", type=int, default=DEFAULT_K)
@@ -86,6 +112,13 @@ def main() -> None:
         help="comma-separated cloud-graph candidates (0: symmetric k-NN; M: mutual k-NN of M "
         "neighbours); with the prune ratio, the pair whose fit has the lowest mean fused error "
         "is kept",
+    )
+    parser.add_argument(
+        "--veto-max-z",
+        default=",".join(f"{z:g}" for z in VETO_MAX_Z_CANDIDATES),
+        help="comma-separated OOD z-scores above which to try the network veto off (empty: "
+        "the veto on every cloud); the one whose fusion has the lowest mean fused error, or "
+        "none, is kept",
     )
     parser.add_argument(
         "--veto-head",
@@ -110,19 +143,17 @@ def main() -> None:
     if category not in CATEGORIES:
         raise SystemExit(f"bundle category {category!r} has no procedural families")
     shapes = generated_eval_shapes(category, args.synthetic, args.sources, cache_dir=args.cache)
-    for dataset in args.dataset:
-        shapes += [
-            dataclasses.replace(s, sources=s.sources[: args.sources], gt=s.gt[: args.sources])
-            for s in dataset_eval_shapes(dataset, "test", group=f"{Path(dataset).name} (test)")
-        ]
+    shapes += test_shapes(args.dataset, args.sources)
+    ood_shapes = test_shapes(args.ood_dataset, args.sources)
     settings = tuple(args.settings.split(","))
-    groups = sorted({s.group for s in shapes})
+    groups = sorted({s.group for s in shapes + ood_shapes})
     fitted_on = {
-        "shapes": {g: sum(s.group == g for s in shapes) for g in groups},
+        "shapes": {g: sum(s.group == g for s in shapes + ood_shapes) for g in groups},
         "settings": list(settings),
         "sources_per_shape": args.sources,
         "datasets": args.dataset,
-        "dataset_categories": [dataset_category(d) for d in args.dataset],
+        "ood_datasets": args.ood_dataset,
+        "dataset_categories": [dataset_category(d) for d in args.dataset + args.ood_dataset],
         "date": f"{datetime.now(UTC):%Y-%m-%d}",
     }
     ratios = sorted(float(r) for r in args.prune_ratio.split(","))
@@ -157,6 +188,9 @@ def main() -> None:
             error = mean_fused_error(samples, calibration)
             candidates.append((error, (prune_ratio, mutual), samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
+    limits_tried = [float(z) for z in args.veto_max_z.split(",") if z.strip()]
+    samples += collect_ood_samples(predictor, ood_shapes, calibration, settings)
+    calibration, samples, veto_errors = choose_veto_limit(samples, calibration, limits_tried)
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
     print(f"### Graph fusion calibration: `{bundle.name}`\n")
@@ -167,8 +201,10 @@ def main() -> None:
         f"{time.perf_counter() - start:.0f} s; command `python scripts/calibrate_fusion.py "
         f"--model {args.model} --synthetic {args.synthetic} "
         + " ".join(f"--dataset {d}" for d in args.dataset)
+        + "".join(f" --ood-dataset {d}" for d in args.ood_dataset)
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
-        + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}`"
+        + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}"
+        + f" --veto-max-z {args.veto_max_z}`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
@@ -192,6 +228,11 @@ def main() -> None:
             if calibration.mutual_k
             else ""
         )
+        + (
+            f"no network veto above OOD z = {calibration.veto_max_z:g}; "
+            if calibration.veto_max_z is not None
+            else ""
+        )
         + f"median graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
@@ -205,6 +246,13 @@ def main() -> None:
         print(
             "- prune ratio / mutual k candidates (mean fused error over all calibration "
             f"inputs): {tried}\n"
+        )
+    if veto_errors:
+        tried = ", ".join(
+            f"{'none' if z is None else f'{z:g}'}: {error:.3f}" for z, error in veto_errors.items()
+        )
+        print(
+            f"- veto OOD limit candidates (mean fused error over all calibration inputs): {tried}\n"
         )
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))

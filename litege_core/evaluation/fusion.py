@@ -8,7 +8,11 @@ the same median over the mesh inputs, whose graph follows the mesh's connectivit
 the graph answers alone), and the four cloud gate constants minimise the mean per-shape error
 of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
 is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
-density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count.
+density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count. The
+veto's OOD limit is the candidate of :data:`VETO_MAX_Z_CANDIDATES` (or none) whose fusion has
+the lowest mean error, the gate then refitted (:func:`choose_veto_limit`): it matters only where
+the calibration shapes include ones the network does not know (``scripts/build_folder_cal.py
+--primitives``).
 """
 
 from __future__ import annotations
@@ -54,6 +58,10 @@ MUTUAL_K_CANDIDATES = (0, 24)
 mutual k-NN graph of that many neighbours (:func:`~litege_core.engines.graph.mutual_knn_graph`);
 the one whose fit has the lowest mean fused error on the calibration shapes is kept, as for the
 veto threshold."""
+VETO_MAX_Z_CANDIDATES = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+"""OOD z-scores above which :func:`choose_veto_limit` tries turning the network veto off (besides
+keeping it on every cloud); real animals and humans score about −1.5 to 3 under their model,
+shapes of no training family 8 to 13 (BENCHMARKS "veto-ood")."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,8 @@ class FusionSample:
     network: NDArray
     graph: NDArray
     truth: NDArray
+    unvetoed: NDArray | None = None
+    """The graph's rows without the network veto (clouds, where collected), else ``None``."""
 
 
 def probe_calibration(
@@ -99,6 +109,8 @@ def probe_calibration(
 
 GraphVariant = tuple[float, float, int]
 """``(prune_ratio, normal_cos, mutual_k)`` of a cloud graph."""
+NEVER_VETO_Z = -1e9
+"""A ``veto_max_z`` below every OOD z-score: the probe of a graph without the network veto."""
 
 
 def collect_samples(
@@ -115,7 +127,7 @@ def collect_samples(
 ) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
     them (``make_input(shape, setting, seed + i)``), for each veto threshold, normal limit and
-    neighbour rule.
+    neighbour rule, with the same graph's rows without the veto (``FusionSample.unvetoed``).
 
     Args:
         predictor: a :class:`~litege_core.learned.predictor.Predictor` without fusion.
@@ -131,42 +143,100 @@ def collect_samples(
         ``{(prune_ratio, normal_cos, mutual_k): samples}``, the samples in the same order
         for every variant.
     """
-    from litege_core.learned import Predictor
-
-    bundle = predictor.bundle
-    graph_predictors = {
-        (ratio, limit, mutual): Predictor(
-            bundle,
-            predictor.device,
-            descriptor_lattice=predictor.descriptor_lattice,
-            head=predictor.head,
-            fusion=probe_calibration(bundle.content_hash, k, ratio, veto_head, limit, mutual),
+    hash_ = predictor.bundle.content_hash
+    probes = {
+        (ratio, limit, mutual): (
+            probe_calibration(hash_, k, ratio, veto_head, limit, mutual),
+            # the same graph with the veto off (an OOD limit below every z)
+            replace(
+                probe_calibration(hash_, k, 1.0, veto_head, limit, mutual),
+                veto_max_z=NEVER_VETO_Z,
+            ),
         )
         for ratio in prune_ratios
         for limit in normal_limits
         for mutual in mutual_ks
     }
-    samples: dict[GraphVariant, list[FusionSample]] = {key: [] for key in graph_predictors}
+    return _collect(predictor, shapes, settings, probes, seed)
+
+
+def collect_ood_samples(
+    predictor,
+    shapes: Sequence[EvalShape],
+    calibration: FusionCalibration,
+    settings: Sequence[str] = CALIBRATION_SETTINGS,
+    seed: int = 0,
+) -> list[FusionSample]:
+    """:func:`collect_samples` of shapes the network does not know, with the graph of a fitted
+    ``calibration`` (its own normal limits, neighbour rule and veto threshold, the veto on
+    every cloud), and without its veto: what :func:`choose_veto_limit` weighs."""
+    raw = replace(calibration, bias=(1.0,) * len(calibration.bias), gate=(-60.0, 0.0, 0.0, 0.0))
+    probes = {
+        "fitted": (
+            replace(raw, veto_max_z=None),
+            replace(raw, veto_max_z=NEVER_VETO_Z),
+        )
+    }
+    return _collect(predictor, shapes, settings, probes, seed)["fitted"]
+
+
+def _collect(
+    predictor,
+    shapes: Sequence[EvalShape],
+    settings: Sequence[str],
+    probes: dict[Any, tuple[FusionCalibration, FusionCalibration]],
+    seed: int,
+) -> dict[Any, list[FusionSample]]:
+    """The samples of :func:`collect_samples` for each key of ``probes``: ``(vetoed,
+    unvetoed)`` calibrations whose fused output is their raw graph (weight 0, bias 1)."""
+    from litege_core.learned import Predictor
+
+    def reader(calibration: FusionCalibration) -> Predictor:
+        return Predictor(
+            predictor.bundle,
+            predictor.device,
+            descriptor_lattice=predictor.descriptor_lattice,
+            head=predictor.head,
+            fusion=calibration,
+        )
+
+    readers = {
+        key: (reader(vetoed), reader(unvetoed)) for key, (vetoed, unvetoed) in probes.items()
+    }
+    unvetoed_rows: dict[tuple, NDArray] = {}  # readers that differ only in the veto share them
+    samples: dict[Any, list[FusionSample]] = {key: [] for key in readers}
     for setting in settings:
         for i, shape in enumerate(shapes):
             item = make_input(shape, setting, seed + i)
             state = predictor.register(item.shape, seed=seed)
             network = predictor.distances(state, item.source_index).astype(np.float64)
             roughness = surface_roughness(state.canonical_points)
-            for key, graph_predictor in graph_predictors.items():
-                graph = graph_predictor.distances(state, item.source_index).astype(np.float64)
+            mesh = state.faces is not None
+            unvetoed_rows.clear()
+            for key, (vetoed_reader, unvetoed_reader) in readers.items():
+                graph = vetoed_reader.distances(state, item.source_index).astype(np.float64)
+                unvetoed = None
+                if not mesh:
+                    c = unvetoed_reader.fusion
+                    assert c is not None
+                    shared = (c.k, c.normal_cos, c.bias_log10_points, c.mutual_k)
+                    if shared not in unvetoed_rows:
+                        rows = unvetoed_reader.distances(state, item.source_index)
+                        unvetoed_rows[shared] = rows.astype(np.float64)
+                    unvetoed = unvetoed_rows[shared]
                 samples[key].append(
                     FusionSample(
                         shape.name,
                         shape.group,
                         setting,
-                        state.faces is not None,
+                        mesh,
                         state.n_points,
                         float(state.ood_score),
                         roughness,
                         network,
                         graph,
                         np.asarray(item.gt, np.float64),
+                        unvetoed,
                     )
                 )
     return samples
@@ -267,8 +337,6 @@ def fit_fusion(
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
     built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
     the neighbour rule they were built with."""
-    from scipy.optimize import minimize
-
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
     knots: dict[str, tuple[float, float, float]] = {}
@@ -294,35 +362,85 @@ def fit_fusion(
         mutual_k=mutual_k,
     )
 
-    def fitted(members: Sequence[FusionSample], start: NDArray, calibration) -> NDArray:
-        def loss(params: NDArray) -> float:
-            return mean_fused_error(members, calibration(params))
+    if clouds:
+        base = replace(base, gate=fit_gate(clouds, base))
+    return base
 
-        # unit steps from w = 1/2 (scipy's default simplex is 0.00025 wide around zero)
-        return minimize(
-            loss,
-            start,
-            method="Nelder-Mead",
-            options={
-                "xatol": 1e-3,
-                "fatol": 1e-4,
-                "maxiter": 2000,
-                "initial_simplex": np.vstack([start, start + np.eye(start.size)]),
-            },
-        ).x
+
+def fit_gate(
+    samples: Sequence[FusionSample], calibration: FusionCalibration
+) -> tuple[float, float, float, float]:
+    """The cloud gate ``(a, c_z, c_n, c_r)`` minimising the mean fused error of the cloud
+    samples under ``calibration``'s other constants (Nelder–Mead from ``w = 1/2``)."""
+    from scipy.optimize import minimize
+
+    clouds = [s for s in samples if not s.mesh]
 
     def with_gate(gate: NDArray) -> FusionCalibration:
         a, c_z, c_n, c_r = (float(v) for v in gate)
-        return replace(base, gate=(a, c_z, c_n, c_r))
+        return replace(calibration, gate=(a, c_z, c_n, c_r))
 
-    if clouds:
-        base = with_gate(fitted(clouds, np.zeros(4), with_gate))
-    return base
+    start = np.zeros(4)
+    # unit steps from w = 1/2 (scipy's default simplex is 0.00025 wide around zero)
+    fitted = minimize(
+        lambda gate: mean_fused_error(clouds, with_gate(gate)),
+        start,
+        method="Nelder-Mead",
+        options={
+            "xatol": 1e-3,
+            "fatol": 1e-4,
+            "maxiter": 2000,
+            "initial_simplex": np.vstack([start, start + np.eye(start.size)]),
+        },
+    ).x
+    return with_gate(fitted).gate
 
 
 def mean_fused_error(samples: Sequence[FusionSample], calibration: FusionCalibration) -> float:
     """The mean over ``samples`` of their fused error (what :func:`fit_fusion` minimises)."""
     return float(np.mean([sample_error(s, calibration, "fused") for s in samples]))
+
+
+def with_veto_limit(
+    samples: Sequence[FusionSample], calibration: FusionCalibration
+) -> list[FusionSample]:
+    """``samples`` with each cloud's graph rows as ``calibration`` reads them: the unvetoed
+    rows where its ``veto_max_z`` keeps the veto off at the sample's z-score
+    (:meth:`~litege_core.learned.fusion.FusionCalibration.vetoes`)."""
+    return [
+        replace(s, graph=s.unvetoed)
+        if s.unvetoed is not None and not calibration.vetoes(s.z_score)
+        else s
+        for s in samples
+    ]
+
+
+def choose_veto_limit(
+    samples: Sequence[FusionSample],
+    calibration: FusionCalibration,
+    candidates: Sequence[float] = VETO_MAX_Z_CANDIDATES,
+) -> tuple[FusionCalibration, list[FusionSample], dict[float | None, float]]:
+    """The OOD limit of the network veto (``veto_max_z``: one of ``candidates`` or none) whose
+    fusion, with ``calibration``'s gate, has the lowest mean error over ``samples`` (ties: the
+    largest limit, none first), then the gate refitted with that limit.
+
+    Returns the calibration, the samples as it reads them (:func:`with_veto_limit`) and the
+    mean fused error of each option tried (``None``: no limit). Without unvetoed rows in
+    ``samples``: ``calibration`` as it is, nothing tried."""
+    if not candidates or not any(s.unvetoed is not None for s in samples):
+        return calibration, list(samples), {}
+
+    def error(limit: float | None) -> float:
+        limited = replace(calibration, veto_max_z=limit)
+        return mean_fused_error(with_veto_limit(samples, limited), limited)
+
+    tried = {limit: error(limit) for limit in [None, *sorted(candidates, reverse=True)]}
+    best = min(tried, key=tried.__getitem__)  # the first of equals: the largest limit
+    if best is None:
+        return calibration, list(samples), tried
+    limited = replace(calibration, veto_max_z=best)
+    chosen = with_veto_limit(samples, limited)
+    return replace(limited, gate=fit_gate(chosen, limited)), chosen, tried
 
 
 def fusion_summary(
@@ -372,14 +490,19 @@ __all__ = [
     "CALIBRATION_SETTINGS",
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
+    "VETO_MAX_Z_CANDIDATES",
     "FusionSample",
     "GraphVariant",
     "choose_normal_limits",
+    "choose_veto_limit",
+    "collect_ood_samples",
     "collect_samples",
     "fit_fusion",
+    "fit_gate",
     "fusion_summary",
     "fusion_table",
     "mean_fused_error",
     "probe_calibration",
     "sample_error",
+    "with_veto_limit",
 ]

@@ -19,7 +19,10 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                in log10 N from calibration knots: looser on sparse clouds, whose chords bend
                with the surface); where the calibration says so (``mutual_k``), the graph is
                the *mutual* k-NN graph of that many neighbours instead (fewer chords across
-               thin parts: :func:`~litege_core.engines.graph.mutual_knn_graph`)
+               thin parts: :func:`~litege_core.engines.graph.mutual_knn_graph`); no network
+               veto on a cloud whose OOD z-score exceeds ``veto_max_z`` (where the calibration
+               has one: the network's edge predictions on a shape it does not know cut true
+               surface edges, e.g. a torus at 300 points: 3.4 → 12.2)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
@@ -73,12 +76,13 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 6
+FUSION_FORMAT = 7
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
-added ``mutual_k`` (older files read as 0: the symmetric k-NN graph)."""
-READABLE_FORMATS = (3, 4, 5, FUSION_FORMAT)
+added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
+``veto_max_z`` (older files read as ``None``: the veto on every cloud)."""
+READABLE_FORMATS = (3, 4, 5, 6, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -115,6 +119,8 @@ class FusionCalibration:
             ``|n · ĉ| > c`` at either end), or empty: no normal limit.
         mutual_k: 0: a cloud's graph joins each point to its ``k`` nearest (symmetric k-NN);
             else the mutual k-NN graph of this many neighbours.
+        veto_max_z: the network veto runs on clouds whose OOD z-score is at most this
+            (:meth:`vetoes`); ``None``: on every cloud.
     """
 
     k: int
@@ -128,6 +134,7 @@ class FusionCalibration:
     veto_head: str = "full"
     normal_cos: tuple[float, ...] = ()
     mutual_k: int = 0
+    veto_max_z: float | None = None
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -151,6 +158,15 @@ class FusionCalibration:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
         if not (isinstance(self.mutual_k, int) and self.mutual_k >= 0):
             raise ArtifactError(f"fusion mutual_k must be an integer >= 0, got {self.mutual_k!r}")
+        if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
+            raise ArtifactError(
+                f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
+            )
+
+    def vetoes(self, z_score: float) -> bool:
+        """Whether the network vetoes the graph edges of a cloud of this OOD z-score: always
+        without ``veto_max_z``, else where ``z_score <= veto_max_z`` (never for a ``nan``)."""
+        return self.veto_max_z is None or float(z_score) <= self.veto_max_z
 
     def graph_bias(self, n_points: int, mesh: bool = False) -> float:
         """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
@@ -206,6 +222,7 @@ class FusionCalibration:
                 veto_head=str(data["veto_head"]),
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
                 mutual_k=int(data.get("mutual_k", 0)),
+                veto_max_z=None if data.get("veto_max_z") is None else float(data["veto_max_z"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -271,6 +288,7 @@ def shape_graph(
     calibration: FusionCalibration,
     kept: dict[str, Any],
     veto_key: str,
+    z_score: float,
 ) -> tuple[sp.csr_array | LazyVetoGraph, float]:
     """The graph the fusion reads on one shape and its surface roughness, kept in ``kept``.
 
@@ -278,15 +296,18 @@ def shape_graph(
     roughness 0. A cloud: its k-NN graph, normal-pruned where the calibration has normal
     limits, as a :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
     :func:`graph_rows` runs on the edges that paths use (the rows equal those of
-    :func:`pruned_knn_graph`); its roughness from the same 16-NN covariance.
+    :func:`pruned_knn_graph`), or as it is where the calibration keeps the veto off at this
+    OOD ``z_score`` (:meth:`FusionCalibration.vetoes`); its roughness from the same 16-NN
+    covariance.
 
     Args:
         points: ``(N, 3)`` float64 canonical points.
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
-            ``fusion.surface`` and ``fusion.graph.<veto_key>.<k>.<ratio>.<limit>.<mutual>``.
+            ``fusion.surface`` and :func:`cloud_graph_key`.
         veto_key: names the veto head (its verdicts are kept in the graph).
+        z_score: the shape's OOD z-score.
     """
     if faces is not None:
         graph = kept.get("fusion.mesh_graph")
@@ -297,7 +318,8 @@ def shape_graph(
         return graph, 0.0
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     normal_cos = calibration.normal_limit(points.shape[0])
-    key = cloud_graph_key(calibration, veto_key, points.shape[0])
+    vetoed = calibration.vetoes(z_score)
+    key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
         from litege_core.engines.graph import knn_neighbours  # scipy: on first use
@@ -311,16 +333,19 @@ def shape_graph(
             unvetoed = pruned_knn_graph(
                 points, k, ratio, None, neighbours, surface[1], normal_cos, mutual
             )
-            graph = kept[key] = LazyVetoGraph(unvetoed, ratio)
+            graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
     return graph, surface[0]
 
 
-def cloud_graph_key(calibration: FusionCalibration, veto_key: str, n_points: int) -> str:
+def cloud_graph_key(
+    calibration: FusionCalibration, veto_key: str, n_points: int, vetoed: bool
+) -> str:
     """The memo key of a cloud's fusion graph (:func:`shape_graph`): everything that shapes
-    it (the veto head, ``k``, the veto threshold, the normal limit at ``n_points`` and the
-    neighbour rule), so predictors with other calibrations sharing a state keep apart."""
+    it (the veto head and threshold, or no veto; ``k``, the normal limit at ``n_points`` and
+    the neighbour rule), so predictors with other calibrations sharing a state keep apart."""
     c = calibration
-    return f"fusion.graph.{veto_key}.{c.k}.{c.prune_ratio}.{c.normal_limit(n_points)}.{c.mutual_k}"
+    veto = f"{veto_key}.{c.prune_ratio}" if vetoed else "unvetoed"
+    return f"fusion.graph.{veto}.{c.k}.{c.normal_limit(n_points)}.{c.mutual_k}"
 
 
 def fused_distances(
@@ -343,7 +368,7 @@ def fused_distances(
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
     KD-tree of ``points``, ``fusion.tree``, when free points join)."""
-    graph, roughness = shape_graph(points, faces, calibration, kept, veto_key)
+    graph, roughness = shape_graph(points, faces, calibration, kept, veto_key, ood_score)
     tree = None
     if src[0] is None or dst[0] is None:  # free points join through a KD-tree
         tree = kept.get("fusion.tree")

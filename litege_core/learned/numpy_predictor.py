@@ -507,6 +507,7 @@ class NumpyPredictor:
             state._kept,
             self._edge_geodesics(state),
             self._veto_key,
+            state.ood_score,
             n_sources,
         )
 

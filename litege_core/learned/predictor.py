@@ -718,6 +718,7 @@ class Predictor:
             state._lazy,
             self._edge_geodesics(state),
             self._veto._table_key,
+            state.ood_score,
             n_sources,
         )
 
@@ -914,15 +915,20 @@ class Predictor:
         fusion = self.fusion
         if fusion is None or state.faces is not None:
             return default_router(state)
-        key = f"surface_router.{cloud_graph_key(fusion, self._veto._table_key, state.n_points)}"
+        veto_key, z_score = self._veto._table_key, state.ood_score
+        graph_key = cloud_graph_key(fusion, veto_key, state.n_points, fusion.vetoes(z_score))
+        key = f"surface_router.{graph_key}"
         router = state._lazy.get(key)
         if router is None:
-            lazy, _ = shape_graph(
-                state.canonical_points, None, fusion, state._lazy, self._veto._table_key
+            graph, _ = shape_graph(
+                state.canonical_points, None, fusion, state._lazy, veto_key, z_score
             )
-            assert isinstance(lazy, LazyVetoGraph)  # a cloud's graph
-            trees = functools.partial(route_trees, lazy, edge_geodesics=self._edge_geodesics(state))
-            router = SurfaceRouter(state.vertices, None, lazy.graph, trees)
+            if isinstance(graph, LazyVetoGraph):
+                edge_geodesics = self._edge_geodesics(state)
+                trees = functools.partial(route_trees, graph, edge_geodesics=edge_geodesics)
+                router = SurfaceRouter(state.vertices, None, graph.graph, trees)
+            else:  # no veto at this OOD score: Dijkstra on the graph as it is
+                router = SurfaceRouter(state.vertices, None, graph)
             router = state._lazy.setdefault(key, router)
         return router
 

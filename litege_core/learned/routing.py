@@ -59,6 +59,7 @@ def shape_agreement(
     kept: dict[str, Any],
     edge_geodesics: EdgeGeodesics,
     veto_key: str,
+    z_score: float,
     n_sources: int = AGREEMENT_SOURCES,
 ) -> float:
     """A predictor's agreement on one shape: :func:`graph_agreement` of the rows of
@@ -66,16 +67,16 @@ def shape_agreement(
 
     Args:
         network_rows: ``sources (S,) → (S, N)`` the network's distances (canonical units).
-        points, faces, calibration, kept, edge_geodesics, veto_key: the shape and its fusion,
-            as :func:`~litege_core.learned.fusion.shape_graph` (the graph is kept in ``kept``,
-            where the fused queries find it).
+        points, faces, calibration, kept, edge_geodesics, veto_key, z_score: the shape and
+            its fusion, as :func:`~litege_core.learned.fusion.shape_graph` (the graph is kept
+            in ``kept``, where the fused queries find it).
     """
     from litege_core.learned.fusion import graph_rows, shape_graph
     from litege_core.sampling import farthest_point_sampling
 
     sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
     network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
-    graph, _ = shape_graph(points, faces, calibration, kept, veto_key)
+    graph, _ = shape_graph(points, faces, calibration, kept, veto_key, z_score)
     every = np.arange(points.shape[0])
     rows = graph_rows(
         graph,

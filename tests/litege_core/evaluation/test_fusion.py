@@ -4,6 +4,8 @@ trust the graph on unusual shapes and the network on familiar ones."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -208,3 +210,84 @@ def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
     assert calibration.normal_cos == (1.0, 0.7)
     assert calibration.normal_limit(2000) == pytest.approx(0.7)
     assert fit_fusion(merged, "h" * 64, k=8, prune_ratio=1.5).normal_cos == ()
+
+
+def _veto_samples() -> list[FusionSample]:
+    """Clouds whose vetoed graph is exact on familiar shapes (z = 0) and off by 30 % on
+    unusual ones (z = 8), where the graph without the veto is exact; the network is off by
+    20 % everywhere."""
+    rng = np.random.default_rng(1)
+    samples = []
+    for i in range(8):
+        truth = rng.uniform(10.0, 200.0, size=(3, 40))
+        unusual = i % 2 == 1
+        vetoed = truth * (1.3 if unusual else 1.0)
+        unvetoed = truth if unusual else truth * 1.3
+        samples.append(
+            FusionSample(
+                f"s{i}",
+                "toy",
+                "cloud_1000",
+                False,
+                1000,
+                8.0 if unusual else 0.0,
+                0.1,
+                truth * 1.2,
+                vetoed,
+                truth,
+                unvetoed,
+            )
+        )
+    return samples
+
+
+def test_the_veto_limit_separates_familiar_from_unusual_shapes() -> None:
+    from litege_core.evaluation.fusion import choose_veto_limit, with_veto_limit
+
+    samples = _veto_samples()
+    calibration = fit_fusion(samples, "h" * 64, k=8, prune_ratio=1.3)
+    assert calibration.veto_max_z is None
+    chosen, read, tried = choose_veto_limit(samples, calibration)
+    # every limit from 1 to 6 keeps the veto on the familiar shapes only: the largest is kept
+    assert chosen.veto_max_z == 6.0 and list(tried) == [None, 8.0, 6.0, 4.0, 3.0, 2.0, 1.0]
+    assert tried[6.0] < tried[8.0] == pytest.approx(tried[None])
+    for sample, seen in zip(samples, read, strict=True):
+        expected = sample.unvetoed if sample.z_score > 6.0 else sample.graph
+        np.testing.assert_array_equal(seen.graph, expected)
+    assert read == with_veto_limit(samples, chosen)
+    fused = np.mean([sample_error(s, chosen, "fused") for s in read])
+    assert fused < 0.1 * np.mean([sample_error(s, calibration, "fused") for s in samples])
+    # familiar shapes alone, or no unvetoed rows: no limit, nothing changed
+    familiar = [s for s in samples if s.z_score == 0.0]
+    assert choose_veto_limit(familiar, calibration)[0].veto_max_z is None
+    plain = [dataclasses.replace(s, unvetoed=None) for s in samples]
+    assert choose_veto_limit(plain, calibration) == (calibration, plain, {})
+
+
+def test_ood_samples_read_the_fitted_graph_with_and_without_its_veto(
+    blob, toy_bundle_dir_with_ood
+) -> None:
+    from litege_core.engines import compute_distances
+    from litege_core.evaluation.fusion import collect_ood_samples, probe_calibration
+    from litege_core.evaluation.geodesic import EvalShape, unit_area
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.sampling import farthest_point_sampling
+    from litege_core.shape import Shape
+
+    shape = blob(7, subdivisions=3)
+    vertices, _ = unit_area(shape.vertices, shape.faces)
+    sources = farthest_point_sampling(vertices, 4)
+    gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
+    shapes = [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    predictor = Predictor(bundle)
+    fitted = dataclasses.replace(  # untrained: 3 × chord cuts some edges
+        probe_calibration(bundle.content_hash, 8, 3.0), bias=(1.2,), gate=(0.0, 0.0, 0.0, 0.0)
+    )
+    mesh, cloud = collect_ood_samples(predictor, shapes, fitted, ("mesh", "cloud_300"))
+    assert mesh.unvetoed is None and cloud.unvetoed is not None
+    # the raw graph (no bias, no blend): the veto only cuts edges, so paths only lengthen
+    joined = (cloud.graph != cloud.network) & np.isfinite(cloud.unvetoed)
+    assert joined.mean() > 0.5
+    assert np.all(cloud.graph[joined] >= cloud.unvetoed[joined] - 1e-9)
+    assert np.any(cloud.graph[joined] > cloud.unvetoed[joined] + 1e-6)

@@ -67,6 +67,8 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"normal_cos": (0.7, 1.2, 0.8)},
         {"mutual_k": -1},
         {"mutual_k": 1.5},
+        {"veto_max_z": float("inf")},
+        {"veto_max_z": float("nan")},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -88,6 +90,13 @@ def test_normal_limit_interpolates_in_log_points_and_defaults_to_none() -> None:
     assert calibration.normal_limit(1000) == pytest.approx(0.7)
     assert calibration.normal_limit(10**3.25) == pytest.approx(0.65)
     assert calibration.normal_limit(50) == pytest.approx(0.9)
+
+
+def test_the_veto_runs_up_to_its_ood_limit() -> None:
+    assert all(_calibration().vetoes(z) for z in (-3.0, 0.0, 50.0))  # no limit: every cloud
+    limited = _calibration(veto_max_z=2.0)
+    assert limited.vetoes(-1.0) and limited.vetoes(2.0)
+    assert not limited.vetoes(2.01) and not limited.vetoes(float("nan"))
 
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
@@ -178,6 +187,11 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     mutual = dataclasses.replace(calibration, mutual_k=24)
     assert FusionCalibration.from_json(json.loads(json.dumps(mutual.to_json()))) == mutual
     assert (calibration.reach, mutual.reach) == (calibration.k, 24)  # what the graph searches
+    # a format-6 file (no veto_max_z) vetoes every cloud; veto_max_z round-trips
+    del older["veto_max_z"]
+    assert FusionCalibration.from_json({**older, "format_version": 6}).veto_max_z is None
+    limited = dataclasses.replace(calibration, veto_max_z=4.5)
+    assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -785,6 +799,34 @@ def test_the_small_head_vetoes_edges_when_the_calibration_says_so(bundle_dir, bl
         Predictor(
             load_bundle(bundle_dir), fusion=dataclasses.replace(calibration, veto_head="small")
         )
+
+
+def test_a_cloud_beyond_the_veto_limit_reads_the_unvetoed_graph(bundle_dir, blob) -> None:
+    """Above ``veto_max_z`` a cloud's rows and paths come from its k-NN graph with no edge
+    cut by the network; at or below it, from the vetoed graph (a veto that cuts edges here)."""
+    bundle = load_bundle(bundle_dir)
+    shape = _cloud(blob(6))
+    probe = Predictor(bundle, fusion=_graph_only(bundle.content_hash))
+    z = probe.register(shape).ood_score
+    sources = np.array([0, 9])
+    rows, graphs = {}, {}
+    for name, limit in (("vetoed", z + 0.5), ("unvetoed", z - 0.5)):
+        calibration = dataclasses.replace(
+            _graph_only(bundle.content_hash, prune_ratio=1.05), veto_max_z=limit
+        )
+        predictor = Predictor(bundle, fusion=calibration)
+        state = predictor.register(shape)
+        rows[name] = predictor.distances(state, sources)
+        graphs[name] = predictor.surface_router(state).graph
+        predictor.paths(state, [0], [9])  # routes on that graph
+    points = state.canonical_points
+    unvetoed = knn_graph(points, 8)
+    assert graphs["unvetoed"].nnz == unvetoed.nnz
+    assert graphs["vetoed"].nnz < unvetoed.nnz  # the network cut edges below the limit
+    expected = dijkstra(unvetoed, directed=False, indices=sources)
+    expected /= calibration.graph_bias(state.n_points) * state.transform.scale
+    np.testing.assert_allclose(rows["unvetoed"], expected, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(rows["vetoed"], rows["unvetoed"])
 
 
 def test_agreement_is_the_network_against_its_own_graph(bundle_dir, blob, tmp_path) -> None:
