@@ -1,8 +1,8 @@
 """Real dev shapes, several geodesic models side by side with heat and kNN (issue 14 ablations).
 
 Usage: python scripts/eval_real_ablation.py [--model NAME_OR_DIR[@OPTIONS]=LABEL ...]
-    [--set tosca] [--sources 12] [--settings mesh,cloud_2000,cloud_300] [--no-baselines]
-    [--knn K ...] [--per-shape] [--per-shape-setting cloud_300]
+    [--set tosca | --dataset DIR] [--sources 12] [--settings mesh,cloud_2000,cloud_300]
+    [--no-baselines] [--knn K ...] [--per-shape] [--per-shape-setting cloud_300]
 
 ``OPTIONS`` are ``+``-joined speed options of issue 17: ``small`` / ``fullhead`` (the distilled
 small head or the trained one, ``Predictor(bundle, head=...)``) and ``full`` / ``bcc`` /
@@ -16,7 +16,10 @@ although the library's default is ``auto``: the labels of earlier runs keep thei
 ``litege_core.evaluation.geodesic.frame_turns``) and ``int8`` (the point MLP's products in
 dynamic int8, ``Predictor(bundle, precision="int8", embed_precision="int8")``: the small
 head's product too); ``--no-baselines`` leaves out
-heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours.
+heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours. ``--dataset DIR``
+evaluates the test split of a dataset we build instead of a real set (e.g. the held-out solids
+of ``scripts/build_folder_cal.py --primitives test``: shapes of no training family), without
+synthetic shapes and with the shipped ``quadrupeds`` unless ``--model`` says otherwise.
 
 Every model answers the same inputs (``litege_core.evaluation.geodesic.evaluate_methods``):
 exact MMP rows from farthest-point sources at unit area, ground truth rescaled to mean 100.
@@ -30,9 +33,11 @@ shape's error under every model (sorted by the first model's) on ``--per-shape-s
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import shlex
 from datetime import UTC, datetime
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -44,6 +49,7 @@ from litege_core.evaluation.geodesic import (
     baseline_method,
     comparison_methods,
     comparison_table,
+    dataset_eval_shapes,
     evaluate_methods,
     frame_turns,
     generated_eval_shapes,
@@ -95,6 +101,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", action="append", default=[], help="NAME_OR_DIR=LABEL")
     parser.add_argument("--set", default="tosca", choices=sorted(REAL_SETS))
+    parser.add_argument("--dataset", help="a dataset directory (its test split) instead of --set")
     parser.add_argument("--eval-data", default="../shared/eval-data")
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--synthetic", type=int, default=16)
@@ -121,14 +128,23 @@ def main() -> None:
     settings = tuple(args.settings.split(","))
     if args.per_shape and args.per_shape_setting not in settings:
         raise SystemExit(f"--per-shape-setting {args.per_shape_setting} is not in --settings")
-    paths = real_shape_paths(args.eval_data, args.set)
-    if not paths:
-        print(f"no {args.set} shapes under {args.eval_data}: nothing to evaluate")
-        return
-    shapes = real_eval_shapes(paths, real.group, args.sources, cache_dir=args.cache)
-    synthetic = generated_eval_shapes(
-        real.category, args.synthetic, args.sources, cache_dir=args.cache
-    )
+    if args.dataset:
+        group, what = f"{Path(args.dataset).name} (test)", f"--dataset {args.dataset}"
+        shapes = [
+            dataclasses.replace(s, sources=s.sources[: args.sources], gt=s.gt[: args.sources])
+            for s in dataset_eval_shapes(args.dataset, "test", group=group)
+        ]
+        synthetic: list = []
+    else:
+        paths = real_shape_paths(args.eval_data, args.set)
+        if not paths:
+            print(f"no {args.set} shapes under {args.eval_data}: nothing to evaluate")
+            return
+        group, what = real.group, f"--set {args.set}"
+        shapes = real_eval_shapes(paths, real.group, args.sources, cache_dir=args.cache)
+        synthetic = generated_eval_shapes(
+            real.category, args.synthetic, args.sources, cache_dir=args.cache
+        )
     compared = comparison_methods(predictors, baselines=not args.no_baselines, turns=turns)
 
     def methods(setting: str) -> dict[str, Method]:
@@ -142,18 +158,19 @@ def main() -> None:
         return {
             r.method: [error for _, error in r.per_shape]
             for r in pooled
-            if r.group == real.group and r.setting == setting and r.method in predictors
+            if r.group == group and r.setting == setting and r.method in predictors
         }
 
     spread = per_shape_errors("mesh")
-    print(f"### Real-shape ablation: {real.group}\n")
+    print(f"### {'Ablation' if args.dataset else 'Real-shape ablation'}: {group}\n")
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine "
-        f"{cpu_name()}; {len(shapes)} real shapes, "
+        f"{cpu_name()}; {len(shapes)} {'' if args.dataset else 'real '}shapes, "
         f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
         "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
         + " ".join(f"--model {shlex.quote(m)}" for m in models)
-        + f" --set {args.set} --sources {args.sources} --settings {args.settings}"
+        + f" {what} --sources {args.sources}"
+        + f" --settings {args.settings}"
         + (" --no-baselines" if args.no_baselines else "")
         + "".join(f" --knn {k}" for k in args.knn)
         + (" --per-shape" if args.per_shape else "")
@@ -173,7 +190,7 @@ def main() -> None:
     for label, errors in spread.items():
         values = np.array(errors)
         worst = int(np.argmax(values))
-        real_mean = by_key[(real.group, "mesh", label)]
+        real_mean = by_key[(group, "mesh", label)]
         synth = by_key.get((synthetic_group, "mesh", label), float("nan"))
         print(
             f"| {label} | {np.median(values):.2f} | {np.quantile(values, 0.9):.2f} | "
