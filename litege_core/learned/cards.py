@@ -274,7 +274,14 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else f"Dijkstra over its k = {data['k']} nearest-neighbour graph whose "
             )
             + f"edges the {data['veto_head']} head vetoes (cut where its predicted geodesic "
-            f"exceeds {data['prune_ratio']} × the chord)"
+            f"exceeds {data['prune_ratio']} × the chord"
+            + (
+                f"; no veto on a cloud whose OOD z-score exceeds {data['veto_max_z']:g}, where "
+                "the network's edge predictions would cut true surface edges"
+                if data.get("veto_max_z") is not None
+                else ""
+            )
+            + ")"
             + (
                 " and whose chords that run along the surface normal are cut (where |n · ĉ| "
                 "exceeds "

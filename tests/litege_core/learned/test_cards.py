@@ -44,6 +44,11 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         section = sidecar_section(tmp_path)
         assert ("mutual 24-nearest-neighbour graph" in section) == bool(mutual)
         assert ("k = 16 nearest-neighbour graph" in section) == (not mutual)
+    # and the veto's OOD limit
+    for limit in (4.0, None):
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "veto_max_z": limit}))
+        named = "no veto on a cloud whose OOD z-score exceeds 4," in sidecar_section(tmp_path)
+        assert named == (limit is not None)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")
