@@ -9,8 +9,9 @@ the graph answers alone), and the four cloud gate constants minimise the mean pe
 of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
 is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
 density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count. The
-veto's OOD limit is the candidate of :data:`VETO_MAX_Z_CANDIDATES` (or none) whose fusion has
-the lowest mean error, the gate then refitted (:func:`choose_veto_limit`): it matters only where
+veto's OOD limit is the largest candidate of :data:`VETO_MAX_Z_CANDIDATES` (or none) whose
+fusion, its gate refitted, has a mean error within :data:`VETO_LIMIT_TOLERANCE` of the lowest
+(:func:`choose_veto_limit`): it matters only where
 the calibration shapes include ones the network does not know (``scripts/build_folder_cal.py
 --primitives``).
 """
@@ -62,6 +63,10 @@ VETO_MAX_Z_CANDIDATES = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
 """OOD z-scores above which :func:`choose_veto_limit` tries turning the network veto off (besides
 keeping it on every cloud); real animals and humans score about −1.5 to 3 under their model,
 shapes of no training family 8 to 13 (BENCHMARKS "veto-ood")."""
+VETO_LIMIT_TOLERANCE = 0.01
+"""A lower OOD limit of the veto must lower the calibration's mean fused error by more than this
+fraction: :func:`choose_veto_limit` keeps the largest limit (none first) within it of the best,
+so the veto stays where the calibration shapes cannot tell (they seldom score between 2 and 6)."""
 
 
 @dataclass(frozen=True)
@@ -420,27 +425,25 @@ def choose_veto_limit(
     calibration: FusionCalibration,
     candidates: Sequence[float] = VETO_MAX_Z_CANDIDATES,
 ) -> tuple[FusionCalibration, list[FusionSample], dict[float | None, float]]:
-    """The OOD limit of the network veto (``veto_max_z``: one of ``candidates`` or none) whose
-    fusion, with ``calibration``'s gate, has the lowest mean error over ``samples`` (ties: the
-    largest limit, none first), then the gate refitted with that limit.
+    """The OOD limit of the network veto (``veto_max_z``: one of ``candidates`` or none), each
+    with its own refitted gate: the largest whose mean fused error over ``samples`` is within
+    :data:`VETO_LIMIT_TOLERANCE` of the lowest (none counts as the largest).
 
-    Returns the calibration, the samples as it reads them (:func:`with_veto_limit`) and the
+    Returns its calibration, the samples as it reads them (:func:`with_veto_limit`) and the
     mean fused error of each option tried (``None``: no limit). Without unvetoed rows in
     ``samples``: ``calibration`` as it is, nothing tried."""
     if not candidates or not any(s.unvetoed is not None for s in samples):
         return calibration, list(samples), {}
-
-    def error(limit: float | None) -> float:
+    fits = {}
+    for limit in [None, *sorted(candidates, reverse=True)]:
         limited = replace(calibration, veto_max_z=limit)
-        return mean_fused_error(with_veto_limit(samples, limited), limited)
-
-    tried = {limit: error(limit) for limit in [None, *sorted(candidates, reverse=True)]}
-    best = min(tried, key=tried.__getitem__)  # the first of equals: the largest limit
-    if best is None:
-        return calibration, list(samples), tried
-    limited = replace(calibration, veto_max_z=best)
-    chosen = with_veto_limit(samples, limited)
-    return replace(limited, gate=fit_gate(chosen, limited)), chosen, tried
+        read = with_veto_limit(samples, limited)
+        limited = replace(limited, gate=fit_gate(read, limited))
+        fits[limit] = (mean_fused_error(read, limited), limited, read)
+    lowest = min(error for error, _, _ in fits.values())
+    best = next(z for z, (e, _, _) in fits.items() if e <= lowest * (1.0 + VETO_LIMIT_TOLERANCE))
+    _, chosen, read = fits[best]
+    return chosen, read, {limit: error for limit, (error, _, _) in fits.items()}
 
 
 def fusion_summary(

@@ -213,16 +213,17 @@ def test_each_density_keeps_the_normal_limit_whose_graph_errs_least() -> None:
 
 
 def _veto_samples() -> list[FusionSample]:
-    """Clouds whose vetoed graph is exact on familiar shapes (z = 0) and off by 30 % on
-    unusual ones (z = 8), where the graph without the veto is exact; the network is off by
-    20 % everywhere."""
+    """Clouds whose vetoed graph is right on familiar shapes (z = 0; six) and off by 30 % on
+    unusual ones (z = 8; two), where the graph without the veto is right; the network is off
+    by 20 % everywhere. "Right": within 5 % noise."""
     rng = np.random.default_rng(1)
     samples = []
     for i in range(8):
         truth = rng.uniform(10.0, 200.0, size=(3, 40))
-        unusual = i % 2 == 1
-        vetoed = truth * (1.3 if unusual else 1.0)
-        unvetoed = truth if unusual else truth * 1.3
+        unusual = i % 4 == 3
+        noisy = truth * rng.normal(1.0, 0.05, truth.shape)
+        vetoed = truth * 1.3 if unusual else noisy
+        unvetoed = noisy if unusual else truth * 1.3
         samples.append(
             FusionSample(
                 f"s{i}",
@@ -256,7 +257,15 @@ def test_the_veto_limit_separates_familiar_from_unusual_shapes() -> None:
         np.testing.assert_array_equal(seen.graph, expected)
     assert read == with_veto_limit(samples, chosen)
     fused = np.mean([sample_error(s, chosen, "fused") for s in read])
-    assert fused < 0.1 * np.mean([sample_error(s, calibration, "fused") for s in samples])
+    assert fused < 0.6 * np.mean([sample_error(s, calibration, "fused") for s in samples])
+    # a shape at z = 5 that reads better without the veto moves the limit to 4 only if the
+    # calibration's mean error falls by more than the tolerance
+    for excess, expected in ((0.002, 6.0), (0.5, 4.0)):
+        truth = samples[0].truth
+        middle = dataclasses.replace(
+            samples[0], z_score=5.0, graph=truth * (1 + excess), unvetoed=truth
+        )
+        assert choose_veto_limit([*samples, middle], calibration)[0].veto_max_z == expected
     # familiar shapes alone, or no unvetoed rows: no limit, nothing changed
     familiar = [s for s in samples if s.z_score == 0.0]
     assert choose_veto_limit(familiar, calibration)[0].veto_max_z is None
