@@ -1,5 +1,6 @@
 """Files written so that a reader never sees half of one: atomic JSON and safetensors writes,
-content hashes, and JSON and safetensors reads that report damage as :class:`ArtifactError`.
+content hashes, and JSON and safetensors reads that report damage as :class:`ArtifactError`;
+output directories made with an :class:`InputError` when the path cannot be one.
 
 Shared by datasets (shards, manifests) and model bundles (manifests, weights).
 """
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litege_core.errors import ArtifactError
+from litege_core.errors import ArtifactError, InputError
 
 
 def file_sha256(path: Path) -> str:
@@ -26,16 +27,33 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def make_directory(path: str | os.PathLike, what: str = "output directory") -> Path:
+    """Create directory ``path`` (and its parents) unless it exists; return it as a Path.
+
+    Raises:
+        InputError: it cannot be created (a file is in the way, no permission, ...).
+    """
+    directory = Path(path)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {what} {directory}: {exc.strerror or exc}") from exc
+    return directory
+
+
 def read_json_object(path: Path, what: str) -> dict:
     """The JSON object in ``path``; ``what`` names the file in errors.
 
     Raises:
-        ArtifactError: the file is not valid JSON, or holds something other than an object.
+        ArtifactError: the file cannot be read (missing, a directory, ...), is not valid
+            UTF-8 JSON, or holds something other than an object.
     """
     try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{what} is not valid JSON") from exc
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ArtifactError(f"cannot read {what}: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ArtifactError(f"{what} is not valid JSON: {exc}") from exc
     if not isinstance(data, dict):
         raise ArtifactError(f"{what} is not a JSON object")
     return data
@@ -75,4 +93,11 @@ def read_tensors(path: Path, keys: tuple[str, ...] | None = None) -> dict[str, N
     return tensors
 
 
-__all__ = ["file_sha256", "read_tensors", "write_json_atomic", "write_tensors_atomic"]
+__all__ = [
+    "file_sha256",
+    "make_directory",
+    "read_json_object",
+    "read_tensors",
+    "write_json_atomic",
+    "write_tensors_atomic",
+]

@@ -31,10 +31,11 @@ def _ensure_console_logging() -> None:
 
 
 def _vertex_range(text: str) -> tuple[int, int]:
+    from litege_core.datasets.spec import is_count
     from litege_core.errors import InputError
 
     low, sep, high = text.partition(",")
-    if not (sep and low.strip().isdigit() and high.strip().isdigit()):
+    if not (sep and is_count(low.strip()) and is_count(high.strip())):
         raise InputError(f"--vertices must be MIN,MAX (e.g. 2000,4000), got {text!r}")
     return int(low), int(high)
 

@@ -53,7 +53,13 @@ from litege_core.datasets.storage import (
     shard_name,
 )
 from litege_core.errors import ArtifactError, ComputationError, InputError
-from litege_core.files import file_sha256, read_tensors, write_json_atomic, write_tensors_atomic
+from litege_core.files import (
+    file_sha256,
+    make_directory,
+    read_tensors,
+    write_json_atomic,
+    write_tensors_atomic,
+)
 
 DistanceFn = Callable[[NDArray, NDArray, NDArray], NDArray]
 FLOAT16_MAX = float(np.finfo(np.float16).max)
@@ -456,8 +462,7 @@ def build_dataset(
         distance_fn, description = SOLVERS[solver]
     else:
         description = f"custom ({getattr(distance_fn, '__name__', 'function')})"
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = make_directory(directory)
     share = _work_share(part)
     if share is not None:
         return _build_part(

@@ -42,6 +42,12 @@ COLLECTION_SOURCES = ("rigged", "makehuman")
 """Collection categories with presets (``folder`` datasets are specified per directory)."""
 
 
+def is_count(text: str) -> bool:
+    """Whether ``text`` is an integer ``>= 0`` written in ASCII digits (``str.isdigit`` also
+    accepts ``"²"``, which ``int`` refuses)."""
+    return text.isascii() and text.isdecimal()
+
+
 @dataclass(frozen=True)
 class DatasetSpec:
     """Everything that determines a dataset's content.
@@ -51,7 +57,8 @@ class DatasetSpec:
         category: shape category of the factory (``"quadruped"``, ``"biped"``; for
             collections ``"rigged"``, ``"makehuman"`` or ``"folder"``).
         families: families cycled through by shape index.
-        n_shapes: shapes per split, e.g. ``{"train": 400, "val": 50, "test": 50}``.
+        n_shapes: shapes per split, e.g. ``{"train": 400, "val": 50, "test": 50}``; at least
+            one shape in all.
         n_shared_sources: template kind: sources shared by every shape (farthest-point
             samples of the template), so every pair of shapes yields cross-shape targets;
             collection kind: farthest-point sources of each shape.
@@ -94,6 +101,11 @@ class DatasetSpec:
             raise InputError(f"unknown splits {sorted(unknown)}; expected {SPLITS}")
         if any(n < 0 for n in self.n_shapes.values()):
             raise InputError("shape counts must be non-negative")
+        if sum(self.n_shapes.values()) == 0:
+            raise InputError(
+                f"nothing to build: every split of dataset {self.name!r} has 0 shapes "
+                f"(give at least one, e.g. train=1)"
+            )
         if self.n_shared_sources < 1 or self.n_extra_sources < 0 or self.shard_size < 1:
             raise InputError("need n_shared_sources ≥ 1, n_extra_sources ≥ 0, shard_size ≥ 1")
         seed_gap = SPLIT_SEED_OFFSETS["val"] - SPLIT_SEED_OFFSETS["train"]
@@ -184,7 +196,7 @@ class WorkShare:
     def parse(cls, text: str) -> WorkShare:
         """``"I/N"`` → ``WorkShare(I, N)``; InputError for anything else."""
         index, sep, count = str(text).strip().partition("/")
-        if not sep or not index.strip().isdigit() or not count.strip().isdigit():
+        if not sep or not is_count(index.strip()) or not is_count(count.strip()):
             raise InputError(f"--shard must be I/N with integers 0 <= I < N, got {text!r}")
         return cls(int(index), int(count))
 
@@ -207,7 +219,7 @@ def parse_split_counts(text: str) -> dict[str, int]:
     for item in str(text).split(","):
         split, sep, value = item.strip().partition("=")
         split, value = split.strip(), value.strip()
-        if not sep or split not in SPLITS or not value.isdigit():
+        if not sep or split not in SPLITS or not is_count(value):
             raise InputError(
                 f"shape counts must read SPLIT=N[,SPLIT=N...] with SPLIT in {SPLITS} and "
                 f"integers N >= 0, got {text!r}"
@@ -325,6 +337,7 @@ __all__ = [
     "DatasetSpec",
     "WorkShare",
     "collection_preset",
+    "is_count",
     "parse_split_counts",
     "preset",
     "species_matching_spec",

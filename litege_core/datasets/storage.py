@@ -35,13 +35,13 @@ shard, so an interrupted build resumes from the last complete shard. No pickle a
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import ArtifactError
+from litege_core.files import read_json_object
 
 MANIFEST = "manifest.json"
 TEMPLATE = "template.safetensors"
@@ -84,13 +84,16 @@ def shard_name(split: str, index: int) -> str:
 
 
 def read_manifest(directory: Path) -> dict:
+    """The ``manifest.json`` object of a dataset directory.
+
+    Raises:
+        ArtifactError: no manifest (or ``directory`` is not a directory), or one that is not
+            a readable JSON object.
+    """
     path = Path(directory) / MANIFEST
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise ArtifactError(f"no {MANIFEST} in {directory}") from exc
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{path} is not valid JSON: {exc}") from exc
+    if not path.exists():  # also when ``directory`` is a file
+        raise ArtifactError(f"no {MANIFEST} in {directory}")
+    return read_json_object(path, str(path))
 
 
 __all__ = [

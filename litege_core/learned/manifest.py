@@ -128,16 +128,14 @@ def read_verified_manifest(directory: Path, what: str = "model bundle") -> dict[
     Raises:
         ArtifactError: no or invalid manifest, a missing file or a hash mismatch.
     """
-    try:
-        manifest = json.loads((directory / MANIFEST).read_text())
-    except FileNotFoundError as exc:
-        raise ArtifactError(f"no {what} at {directory} ({MANIFEST} missing)") from exc
-    except json.JSONDecodeError as exc:
-        raise ArtifactError(f"{directory / MANIFEST} is not valid JSON: {exc}") from exc
-    if not isinstance(manifest, dict):
-        raise ArtifactError(f"{directory / MANIFEST} is not a JSON object")
-    for filename, expected in manifest.get("files", {}).items():
-        if not (directory / filename).exists():
+    if not (directory / MANIFEST).exists():  # also when ``directory`` is a file
+        raise ArtifactError(f"no {what} at {directory} ({MANIFEST} missing)")
+    manifest = read_json_object(directory / MANIFEST, str(directory / MANIFEST))
+    files = manifest.get("files", {})
+    if not isinstance(files, dict):
+        raise ArtifactError(f"{directory / MANIFEST}: 'files' is not a JSON object")
+    for filename, expected in files.items():
+        if not (directory / filename).is_file():
             raise ArtifactError(f"bundle {directory.name} lacks {filename}")
         if file_sha256(directory / filename) != expected:
             raise ArtifactError(f"{filename} of bundle {directory.name} does not match its hash")

@@ -375,6 +375,19 @@ def parse_table(cls: type, name: str, values: Any) -> Any:
     return cls(**checked)
 
 
+def check_time_budget(seconds: float | None) -> float | None:
+    """A training's wall-clock budget in seconds (``None``: none), checked.
+
+    Raises:
+        InputError: a budget that is not a positive number (0, negative or NaN).
+    """
+    if seconds is not None and not seconds > 0:
+        raise InputError(
+            f"the time budget must be a positive number of minutes, got {seconds / 60:g}"
+        )
+    return seconds
+
+
 def read_toml(path: str | Path) -> dict[str, Any]:
     """A TOML config file as nested dicts; every failure is an :class:`InputError`."""
     source = Path(path)
@@ -437,6 +450,7 @@ __all__ = [
     "OptimConfig",
     "OutputConfig",
     "TrainConfig",
+    "check_time_budget",
     "load_config",
     "parse_table",
     "parse_tables",

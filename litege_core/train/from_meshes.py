@@ -52,7 +52,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import InputError
-from litege_core.train.config import TrainConfig, read_toml
+from litege_core.files import make_directory
+from litege_core.train.config import TrainConfig, check_time_budget, read_toml
 
 LOG = logging.getLogger("litege.train")
 
@@ -161,8 +162,7 @@ class FolderTrainOptions:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.time_budget_s is not None and not self.time_budget_s > 0:
-            raise InputError("the time budget must be positive")
+        check_time_budget(self.time_budget_s)
         if self.workers < 1:
             raise InputError("--workers must be at least 1")
         if self.shapes_per_mesh < 1 or self.eval_shapes_per_mesh < 1:
@@ -421,7 +421,7 @@ def train_from_meshes(options: FolderTrainOptions) -> dict[str, Any]:
         raise InputError("no training shape was built")
 
     run_dir = work / RUN_DIR
-    run_dir.mkdir(parents=True, exist_ok=True)
+    make_directory(run_dir)
     handler = logging.FileHandler(run_dir / LOG_FILE)
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     LOG.addHandler(handler)
@@ -610,7 +610,7 @@ def _write_out(bundle_dir: Path, out: Path, held_out: dict[str, Any]) -> dict[st
     from litege_core.learned.bundle import MANIFEST, manifest_core, write_manifest
 
     source = json.loads((bundle_dir / MANIFEST).read_text())
-    out.mkdir(parents=True, exist_ok=True)
+    make_directory(out)
     for filename in source["files"]:
         shutil.copy2(bundle_dir / filename, out / filename)
     metrics = {**source["metrics"], "held_out": held_out}

@@ -27,6 +27,7 @@ import litege_core
 from litege_core.datasets import GeodesicDataset
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import InputError
+from litege_core.files import make_directory
 from litege_core.learned import (
     ModelBundle,
     load_bundle,
@@ -37,7 +38,7 @@ from litege_core.learned import (
 from litege_core.nets import GeodesicNet
 from litege_core.nets.geodesic import OutputKind
 from litege_core.train.basis import prepare_basis
-from litege_core.train.config import TrainConfig
+from litege_core.train.config import TrainConfig, check_time_budget
 from litege_core.train.data import (
     PairSampler,
     ValidationPairs,
@@ -122,7 +123,7 @@ def prepare_run(
         torch.set_num_threads(config.train.threads)
     device = config.resolve_device() if distributed is None else distributed.device
     run_dir = config.run_dir
-    run_dir.mkdir(parents=True, exist_ok=True)
+    make_directory(run_dir)
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     dataset = GeodesicDataset(config.data.dataset)
@@ -361,10 +362,14 @@ def train_geodesic(
         time_budget_s: wall-clock budget of this call's training, in seconds (the trainer's
             deadline, counted from the start of training): a run stopped by it exports its
             best checkpoint as a finished run does, and can be resumed for more epochs.
+
+    Raises:
+        InputError: a time budget that is not positive, or a run directory that cannot be made.
     """
+    check_time_budget(time_budget_s)
     start = time.perf_counter()
     run_dir = config.run_dir
-    run_dir.mkdir(parents=True, exist_ok=True)
+    make_directory(run_dir)
     distributed = init_distributed(config.resolve_device())  # None unless under torchrun
     main = distributed is None or distributed.is_main
     handler: logging.Handler = (

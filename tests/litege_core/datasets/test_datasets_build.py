@@ -174,6 +174,25 @@ def test_refuses_to_mix_specs(tmp_path):
         )
 
 
+def test_an_output_directory_that_cannot_be_made_is_an_input_error(tmp_path):
+    """``--out`` under a file, or a file itself: a clear InputError, not an OSError."""
+    (tmp_path / "file").write_text("x")
+    for out in (tmp_path / "file" / "x", tmp_path / "file"):
+        with pytest.raises(InputError, match="cannot create output directory"):
+            build_dataset(toy_spec(), out, EllipsoidFactory(), distance_fn=edge_dijkstra)
+
+
+def test_a_spec_without_shapes_is_refused_and_a_complete_build_keeps_its_manifest(tmp_path):
+    """Zero shapes in all is "nothing to build"; re-running a finished build changes nothing."""
+    with pytest.raises(InputError, match="nothing to build"):
+        toy_spec(n_shapes={"train": 0, "val": 0, "test": 0})
+    spec = toy_spec(n_shapes={"train": 1, "val": 0, "test": 0})
+    first = build_dataset(spec, tmp_path, EllipsoidFactory(), distance_fn=edge_dijkstra)
+    again = build_dataset(spec, tmp_path, EllipsoidFactory(), distance_fn=edge_dijkstra)
+    assert again["shards"] == first["shards"] and (tmp_path / MANIFEST).is_file()
+    assert verify_dataset(tmp_path)["counts"] == {"train": 1, "val": 0, "test": 0}
+
+
 def test_exact_engine_rows(tmp_path):
     spec = toy_spec(n_shapes={"train": 0, "val": 0, "test": 1})
     build_dataset(spec, tmp_path, EllipsoidFactory(), progress=False)

@@ -112,7 +112,7 @@ def _worker(spec_json, directory, index, count):
 
 def test_work_share_parsing_and_disjoint_cover():
     assert WorkShare.parse("1/3") == WorkShare(1, 3) and str(WorkShare(2, 5)) == "2/5"
-    for bad in ("3/3", "-1/2", "1", "a/b", "0/0", "1/2/3", ""):
+    for bad in ("3/3", "-1/2", "1", "a/b", "0/0", "1/2/3", "", "²/3", "0/³"):
         with pytest.raises(InputError):
             WorkShare.parse(bad)
     plan = planned_shards(toy_spec())
@@ -258,10 +258,25 @@ def test_cli_merge_and_shard_option(tmp_path, capsys):
     assert cli_main(["data", "build", "--shard", "2/2", "--out", str(tmp_path / "x")]) != 0
 
 
+def test_cli_verify_of_a_file_or_unreadable_manifest_is_an_artifact_error(tmp_path, capsys):
+    """``data verify`` of a file, or of a manifest that is a directory or not UTF-8."""
+    (tmp_path / "file").write_text("x")
+    assert cli_main(["data", "verify", str(tmp_path / "file")]) != 0
+    assert "[artifact-error]" in capsys.readouterr().err
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / MANIFEST).write_bytes(b"\xff\xfe")
+    assert cli_main(["data", "verify", str(tmp_path / "d")]) != 0
+    assert "not valid JSON" in capsys.readouterr().err
+    (tmp_path / "d" / MANIFEST).unlink()
+    (tmp_path / "d" / MANIFEST).mkdir()
+    with pytest.raises(ArtifactError, match="cannot read"):
+        verify_dataset(tmp_path / "d")
+
+
 def test_parse_split_counts():
     assert parse_split_counts("train=896, val=48,test=0") == {"train": 896, "val": 48, "test": 0}
     assert parse_split_counts("val=3") == {"val": 3}
-    for bad in ("train=-1", "train=1.5", "tran=3", "train", "train=2,train=3", ""):
+    for bad in ("train=-1", "train=1.5", "tran=3", "train", "train=2,train=3", "", "train=²"):
         with pytest.raises(InputError):
             parse_split_counts(bad)
 

@@ -125,6 +125,25 @@ def test_missing_and_inconsistent_bundles(tmp_path, basis, network):
         load_bundle(tmp_path / "b")
 
 
+def test_unreadable_bundle_paths_and_manifests_are_artifact_errors(tmp_path, basis, network):
+    """A file as bundle, a manifest that is a directory, not UTF-8 or has a list of files."""
+    (tmp_path / "file").write_text("not a bundle")
+    with pytest.raises(ArtifactError, match="no model bundle"):
+        load_bundle(tmp_path / "file")
+    save_bundle(tmp_path / "b", name="t", category="t", basis=basis, network=network)
+    manifest = tmp_path / "b" / MANIFEST
+    manifest.write_text(json.dumps({"files": [BASIS_FILE]}))
+    with pytest.raises(ArtifactError, match="'files'"):
+        load_bundle(tmp_path / "b")
+    manifest.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ArtifactError, match="not valid JSON"):
+        load_bundle(tmp_path / "b")
+    manifest.unlink()
+    manifest.mkdir()
+    with pytest.raises(ArtifactError, match="cannot read"):
+        load_bundle(tmp_path / "b")
+
+
 def test_float16_export_keeps_large_buffers_finite(tmp_path, basis):
     torch.manual_seed(0)
     network = GeodesicNet(width=16, descriptor_dim=4).eval()

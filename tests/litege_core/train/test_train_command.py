@@ -4,7 +4,7 @@ import json
 import pytest
 
 from litege_core.cli.train import add_train_parser
-from litege_core.errors import ArtifactError
+from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import load_bundle
 from litege_core.train.pipeline import train_geodesic
 
@@ -55,13 +55,20 @@ def test_resume_from_a_foreign_file_fails_clearly(make_config, tmp_path):
         train_geodesic(make_config(), resume=bogus)
 
 
+def test_a_run_directory_that_cannot_be_made_is_an_input_error(make_config, tmp_path):
+    """A run directory under a file is named in an InputError, not an OSError."""
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="cannot create output directory"):
+        train_geodesic(make_config("file/run"))
+
+
 def test_config_run_stops_at_its_time_budget_and_exports_the_best(make_config, tmp_path, capsys):
     config = make_config("budgeted", train={"epochs": 5, "steps_per_epoch": 40})
     path = tmp_path / "toy.toml"
     path.write_text(_toml(config.to_dict()))
     out = tmp_path / "run"
     args = _parser().parse_args(
-        ["train", "geodesic", "--config", str(path), "--out", str(out), "--time-budget", "0"]
+        ["train", "geodesic", "--config", str(path), "--out", str(out), "--time-budget", "1e-9"]
     )
     assert args.handler(args) == 0
     summary = json.loads(capsys.readouterr().out)
@@ -70,6 +77,20 @@ def test_config_run_stops_at_its_time_budget_and_exports_the_best(make_config, t
     assert summary["steps"] < 40
     bundle = load_bundle(out / "bundle")
     assert bundle.manifest["training"]["steps"] == summary["steps"]
+
+
+@pytest.mark.parametrize("budget", ["0", "-1", "nan"])
+def test_a_time_budget_that_is_not_positive_is_refused(make_config, tmp_path, budget):
+    """--time-budget 0, negative or NaN is an InputError before anything is trained."""
+    path = tmp_path / "toy.toml"
+    path.write_text(_toml(make_config("refused").to_dict()))
+    out = tmp_path / "run"
+    args = _parser().parse_args(
+        ["train", "geodesic", "--config", str(path), "--out", str(out), "--time-budget", budget]
+    )
+    with pytest.raises(InputError, match="time budget must be a positive number of minutes"):
+        args.handler(args)
+    assert not out.exists()
 
 
 def test_config_run_without_a_budget_runs_every_epoch(make_config):

@@ -183,6 +183,9 @@ def test_folder_needs_three_mesh_files_and_an_out_directory(tmp_path, capsys):
     out = str(tmp_path / "out")
     assert main(["train", "geodesic", "--meshes", str(tmp_path), "--out", out]) == 2
     assert "at least 3" in capsys.readouterr().err
+    argv = ["train", "geodesic", "--meshes", str(tmp_path), "--out", out, "--vertices", "²,3"]
+    assert main(argv) == 2  # str.isdigit accepts "²", int does not
+    assert "--vertices must be MIN,MAX" in capsys.readouterr().err
 
 
 def test_matching_from_a_folder_checks_the_topology(tmp_path, capsys):
