@@ -42,6 +42,7 @@ from litege_core.sampling import (
     as_points,
     mean_nearest_neighbour_distance,
     poisson_disk_subsample,
+    random_generator,
     sample_surface,
 )
 from litege_core.shape import Shape
@@ -552,7 +553,7 @@ def poisson_spacing_unit_area(
     verts, tris = validate_arrays(vertices, faces, _NO_LIMITS)
     if tris is None:
         raise EmptyShapeError("Poisson calibration needs meshes with faces")
-    rng = np.random.default_rng(seed)
+    rng = random_generator(seed)
     verts = verts / math.sqrt(float(triangle_areas(verts, tris).sum()))
     cloud = sample_surface(verts, tris, n_cloud, rng).points
     return mean_nearest_neighbour_distance(cloud[poisson_disk_subsample(cloud, n_poisson, rng)])
@@ -638,7 +639,7 @@ def poisson_frame(
         ``(transform, cloud)``: the cloud (input units) is the point cloud itself, ``n_cloud``
         surface samples of a mesh, or their Poisson subset when ``setting.subset_is_cloud``.
     """
-    rng = np.random.default_rng(seed)
+    rng = random_generator(seed)
     cloud = shape.vertices
     if shape.faces is not None:
         cloud = sample_surface(shape.vertices, shape.faces, setting.n_cloud, rng).points

@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from litege_core.errors import (
     FaceIndexError,
+    InputError,
     LiteGEError,
     ShapeFileError,
     ShapeTooLargeError,
@@ -793,9 +794,43 @@ def _merge_exact_duplicates(vertices: NDArray, faces: NDArray) -> tuple[NDArray,
     return vertices[first_index[order]], rank[inverse.reshape(-1)][faces]
 
 
+def check_format_holds(file_format: str, kind: ShapeKind | str) -> None:
+    """Check that files of ``file_format`` hold shapes of ``kind`` (meshes:
+    :data:`MESH_FORMATS`, point clouds: :data:`POINT_FORMATS`).
+
+    Raises:
+        InputError: e.g. a point cloud for STL, which holds triangles only.
+    """
+    kind = ShapeKind.parse(kind)
+    if kind is ShapeKind.MESH and file_format not in MESH_FORMATS:
+        raise InputError(
+            f".{file_format} holds point clouds only; write a mesh as one of "
+            f"{', '.join('.' + f for f in sorted(MESH_FORMATS))}"
+        )
+    if kind is ShapeKind.POINT_CLOUD and file_format not in POINT_FORMATS:
+        raise InputError(
+            f".{file_format} holds meshes only; write a point cloud as one of "
+            f"{', '.join('.' + f for f in sorted(POINT_FORMATS))}"
+        )
+
+
 def save_shape(shape: Shape, path: str | os.PathLike) -> None:
-    """Write a shape to ``path`` (format from the extension), preserving vertex order."""
+    """Write a shape to ``path`` (format from the extension), preserving vertex order.
+
+    Raises:
+        UnsupportedFormatError: an unknown extension.
+        InputError: a format that cannot hold the shape's kind (:func:`check_format_holds`),
+            or a file that cannot be written (missing directory, no permission, ...).
+    """
     file_format = detect_format(path)
+    check_format_holds(file_format, shape.kind)
+    try:
+        _write_shape(shape, path, file_format)
+    except OSError as exc:
+        raise InputError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from exc
+
+
+def _write_shape(shape: Shape, path: str | os.PathLike, file_format: str) -> None:
     if file_format == "npy":
         np.save(path, np.asarray(shape.vertices), allow_pickle=False)
         return

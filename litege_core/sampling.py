@@ -22,6 +22,7 @@ from litege_core.errors import (
     DegenerateShapeError,
     EmptyShapeError,
     IndexOutOfRangeError,
+    InputError,
     NonFiniteError,
 )
 from litege_core.validate import triangle_areas
@@ -44,6 +45,28 @@ class SurfaceSamples(NamedTuple):
     barycentric: NDArray
 
 
+def check_seed(seed: object, what: str = "seed") -> int:
+    """``seed`` as an ``int``; ``what`` names it in the error (e.g. ``"--seed"``).
+
+    Raises:
+        InputError: ``seed`` is not a non-negative integer (numpy's generators take no others).
+    """
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"{what} must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def random_generator(seed: int | np.random.Generator) -> np.random.Generator:
+    """``np.random.default_rng(seed)`` after :func:`check_seed`; a generator is returned as is.
+
+    Raises:
+        InputError: ``seed`` is neither a generator nor a non-negative integer.
+    """
+    if isinstance(seed, np.random.Generator):
+        return seed
+    return np.random.default_rng(check_seed(seed))
+
+
 def sample_surface(
     vertices: NDArray, faces: NDArray, n_samples: int, seed: int | np.random.Generator = 0
 ) -> SurfaceSamples:
@@ -51,10 +74,13 @@ def sample_surface(
 
     Barycentric coordinates are uniform on the triangle: draw ``u, v ~ U(0, 1)`` and fold
     ``u + v > 1`` back (the authors' convention). Deterministic for a given seed.
+
+    Raises:
+        InputError: a negative ``n_samples`` or seed (see :func:`check_seed`).
     """
     if n_samples < 0:
         raise ArrayShapeError(f"n_samples must be non-negative, got {n_samples}")
-    rng = np.random.default_rng(seed)
+    rng = random_generator(seed)
     areas = triangle_areas(vertices, faces)
     total = areas.sum()
     if not total > 0:
@@ -227,7 +253,7 @@ def poisson_disk_subsample(
         raise DegenerateShapeError("cannot Poisson-disk sample points that all coincide")
     from scipy.spatial import cKDTree  # imported on first use (CLI start-up)
 
-    rng = np.random.default_rng(seed)
+    rng = random_generator(seed)
     order = rng.permutation(n_points).tolist()
     tree = cKDTree(pts)
     tolerance = max(1, math.floor(rel_tol * n_target))
@@ -334,8 +360,10 @@ __all__ = [
     "POISSON_COUNT_REL_TOL",
     "SurfaceSamples",
     "as_points",
+    "check_seed",
     "farthest_point_sampling",
     "mean_nearest_neighbour_distance",
     "poisson_disk_subsample",
+    "random_generator",
     "sample_surface",
 ]

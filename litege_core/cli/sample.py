@@ -64,30 +64,27 @@ def _surface_points(vertices: Any, faces: Any, n_points: int, seed: int) -> Any:
 
 def cmd_sample(args: argparse.Namespace) -> int:
     from litege_core import synth
-    from litege_core.io import MESH_FORMATS, POINT_FORMATS, detect_format, load_shape, save_shape
+    from litege_core.io import (
+        MESH_FORMATS,
+        check_format_holds,
+        detect_format,
+        load_shape,
+        save_shape,
+    )
+    from litege_core.sampling import check_seed
     from litege_core.shape import Shape
 
     category, family = resolve_family(args.family)
     file_format = detect_format(args.output)
     kind = args.kind or ("mesh" if file_format in MESH_FORMATS else "point_cloud")
-    if kind == "mesh" and file_format not in MESH_FORMATS:
-        raise InputError(
-            f".{file_format} holds point clouds only; write a mesh as one of "
-            f"{', '.join('.' + f for f in sorted(MESH_FORMATS))}, or pass --kind point_cloud"
-        )
-    if kind == "point_cloud" and file_format not in POINT_FORMATS:
-        raise InputError(
-            f".{file_format} holds meshes only; write a point cloud as one of "
-            f"{', '.join('.' + f for f in sorted(POINT_FORMATS))}"
-        )
+    check_format_holds(file_format, kind)
     if args.points is not None and kind == "mesh":
         raise InputError("--points applies to point clouds (--kind point_cloud) only")
     if args.pose is not None and args.pose not in synth.pose_modes(category):
         raise InputError(
             f"unknown {category} pose {args.pose!r}; choose one of {synth.pose_modes(category)}"
         )
-    if args.seed < 0:
-        raise InputError(f"--seed must be non-negative, got {args.seed}")
+    check_seed(args.seed, "--seed")
 
     generated = synth.generate_shape(category, family, seed=args.seed, pose=args.pose)
     if kind == "mesh":
@@ -101,10 +98,7 @@ def cmd_sample(args: argparse.Namespace) -> int:
     output = Path(args.output)
     if output.parent != Path() and not output.parent.is_dir():
         raise InputError(f"cannot write {args.output}: no directory {output.parent}")
-    try:
-        save_shape(shape, output)
-    except OSError as exc:
-        raise InputError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
+    save_shape(shape, output)
     written = load_shape(output, kind=kind)  # what a reader (and the service) gets back
     print_json(
         {

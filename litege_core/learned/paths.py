@@ -141,6 +141,10 @@ class DistanceModel(Protocol):
     ) -> torch.Tensor: ...
 
 
+_TRACER_NEEDS = ("check_state", "resolve", "point_features", "predict_canonical")
+"""The methods of :class:`DistanceModel` the tracer calls."""
+
+
 @dataclass(frozen=True)
 class GeodesicPath:
     """A traced path, from the source to the target.
@@ -211,7 +215,17 @@ def trace_paths(
     Returns:
         ``B`` :class:`GeodesicPath` in the order of the pairs, each from its source to its
         target.
+
+    Raises:
+        InputError: ``predictor`` is not a torch :class:`~litege_core.learned.Predictor`
+            (e.g. the torch-free ``NumpyPredictor``, which has no gradients to walk along).
     """
+    missing = [name for name in _TRACER_NEEDS if not callable(getattr(predictor, name, None))]
+    if missing:
+        raise InputError(
+            f"paths need the torch Predictor (litege_core.learned.Predictor); "
+            f"{type(predictor).__name__} has no {', '.join(missing)}"
+        )
     predictor.check_state(state)
     if route not in ROUTES:
         raise InputError(f"route must be one of {list(ROUTES)}, got {route!r}")

@@ -72,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from litege_core.arrays import frozen
 from litege_core.canonical import canonicalize_bbox_many
 from litege_core.descriptor.basis import AUTO_LATTICE
+from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
@@ -138,7 +139,9 @@ class Predictor:
 
     Args:
         bundle: a loaded :class:`~litege_core.learned.bundle.ModelBundle` (regression network).
-        device: ``"cpu"``, ``"cuda"``, ... where every cached tensor and query runs.
+        device: ``"cpu"``, ``"cuda"``, ``"auto"`` (CUDA where available), ... where every cached
+            tensor and query runs (:func:`~litege_core.device.resolve_device`: a malformed device
+            or CUDA without a GPU is an InputError).
         chunk_pairs: pairs per head evaluation (memory bound, see the module docstring).
         precision: arithmetic of the folded network without autograd (paths always run
             float32): ``"float32"``, ``"bfloat16"`` (the head's per-pair product in bfloat16
@@ -215,7 +218,7 @@ class Predictor:
         if isinstance(chunk_pairs, bool) or int(chunk_pairs) < 1:
             raise InputError(f"chunk_pairs must be a positive integer, got {chunk_pairs!r}")
         self.bundle = bundle
-        self.device = torch.device(device)
+        self.device = resolve_device(device)
         self.chunk_pairs = int(chunk_pairs)
         self.network = bundle.network.eval()
         self.precision = resolve_precision(precision, self.device)

@@ -41,7 +41,7 @@ from litege_core.canonical import (
 )
 from litege_core.errors import InputError
 from litege_core.nets import TNet
-from litege_core.sampling import sample_surface
+from litege_core.sampling import random_generator, sample_surface
 from litege_core.shape import Shape
 
 Scaling = Literal["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"]
@@ -150,7 +150,7 @@ def scale_frame(
     """
     if scaling == "unit_area":
         assert shape.faces is not None, "unit-area scaling is chosen for meshes only"
-        rng = np.random.default_rng(seed)
+        rng = random_generator(seed)
         transform = canonicalize_unit_area(
             shape.vertices, shape.faces, pipeline.n_center_samples, rng
         )
@@ -163,7 +163,7 @@ def subsample(points: NDArray, n_max: int, seed: int) -> NDArray:
     """At most ``n_max`` rows of ``points``, drawn without replacement (deterministic)."""
     if points.shape[0] <= n_max:
         return points
-    keep = np.random.default_rng(seed).choice(points.shape[0], n_max, replace=False)
+    keep = random_generator(seed).choice(points.shape[0], n_max, replace=False)
     return points[np.sort(keep)]
 
 

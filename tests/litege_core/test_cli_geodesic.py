@@ -209,6 +209,7 @@ def test_path_round_trip(tmp_path, bundle_dir, mesh_file, capsys):
         (["--sources", "0", "--targets", "-1"], "index-out-of-range"),
         (["--sources", "a,b"], "invalid-input"),
         (["--sources", "0", "--targets", "1,x"], "invalid-input"),
+        (["--sources", "0", "--seed", "-1"], "invalid-input"),
     ],
 )
 def test_geodesic_errors(tmp_path, bundle_dir, mesh_file, capsys, arguments, code_slug):

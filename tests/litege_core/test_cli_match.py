@@ -83,6 +83,7 @@ def test_match_all_queries_covers_every_point_of_x(bundle_dir, files, tmp_path):
         (["--queries", "0,999999"], "outside"),
         (["--queries", "a,b"], "integer"),
         (["--precision", "float16"], "precision"),
+        (["--seed", "-1"], "seed must be a non-negative integer"),
     ],
 )
 def test_match_reports_bad_input_with_exit_code_2(

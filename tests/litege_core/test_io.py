@@ -12,6 +12,7 @@ from litege_core.errors import (
     DegenerateShapeError,
     EmptyShapeError,
     FaceIndexError,
+    InputError,
     NonFiniteError,
     ShapeFileError,
     ShapeTooLargeError,
@@ -70,6 +71,20 @@ def test_point_cloud_round_trip(tmp_path, mesh, fmt):
     loaded = load_shape(tmp_path / f"c.{fmt}")
     assert loaded.kind is ShapeKind.POINT_CLOUD
     np.testing.assert_array_equal(loaded.vertices, cloud.vertices)
+
+
+def test_save_shape_refuses_formats_that_cannot_hold_the_kind(tmp_path, mesh):
+    """A cloud as STL (triangles only), a mesh as XYZ (points only): InputError, no file."""
+    with pytest.raises(InputError, match=r"\.stl holds meshes only"):
+        save_shape(mesh.as_point_cloud(), tmp_path / "c.stl")
+    with pytest.raises(InputError, match=r"\.xyz holds point clouds only"):
+        save_shape(mesh, tmp_path / "m.xyz")
+    assert not list(tmp_path.iterdir())
+
+
+def test_save_shape_to_a_missing_directory_is_an_input_error(tmp_path, mesh):
+    with pytest.raises(InputError, match=r"cannot write .*No such file or directory"):
+        save_shape(mesh, tmp_path / "no" / "dir" / "x.obj")
 
 
 def test_obj_keeps_float64_precision(tmp_path, sphere_mesh):

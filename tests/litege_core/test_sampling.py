@@ -15,6 +15,7 @@ from litege_core.errors import (
     DegenerateShapeError,
     EmptyShapeError,
     IndexOutOfRangeError,
+    InputError,
     NonFiniteError,
 )
 from litege_core.sampling import (
@@ -60,6 +61,15 @@ def test_sample_surface_is_deterministic_per_seed(sphere):
     c = sample_surface(*sphere, 100, seed=2).points
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "0"])
+def test_bad_seeds_are_input_errors(sphere, seed):
+    """A negative or non-integer seed is an InputError, not numpy's ValueError."""
+    with pytest.raises(InputError, match="seed must be a non-negative integer"):
+        sample_surface(*sphere, 10, seed=seed)
+    with pytest.raises(InputError, match="seed must be a non-negative integer"):
+        poisson_disk_subsample(sphere[0], 10, seed=seed)
 
 
 # --------------------------------------------------------------------------- as_points

@@ -378,3 +378,13 @@ def test_bad_path_queries_are_refused(sphere_predictor, sphere):
         sphere_predictor.path(state, 0, 3, max_steps=-1)
     with pytest.raises(InputError):
         sphere_predictor.path(state, [np.nan, 0.0, 0.0], 3)
+
+
+def test_paths_need_the_torch_predictor(sphere_predictor, sphere):
+    """The torch-free runtime has no gradients to walk: a clear InputError, no AttributeError."""
+    from litege_core.learned.numpy_predictor import NumpyPredictor
+
+    runtime = NumpyPredictor(sphere_predictor.bundle.path)
+    shape, _ = sphere
+    with pytest.raises(InputError, match="paths need the torch Predictor"):
+        trace_path(runtime, runtime.register(shape), 0, 3)

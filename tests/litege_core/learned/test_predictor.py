@@ -419,3 +419,5 @@ def test_foreign_states_and_mismatched_batches(predictor, basis, tmp_path, mesh,
         predictor.register_many([mesh.vertices])
     with pytest.raises(InputError):
         Predictor(predictor.bundle, chunk_pairs=0)
+    with pytest.raises(InputError, match="invalid torch device 'tpu'"):
+        Predictor(predictor.bundle, "tpu")
