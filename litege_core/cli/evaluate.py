@@ -30,8 +30,8 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
     model answers every group."""
     from litege_core.evaluation.geodesic import (
         REAL_SETS,
-        SETTINGS,
         evaluate,
+        parse_settings,
         real_eval_shapes,
         real_shape_paths,
         results_table,
@@ -39,6 +39,7 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
         synthetic_eval_shapes,
     )
 
+    settings = parse_settings(args.settings)  # checked before any model loads
     named = args.model is not None or args.bundle is not None
     owner_of = {key: None if named else REAL_SETS[key].model for key in args.real}
     owners = ([None] if args.dataset else []) + list(owner_of.values())
@@ -55,7 +56,6 @@ def cmd_eval_geodesic(args: argparse.Namespace) -> int:
             folder = Path(args.eval_data) / REAL_SETS[key].folder
             print(f"litege: no {key} shapes under {folder}; skipped", file=sys.stderr)
         groups[owner].extend(real_eval_shapes(paths, REAL_SETS[key].group, args.sources))
-    settings = args.settings.split(",") if args.settings else SETTINGS
     for n, (owner, model) in enumerate(models.items()):
         results = evaluate(groups[owner], model, settings, seed=args.seed)
         print(("\n" if n else "") + f"LiteGE = `{model!r}`\n")

@@ -24,6 +24,7 @@ Protocol (paper §7.1, with the reference code's bugs fixed, reference-spec §7 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -222,25 +223,83 @@ def generated_eval_shapes(
     return shapes
 
 
+SETTING_FORMS = "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0) or cut_P (0 ≤ P < 100 %)"
+
+
+def parse_setting(setting: str) -> tuple[str, float]:
+    """``(kind, value)`` of a setting name (see :func:`make_input`): ``"mesh"`` →
+    ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
+    ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``.
+
+    Raises:
+        InputError: any other name; the message lists the valid forms.
+    """
+    kind, _, value = str(setting).partition("_")
+    if setting == "mesh":
+        return "mesh", 0.0
+    if kind in ("cloud", "cut") and value.isascii() and value.isdecimal():
+        number = int(value)
+        if (kind == "cloud" and number >= 1) or (kind == "cut" and number < 100):
+            return kind, float(number)
+    elif kind == "noise":
+        try:
+            sigma = float(value)
+        except ValueError:
+            sigma = math.nan
+        if math.isfinite(sigma) and sigma >= 0:
+            return kind, sigma
+    raise InputError(
+        f"unknown evaluation setting {setting!r}: expected {SETTING_FORMS} "
+        f"(default {','.join(SETTINGS)})"
+    )
+
+
+def parse_settings(text: str | None) -> list[str]:
+    """``--settings``: comma-separated names, each checked by :func:`parse_setting`;
+    ``None`` or ``""``: :data:`SETTINGS`.
+
+    Raises:
+        InputError: a bad name, or a list without names (``","``).
+    """
+    if not text:
+        return list(SETTINGS)
+    settings = [item.strip() for item in text.split(",") if item.strip()]
+    if not settings:
+        raise InputError(f"--settings names no setting, got {text!r}: give some of {SETTING_FORMS}")
+    for setting in settings:
+        parse_setting(setting)
+    return settings
+
+
 def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     """The input of ``setting`` for ``shape`` (deterministic per seed): ``"mesh"``, a cloud of
     ``N`` surface samples ``"cloud_N"`` (the sources included), or a 2000-point cloud with
     Gaussian noise of that std (``"noise_0.01"``, unit-area units) or cut by planes
-    (``"cut_10"``: 10 %)."""
-    if setting == "mesh":
+    (``"cut_10"``: 10 %).
+
+    Raises:
+        InputError: a bad setting (see :func:`parse_setting`), or a cloud of fewer points
+            than ``shape`` has sources.
+    """
+    kind, value = parse_setting(setting)
+    if kind == "mesh":
         return EvalInput(Shape.from_arrays(shape.vertices, shape.faces), shape.sources, shape.gt)
-    n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
+    n_points = int(value) if kind == "cloud" else 2000
     n_sources = shape.sources.size
+    if n_points < n_sources:
+        raise InputError(
+            f"setting {setting!r} has fewer points than the {n_sources} sources of {shape.name}"
+        )
     samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
     corner_gt = shape.gt[:, shape.faces[samples.face_index]]  # (R, n, 3)
     sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
     points = np.concatenate([shape.vertices[shape.sources], samples.points])
     gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
-    if setting.startswith("noise_"):
-        points = add_noise(points, float(setting[6:]), seed)  # ground truth stays clean
+    if kind == "noise":
+        points = add_noise(points, value, seed)  # ground truth stays clean
     kept = np.ones(points.shape[0], dtype=bool)
-    if setting.startswith("cut_"):
-        kept = cut_by_planes(points, int(setting[4:]) / 100.0, seed)
+    if kind == "cut":
+        kept = cut_by_planes(points, value / 100.0, seed)
     source_rows = np.flatnonzero(kept[:n_sources])
     new_index = np.cumsum(kept) - 1
     return EvalInput(
@@ -485,7 +544,13 @@ def evaluate_methods(
 ) -> list[SettingResult]:
     """:func:`evaluate` with any methods (e.g. :func:`comparison_methods`): pooled errors per
     (group, setting, method) on the same inputs (``make_input(shape, setting, seed + i)``), so
-    results of separate calls with the same shapes, settings and seed are comparable."""
+    results of separate calls with the same shapes, settings and seed are comparable.
+
+    Raises:
+        InputError: a bad setting name (checked before any work, see :func:`parse_setting`).
+    """
+    for setting in settings:
+        parse_setting(setting)
     results = []
     for group in sorted({s.group for s in shapes}):
         members = [s for s in shapes if s.group == group]
@@ -608,6 +673,8 @@ __all__ = [
     "make_input",
     "mean_by_method",
     "methods_for",
+    "parse_setting",
+    "parse_settings",
     "real_eval_shapes",
     "real_shape_paths",
     "register_in_frame",

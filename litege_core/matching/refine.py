@@ -146,12 +146,19 @@ class ZoomOutSettings:
             raise InputError(f"need 1 <= k_fit <= n_eigen, got {self.k_fit}, {self.n_eigen}")
         if min(self.n_sources, self.n_distortion_samples, self.n_descriptors) < 1:
             raise InputError("n_sources, n_distortion_samples and n_descriptors must be positive")
-        if self.smoothing < 0 or self.smoothing_rounds < 1:
-            raise InputError("smoothing must be >= 0 and smoothing_rounds positive")
-        if min(self.registration_rounds, self.registration_anchor) < 0:
-            raise InputError("registration_rounds and registration_anchor must be >= 0")
-        if self.registration_smoothing <= 0:
-            raise InputError("registration_smoothing must be positive")
+        # ``not (x >= 0)`` style checks: NaN fails every comparison and must not slip through
+        if not (0 <= self.smoothing < math.inf) or self.smoothing_rounds < 1:
+            raise InputError(
+                "smoothing must be finite and >= 0 and smoothing_rounds positive, "
+                f"got {self.smoothing}, {self.smoothing_rounds}"
+            )
+        if self.registration_rounds < 0 or not (0 <= self.registration_anchor < math.inf):
+            raise InputError("registration_rounds and registration_anchor must be finite and >= 0")
+        if not (0 < self.registration_smoothing < math.inf):
+            raise InputError(
+                f"registration_smoothing must be finite and positive, got "
+                f"{self.registration_smoothing}"
+            )
         if self.distortion_tolerance is not None and not self.distortion_tolerance > 0:
             raise InputError("distortion_tolerance must be positive (inf: no check) or None")
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litege_core.errors import ComputationError, InputError
+from litege_core.errors import ComputationError, EmptyShapeError, InputError, LiteGEError
 from litege_core.synth.meshops import (
     collapse_slivers,
     largest_component,
@@ -41,7 +41,8 @@ from litege_core.synth.meshops import (
 
 FOLDER_VERSION = "folder-1"
 MESH_SUFFIXES = ("obj", "ply", "off", "stl", "glb")
-"""Mesh formats of :data:`litege_core.io.MESH_FORMATS` (point-cloud-only files are skipped)."""
+"""Mesh formats of :data:`litege_core.io.MESH_FORMATS` (files of point-cloud-only formats,
+XYZ and NPY, are skipped; a PLY without faces is listed and refused by name when loaded)."""
 
 
 @dataclass(frozen=True)
@@ -127,14 +128,27 @@ def prepare_mesh(path: str) -> PreparedMesh:
     """Load, weld, keep the largest component, repair and normalize one file (step 1).
 
     Raises:
-        InputError subclasses for unreadable files; ComputationError when no usable
-        manifold can be made of it.
+        InputError subclasses for unreadable files and for files without faces (point clouds
+        saved as PLY, ...); ComputationError when no usable manifold can be made of it. Each
+        message starts with ``path``.
     """
+    try:
+        return _prepare_mesh(path)
+    except LiteGEError as exc:  # the same class (problem type), naming the file
+        raise type(exc)(f"{path}: {exc.message}", **exc.details) from exc
+
+
+def _prepare_mesh(path: str) -> PreparedMesh:
     from litege_core.io import load_shape
     from litege_core.validate import ShapeLimits
 
     limits = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
-    shape = load_shape(path, kind="mesh", limits=limits)
+    shape = load_shape(path, limits=limits)
+    if shape.faces is None:
+        raise EmptyShapeError(
+            "the file has no faces (a point cloud): training on a folder needs triangle "
+            "meshes; remove it from the folder"
+        )
     welded = weld(np.asarray(shape.vertices), np.asarray(shape.faces), tolerance=1e-7)
     kept, faces = largest_component(welded.faces, welded.vertices.shape[0])
     vertices = welded.vertices[kept]

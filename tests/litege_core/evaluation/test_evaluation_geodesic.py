@@ -2,12 +2,15 @@ import numpy as np
 import pytest
 
 from litege_core.engines import compute_distances, surface_point_distances
+from litege_core.errors import InputError
 from litege_core.evaluation.geodesic import (
     SETTINGS,
     EvalShape,
     evaluate,
     evaluate_methods,
     make_input,
+    parse_setting,
+    parse_settings,
     results_table,
     spread_table,
     unit_area,
@@ -68,6 +71,37 @@ def test_corruptions_keep_queries_consistent(eval_shape):
     assert cut.gt.shape == (cut.source_index.size, cut.shape.n_points)
     kept_points = cut.shape.vertices[cut.source_index]
     assert np.isin(kept_points, clean.shape.vertices[:6]).all()
+
+
+def test_setting_names_are_parsed_in_one_place(eval_shape):
+    """Every default setting parses; bad names are InputErrors listing the valid forms."""
+    assert [parse_setting(s) for s in SETTINGS][:3] == [
+        ("mesh", 0),
+        ("cloud", 2000),
+        ("cloud", 300),
+    ]
+    assert parse_setting("noise_0.01") == ("noise", 0.01) and parse_setting("cut_10") == ("cut", 10)
+    assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
+        "mesh",
+        "cut_5",
+    ]
+    for bad in ("bogus", "cloud_abc", "cut_abc", "cloud_0", "cut_100", "noise_nan", "cloud_²"):
+        with pytest.raises(InputError, match="cloud_N"):
+            parse_setting(bad)
+    with pytest.raises(InputError, match="no setting"):
+        parse_settings(",")
+    with pytest.raises(InputError, match="fewer points than the 6 sources"):
+        make_input(eval_shape, "cloud_1", seed=0)
+    with pytest.raises(InputError, match="bogus"):
+        evaluate_methods([eval_shape], lambda setting: {}, ["mesh", "bogus"])
+
+
+def test_eval_geodesic_cli_refuses_a_bad_setting_before_any_work(capsys):
+    """``--settings bogus`` is an invalid-input error, not a run under a bogus label."""
+    from litege_core.cli import main
+
+    code = main(["eval", "geodesic", "--bundle", "/nonexistent", "--settings", "bogus"])
+    assert code == 2 and "[invalid-input]" in capsys.readouterr().err
 
 
 def test_evaluate_runs_every_method_and_setting(eval_shape, toy_predictor):

@@ -399,6 +399,24 @@ def _spectrum(vertices, faces, settings) -> Spectrum:
     return Spectrum(np.asarray(mesh.eigenvectors), samples)
 
 
+@pytest.mark.parametrize(
+    "option",
+    [
+        {"smoothing": float("nan")},
+        {"smoothing": float("inf")},
+        {"smoothing": -1.0},
+        {"registration_smoothing": float("nan")},
+        {"registration_smoothing": float("inf")},
+        {"registration_smoothing": 0.0},
+        {"registration_anchor": float("nan")},
+    ],
+)
+def test_zoomout_settings_refuse_nan_inf_and_out_of_range_weights(option):
+    """NaN fails every comparison: the checks must refuse it, and inf, not let them through."""
+    with pytest.raises(InputError, match=next(iter(option))):
+        ZoomOutSettings(**option)
+
+
 def test_zoomout_refinement_repairs_a_noisy_seed_map(lumpy):
     pytest.importorskip("pyFM")
     vertices, faces = lumpy

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from litege_core.errors import InputError
+from litege_core.errors import EmptyShapeError, FaceIndexError, InputError
 from litege_core.synth import folder, meshops
 
 SPHERE = trimesh.creation.icosphere(subdivisions=2)
@@ -154,3 +154,14 @@ def test_folder_accepts_open_surfaces_and_refuses_degenerate_files(tmp_path):
     (tmp_path / "line.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
     with pytest.raises(InputError):
         folder.folder_shape(tmp_path, "line.obj", 0)
+
+
+def test_folder_errors_name_the_file_and_keep_their_problem_type(tmp_path):
+    """A broken file or a PLY point cloud is refused with its path and its error class."""
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 9\n")
+    with pytest.raises(FaceIndexError, match=r"broken\.obj: "):
+        folder.folder_shape(tmp_path, "broken.obj", 0)
+    trimesh.PointCloud(np.random.default_rng(0).random((50, 3))).export(tmp_path / "scan.ply")
+    assert "scan.ply" in folder.list_meshes(tmp_path)
+    with pytest.raises(EmptyShapeError, match=r"scan\.ply: the file has no faces"):
+        folder.folder_shape(tmp_path, "scan.ply", 0)
