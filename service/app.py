@@ -35,7 +35,7 @@ from service.errors import (
     ShapeNotFoundError,
     UnsupportedMediaTypeError,
 )
-from service.problems import PROBLEM_BASE_URI, problem_for
+from service.problems import PROBLEM_BASE_URI, problem_detail, problem_for
 from service.runtime import GeodesicAnswer, Runtime, ShapeInfo, is_out_of_memory
 from service.schemas import (
     CorrespondenceRequest,
@@ -91,7 +91,7 @@ def problem_response(exc: LiteGEError, instance: str | None = None) -> JSONRespo
         "type": kind.type_uri,
         "title": kind.title,
         "status": kind.http_status,
-        "detail": str(exc),
+        "detail": problem_detail(exc),
         "instance": instance,
         "code": kind.code,
     }

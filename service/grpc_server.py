@@ -51,8 +51,9 @@ from service.errors import (
     ShapeNotFoundError,
 )
 from service.grpc_stubs import load_stubs
-from service.problems import problem_for
+from service.problems import bounded, problem_detail, problem_for
 from service.runtime import Runtime, ShapeInfo, is_out_of_memory
+from service.schemas import check_shape_id
 
 log = logging.getLogger("litege.grpc")
 
@@ -232,7 +233,7 @@ class LiteGEServicer:
     ) -> None:
         """End the call with the status of ``exc`` and the problem's trailing metadata."""
         problem = problem_for(exc)
-        trailing: list[tuple[str, str]] = [(PROBLEM_TYPE_KEY, problem.type_uri), *extra]
+        trailing = [(PROBLEM_TYPE_KEY, problem.type_uri), *((k, bounded(v)) for k, v in extra)]
         if isinstance(exc, RetryLaterError):
             trailing.append((RETRY_AFTER_KEY, str(round(exc.retry_after_s * 1000))))
         if problem.grpc_status == grpc.StatusCode.INTERNAL:
@@ -241,7 +242,9 @@ class LiteGEServicer:
             log.warning("gRPC %s: %s (%s)", name, problem.code, exc)
         else:
             log.debug("%s: %s %s", name, problem.grpc_status.name, exc)
-        await context.abort(problem.grpc_status, str(exc), trailing_metadata=tuple(trailing))
+        await context.abort(
+            problem.grpc_status, problem_detail(exc), trailing_metadata=tuple(trailing)
+        )
 
     # ------------------------------------------------------------------ RPCs (gRPC names)
 
@@ -561,16 +564,15 @@ class _Pair:
             raise RequestError(
                 "the first Correspond message must name source_shape_id and target_shape_id"
             )
+        source = check_shape_id(source, "source_shape_id")
+        target = check_shape_id(target, "target_shape_id")
         model = _optional(message, "model") if message.HasField("model") else self.model
         refine = _optional(message, "refine") if message.HasField("refine") else self.refine
         return _Pair(source, target, model, refine)
 
 
 def _shape_id(request: Any) -> str:
-    shape_id = request.shape_id.strip()
-    if not shape_id:
-        raise RequestError("shape_id is required")
-    return shape_id
+    return check_shape_id(request.shape_id)
 
 
 # --------------------------------------------------------------------------- server

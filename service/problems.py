@@ -10,6 +10,9 @@ from litege_core import errors as core
 from service import errors as svc
 
 PROBLEM_BASE_URI = "https://litege.dev/problems/"
+MAX_DETAIL_CHARS = 500
+"""Longest problem detail (and gRPC metadata value) sent: messages may quote request strings
+of any length, and gRPC refuses metadata over 16 KiB with a transport error."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,19 @@ _TABLE: dict[type[core.LiteGEError], tuple[int, grpc.StatusCode, str]] = {
     svc.RequestTimeoutError: (408, grpc.StatusCode.DEADLINE_EXCEEDED, "Request body timeout"),
     svc.NotReadyError: (503, grpc.StatusCode.UNAVAILABLE, "Service not ready"),
 }
+
+
+def bounded(text: str, limit: int = MAX_DETAIL_CHARS) -> str:
+    """``text`` cut to ``limit`` characters, saying how many were left out."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}… ({len(text) - limit} more characters)"
+
+
+def problem_detail(exc: core.LiteGEError) -> str:
+    """The detail sent for ``exc`` (REST ``detail``, gRPC status details): its message,
+    :func:`bounded`."""
+    return bounded(str(exc))
 
 
 def problem_for(exc: core.LiteGEError) -> ProblemKind:

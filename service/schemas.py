@@ -12,6 +12,29 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, WithJsonSchema
 
 from litege_core.matching.refine import REFINE_METHODS
+from service.errors import RequestError
+
+SHAPE_ID_MAX_LENGTH = 128
+"""Longest shape id a request may name (ids are hex content hashes, far shorter)."""
+
+
+def check_shape_id(shape_id: str, field: str = "shape_id") -> str:
+    """``shape_id`` stripped, as the REST bodies' ``Field(min_length=1,
+    max_length=SHAPE_ID_MAX_LENGTH)`` accept it (the gRPC server's check).
+
+    Raises:
+        RequestError: an empty or overlong id.
+    """
+    shape_id = shape_id.strip()
+    if not shape_id:
+        raise RequestError(f"{field} is required")
+    if len(shape_id) > SHAPE_ID_MAX_LENGTH:
+        raise RequestError(
+            f"{field} is {len(shape_id)} characters long; shape ids have at most "
+            f"{SHAPE_ID_MAX_LENGTH}"
+        )
+    return shape_id
+
 
 Point = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, z]")]
 Triangle = Annotated[list[int], Field(min_length=3, max_length=3)]
@@ -106,7 +129,7 @@ class ShapeArraysRequest(_Request):
 
 
 class GeodesicRequest(_Request):
-    shape_id: str = Field(min_length=1, max_length=128)
+    shape_id: str = Field(min_length=1, max_length=SHAPE_ID_MAX_LENGTH)
     model: str | None = Field(None, description=_MODEL_DESCRIPTION)
     method: MethodName = Field("learned", description=_GEODESIC_METHOD)
     sources: Query = Field(description="vertex/point indices or xyz points")
@@ -114,7 +137,7 @@ class GeodesicRequest(_Request):
 
 
 class PathRequest(_Request):
-    shape_id: str = Field(min_length=1, max_length=128)
+    shape_id: str = Field(min_length=1, max_length=SHAPE_ID_MAX_LENGTH)
     model: str | None = Field(None, description=_MODEL_DESCRIPTION)
     method: MethodName = Field("learned", description=_PATH_METHOD)
     source: SinglePoint = Field(description="one vertex/point index or one [x, y, z] point")
@@ -125,8 +148,8 @@ class CorrespondenceRequest(_Request):
     """Match query points of the source shape on the target shape (both registered first
     with ``POST /shapes``; their ids are the content hashes)."""
 
-    source_shape_id: str = Field(min_length=1, max_length=128)
-    target_shape_id: str = Field(min_length=1, max_length=128)
+    source_shape_id: str = Field(min_length=1, max_length=SHAPE_ID_MAX_LENGTH)
+    target_shape_id: str = Field(min_length=1, max_length=SHAPE_ID_MAX_LENGTH)
     queries: QueryOrAll = Field(
         "all",
         description="source vertex/point indices, xyz points in the source's frame and units, "

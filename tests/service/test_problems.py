@@ -7,7 +7,7 @@ import grpc
 
 from litege_core import errors as core
 from service import errors as svc
-from service.problems import PROBLEM_BASE_URI, problem_for
+from service.problems import MAX_DETAIL_CHARS, PROBLEM_BASE_URI, problem_detail, problem_for
 
 
 def _all_error_classes() -> list[type[core.LiteGEError]]:
@@ -40,3 +40,12 @@ def test_every_error_class_has_its_own_entry():
 def test_overload_status_follows_the_error():
     assert problem_for(svc.OverloadedError("full")).http_status == 503
     assert problem_for(svc.OverloadedError("busy", status=429)).http_status == 429
+
+
+def test_problem_details_are_bounded():
+    """Messages quoting request strings of any length are cut to a few hundred characters."""
+    assert problem_detail(svc.UnknownModelError("short")) == "short"
+    detail = problem_detail(svc.UnknownModelError("unknown model " + "m" * 30_000))
+    assert len(detail) < MAX_DETAIL_CHARS + 50 and detail.endswith(
+        f"({30_014 - MAX_DETAIL_CHARS} more characters)"
+    )

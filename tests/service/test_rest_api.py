@@ -273,6 +273,16 @@ def test_unknown_shape_id_is_404(service):
         assert_problem(http.get("/no-such-route"), 404, "not-found")
 
 
+def test_problem_details_do_not_echo_long_request_strings(service, registered):
+    """A 30,000-character model name or id is cut in the problem detail."""
+    with httpx.Client(base_url=service.base_url) as http:
+        body = {"shape_id": registered, "sources": [0], "model": "m" * 30_000}
+        problem = assert_problem(http.post("/geodesic", json=body), 422, "unknown-model")
+        assert len(problem["detail"]) < 1000 and "more characters" in problem["detail"]
+        problem = assert_problem(http.get("/shapes/" + "a" * 5000), 404, "shape-not-found")
+        assert len(problem["detail"]) < 1000
+
+
 def test_too_many_queries(live_service_factory, mesh_bytes):
     service = live_service_factory(max_queries=100)
     with LiteGEClient(service.base_url) as client:
