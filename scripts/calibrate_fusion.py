@@ -13,11 +13,11 @@ network / pruned graph / fused errors per setting (each density's normal limit i
 candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
 and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept; then
 the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
-the lowest mean fused error, the gate refitted with it. The test split of every
-``--ood-dataset`` (shapes of no training family, e.g. ``data/primitives-cal`` of
-``scripts/build_folder_cal.py --primitives``) joins only that last step: these shapes choose
-the limit and join the gate's fit, while the other constants stay those of the ``--dataset``
-and synthetic shapes);
+the lowest mean fused error (within 1 %), never below the highest OOD z-score of the other
+calibration shapes. The test split of every ``--ood-dataset`` (shapes of no training family,
+e.g. ``data/primitives-cal`` of ``scripts/build_folder_cal.py --primitives``) joins only that
+last step: these shapes choose the limit, while every other constant, the gate included, stays
+that of the ``--dataset`` and synthetic shapes);
 ``--write`` stores
 ``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
 rewrites the model card's sidecar section.
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import time
 from datetime import UTC, datetime
@@ -189,8 +190,9 @@ def main() -> None:
             candidates.append((error, (prune_ratio, mutual), samples, calibration))
     _, _, samples, calibration = min(candidates, key=lambda c: c[0])
     limits_tried = [float(z) for z in args.veto_max_z.split(",") if z.strip()]
+    floor = max((s.z_score for s in samples if not s.mesh), default=-math.inf)
     samples += collect_ood_samples(predictor, ood_shapes, calibration, settings)
-    calibration, samples, veto_errors = choose_veto_limit(samples, calibration, limits_tried)
+    calibration, samples, veto_errors = choose_veto_limit(samples, calibration, limits_tried, floor)
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
     print(f"### Graph fusion calibration: `{bundle.name}`\n")
@@ -252,7 +254,9 @@ def main() -> None:
             f"{'none' if z is None else f'{z:g}'}: {error:.3f}" for z, error in veto_errors.items()
         )
         print(
-            f"- veto OOD limit candidates (mean fused error over all calibration inputs): {tried}\n"
+            f"- veto OOD limit candidates at or above {floor:.2f}, the highest z-score of the "
+            "calibration shapes of the model's kind (mean fused error over all calibration "
+            f"inputs): {tried}\n"
         )
     fitted_on["errors"] = summary
     print(fusion_table(summary, calibration.k))

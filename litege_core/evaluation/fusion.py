@@ -9,15 +9,16 @@ the graph answers alone), and the four cloud gate constants minimise the mean pe
 of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
 is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
 density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count. The
-veto's OOD limit is the largest candidate of :data:`VETO_MAX_Z_CANDIDATES` (or none) whose
-fusion, its gate refitted, has a mean error within :data:`VETO_LIMIT_TOLERANCE` of the lowest
-(:func:`choose_veto_limit`): it matters only where
+veto's OOD limit is the largest candidate of :data:`VETO_MAX_Z_CANDIDATES` (or none), at or
+above every z-score of the shapes of the model's kind, whose fusion has a mean error within
+:data:`VETO_LIMIT_TOLERANCE` of the lowest (:func:`choose_veto_limit`): it matters only where
 the calibration shapes include ones the network does not know (``scripts/build_folder_cal.py
 --primitives``).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -424,21 +425,24 @@ def choose_veto_limit(
     samples: Sequence[FusionSample],
     calibration: FusionCalibration,
     candidates: Sequence[float] = VETO_MAX_Z_CANDIDATES,
+    floor: float = -math.inf,
 ) -> tuple[FusionCalibration, list[FusionSample], dict[float | None, float]]:
-    """The OOD limit of the network veto (``veto_max_z``: one of ``candidates`` or none), each
-    with its own refitted gate: the largest whose mean fused error over ``samples`` is within
-    :data:`VETO_LIMIT_TOLERANCE` of the lowest (none counts as the largest).
+    """The OOD limit of the network veto (``veto_max_z``: one of ``candidates`` at or above
+    ``floor``, or none) read with ``calibration``'s gate: the largest whose mean fused error
+    over ``samples`` is within :data:`VETO_LIMIT_TOLERANCE` of the lowest (none counts as the
+    largest). ``floor``: the highest z-score of the shapes the veto must keep serving (the
+    calibration shapes of the model's own kind: a limit below it would take the veto from
+    shapes like those it was fitted for).
 
-    Returns its calibration, the samples as it reads them (:func:`with_veto_limit`) and the
-    mean fused error of each option tried (``None``: no limit). Without unvetoed rows in
-    ``samples``: ``calibration`` as it is, nothing tried."""
+    Returns the calibration with that limit, the samples as it reads them
+    (:func:`with_veto_limit`) and the mean fused error of each option tried (``None``: no
+    limit). Without unvetoed rows in ``samples``: ``calibration`` as it is, nothing tried."""
     if not candidates or not any(s.unvetoed is not None for s in samples):
         return calibration, list(samples), {}
     fits = {}
-    for limit in [None, *sorted(candidates, reverse=True)]:
+    for limit in [None, *sorted((c for c in candidates if c >= floor), reverse=True)]:
         limited = replace(calibration, veto_max_z=limit)
         read = with_veto_limit(samples, limited)
-        limited = replace(limited, gate=fit_gate(read, limited))
         fits[limit] = (mean_fused_error(read, limited), limited, read)
     lowest = min(error for error, _, _ in fits.values())
     best = next(z for z, (e, _, _) in fits.items() if e <= lowest * (1.0 + VETO_LIMIT_TOLERANCE))

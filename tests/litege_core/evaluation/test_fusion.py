@@ -246,18 +246,25 @@ def test_the_veto_limit_separates_familiar_from_unusual_shapes() -> None:
     from litege_core.evaluation.fusion import choose_veto_limit, with_veto_limit
 
     samples = _veto_samples()
-    calibration = fit_fusion(samples, "h" * 64, k=8, prune_ratio=1.3)
+    # the gate is fitted on the familiar shapes alone (as calibrate_fusion.py fits it on the
+    # shapes of the model's kind); the unusual ones only choose the limit
+    familiar = [s for s in samples if s.z_score == 0.0]
+    calibration = fit_fusion(familiar, "h" * 64, k=8, prune_ratio=1.3)
     assert calibration.veto_max_z is None
     chosen, read, tried = choose_veto_limit(samples, calibration)
     # every limit from 1 to 6 keeps the veto on the familiar shapes only: the largest is kept
     assert chosen.veto_max_z == 6.0 and list(tried) == [None, 8.0, 6.0, 4.0, 3.0, 2.0, 1.0]
     assert tried[6.0] < tried[8.0] == pytest.approx(tried[None])
+    assert chosen.gate == calibration.gate
     for sample, seen in zip(samples, read, strict=True):
         expected = sample.unvetoed if sample.z_score > 6.0 else sample.graph
         np.testing.assert_array_equal(seen.graph, expected)
     assert read == with_veto_limit(samples, chosen)
-    fused = np.mean([sample_error(s, chosen, "fused") for s in read])
-    assert fused < 0.6 * np.mean([sample_error(s, calibration, "fused") for s in samples])
+    # the floor: no limit below the highest z-score the veto must keep serving
+    floored, _, tried = choose_veto_limit(samples, calibration, floor=5.0)
+    assert floored.veto_max_z == 6.0 and list(tried) == [None, 8.0, 6.0]
+    floored, _, tried = choose_veto_limit(samples, calibration, floor=7.0)
+    assert floored.veto_max_z is None and list(tried) == [None, 8.0]  # 8 cuts no more
     # a shape at z = 5 that reads better without the veto moves the limit to 4 only if the
     # calibration's mean error falls by more than the tolerance
     for excess, expected in ((0.002, 6.0), (0.5, 4.0)):
@@ -267,7 +274,6 @@ def test_the_veto_limit_separates_familiar_from_unusual_shapes() -> None:
         )
         assert choose_veto_limit([*samples, middle], calibration)[0].veto_max_z == expected
     # familiar shapes alone, or no unvetoed rows: no limit, nothing changed
-    familiar = [s for s in samples if s.z_score == 0.0]
     assert choose_veto_limit(familiar, calibration)[0].veto_max_z is None
     plain = [dataclasses.replace(s, unvetoed=None) for s in samples]
     assert choose_veto_limit(plain, calibration) == (calibration, plain, {})
