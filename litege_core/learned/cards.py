@@ -257,8 +257,15 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
     if (directory / FUSION_CONFIG).is_file():
         data = json.loads((directory / FUSION_CONFIG).read_text())
         fitted = data.get("fitted_on") or {}
+        ood = {f"{Path(d).name} (test)" for d in fitted.get("ood_datasets") or []}
         shapes = " and ".join(
-            f"{n} {group} shapes" for group, n in (fitted.get("shapes") or {}).items()
+            f"{n} {group} shapes"
+            for group, n in (fitted.get("shapes") or {}).items()
+            if group not in ood
+        ) + "".join(
+            f" (and {n} {group} shapes of no training family, which chose the veto's OOD limit)"
+            for group, n in (fitted.get("shapes") or {}).items()
+            if group in ood
         )
         items.append(
             f"- `{FUSION_CONFIG}`: the graph-fusion calibration (issue 14), read by default "

@@ -44,7 +44,20 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         section = sidecar_section(tmp_path)
         assert ("mutual 24-nearest-neighbour graph" in section) == bool(mutual)
         assert ("k = 16 nearest-neighbour graph" in section) == (not mutual)
-    # and the veto's OOD limit
+    # and the veto's OOD limit, with the shapes that chose it apart
+    ood = {
+        **fusion,
+        "fitted_on": {
+            **fusion["fitted_on"],
+            "shapes": {"folder-cal (test)": 24, "primitives-cal (test)": 24},
+            "ood_datasets": ["data/primitives-cal"],
+        },
+    }
+    (tmp_path / FUSION_CONFIG).write_text(json.dumps(ood))
+    assert (
+        "on 24 folder-cal (test) shapes (and 24 primitives-cal (test) shapes of no training "
+        "family, which chose the veto's OOD limit) only" in sidecar_section(tmp_path)
+    )
     for limit in (4.0, None):
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "veto_max_z": limit}))
         named = "no veto on a cloud whose OOD z-score exceeds 4," in sidecar_section(tmp_path)
