@@ -104,13 +104,10 @@ def test_unreachable_graph_pairs_count_with_the_network_value() -> None:
     assert sample_error(sample, None, "network") == pytest.approx(np.mean([1.0, 2.0]) * 100 / 15)
 
 
-def test_samples_share_the_network_rows_across_veto_thresholds(
-    blob, toy_bundle_dir_with_ood
-) -> None:
+def _blob_shapes(blob) -> list:
+    """One calibration shape: a unit-area blob with exact rows from 4 FPS sources."""
     from litege_core.engines import compute_distances
-    from litege_core.evaluation.fusion import collect_samples
     from litege_core.evaluation.geodesic import EvalShape, unit_area
-    from litege_core.learned import Predictor, load_bundle
     from litege_core.sampling import farthest_point_sampling
     from litege_core.shape import Shape
 
@@ -118,7 +115,16 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     vertices, _ = unit_area(shape.vertices, shape.faces)
     sources = farthest_point_sampling(vertices, 4)
     gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
-    shapes = [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+    return [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+
+
+def test_samples_share_the_network_rows_across_veto_thresholds(
+    blob, toy_bundle_dir_with_ood
+) -> None:
+    from litege_core.evaluation.fusion import collect_samples
+    from litege_core.learned import Predictor, load_bundle
+
+    shapes = _blob_shapes(blob)
     predictor = Predictor(load_bundle(toy_bundle_dir_with_ood))
     by_variant = collect_samples(
         predictor,
@@ -282,18 +288,10 @@ def test_the_veto_limit_separates_familiar_from_unusual_shapes() -> None:
 def test_ood_samples_read_the_fitted_graph_with_and_without_its_veto(
     blob, toy_bundle_dir_with_ood
 ) -> None:
-    from litege_core.engines import compute_distances
     from litege_core.evaluation.fusion import collect_ood_samples, probe_calibration
-    from litege_core.evaluation.geodesic import EvalShape, unit_area
     from litege_core.learned import Predictor, load_bundle
-    from litege_core.sampling import farthest_point_sampling
-    from litege_core.shape import Shape
 
-    shape = blob(7, subdivisions=3)
-    vertices, _ = unit_area(shape.vertices, shape.faces)
-    sources = farthest_point_sampling(vertices, 4)
-    gt = compute_distances(Shape.from_arrays(vertices, shape.faces), sources, "exact").distances
-    shapes = [EvalShape("blob", "toy", vertices, np.asarray(shape.faces), sources, gt)]
+    shapes = _blob_shapes(blob)
     bundle = load_bundle(toy_bundle_dir_with_ood)
     predictor = Predictor(bundle)
     fitted = dataclasses.replace(  # untrained: 3 × chord cuts some edges
