@@ -234,10 +234,12 @@ def parse_setting(setting: str) -> tuple[str, float]:
     Raises:
         InputError: any other name; the message lists the valid forms.
     """
+    from litege_core.datasets.spec import is_count  # the datasets package: on first use
+
     kind, _, value = str(setting).partition("_")
     if setting == "mesh":
         return "mesh", 0.0
-    if kind in ("cloud", "cut") and value.isascii() and value.isdecimal():
+    if kind in ("cloud", "cut") and is_count(value):
         number = int(value)
         if (kind == "cloud" and number >= 1) or (kind == "cut" and number < 100):
             return kind, float(number)
