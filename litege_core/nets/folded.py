@@ -20,8 +20,9 @@ precision when no gradient is needed (the path tracer's autograd calls always ru
   (float32 accumulation); the features are returned float32. ``"int8"`` (CPU): the point
   MLP's three ``n × n`` products with per-output-channel symmetric int8 weights and int8
   activations quantized per call, int32 accumulation (the CPU quantized engine's dynamic
-  linear: ``torch.ops.quantized.linear_dynamic``, oneDNN where available); the ``3 → n``
-  first layer and the head-feature product stay float32. The products run ~1.3–1.6× faster
+  linear: ``torch.ops.quantized.linear_dynamic``, oneDNN where available), and the
+  head-feature product after them (``n → 2n``, or the small head's ``n → m``) the same way;
+  the ``3 → n`` first layer stays float32. The products run ~1.3–1.6× faster
   than float32 on an AVX2 CPU from 512 rows up, where bfloat16 is slower (BENCHMARKS
   "int8-point-mlp").
 * ``head_rank=r``: the ``2n × 2n`` product replaced by its best rank-``r`` approximation
@@ -288,6 +289,7 @@ class FoldedGeodesicNet:
                     "c2": pack_int8(w2, b2),
                     "p1": pack_int8(p1_w, None),
                     "p2": pack_int8(w4, b4),
+                    "pf": pack_int8(h1_w @ e_w, h1_w @ e_b),
                 }
 
     def _bfloat16_weights(
@@ -377,6 +379,10 @@ class FoldedGeodesicNet:
         float32 rounding). Differentiable in ``points``."""
         if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
             return self.features(self._embed_bf16(points, shape_bias))
+        if runs_int8(self._packed, points, shape_bias):
+            assert self._packed is not None  # runs_int8 said so
+            hidden = self._hidden_int8(points, shape_bias)
+            return torch.ops.quantized.linear_dynamic(hidden, self._packed["pf"], False)
         return torch.addmm(self.pf_b, self.hidden(points, shape_bias), self.pf_wt)
 
     def hidden(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:

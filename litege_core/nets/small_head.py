@@ -160,11 +160,19 @@ class FoldedSmallHead:
             self._packed = None
             if precision == "int8" and self.device.type == "cpu":
                 self._packed = pack_int8(head.hidden.weight.double(), head.hidden.bias.double())
+            self._packed_features: object | None = None  # the teacher's int8 point MLP goes on in int8
+            if teacher.embed_precision == "int8":
+                self._packed_features = pack_int8(a @ e_w, a @ e_b)
 
     def point_features(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical coordinates → ``(R, m)`` student features
-        ``A e_p`` (through the teacher's point MLP; differentiable in ``points``)."""
-        return torch.addmm(self.g_b, self.teacher.hidden(points, shape_bias), self.g_wt)
+        ``A e_p`` (through the teacher's point MLP; differentiable in ``points``; with the
+        teacher's ``embed_precision="int8"``, the ``n → m`` product is int8 too where its
+        point MLP's are)."""
+        hidden = self.teacher.hidden(points, shape_bias)
+        if runs_int8(self._packed_features, points, shape_bias):
+            return torch.ops.quantized.linear_dynamic(hidden, self._packed_features, False)
+        return torch.addmm(self.g_b, hidden, self.g_wt)
 
     def _finish(self, out: torch.Tensor) -> torch.Tensor:
         return apply_output(out + self.f_b, self.output)

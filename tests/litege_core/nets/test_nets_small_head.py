@@ -160,3 +160,26 @@ def test_int8_pair_product_stays_close_on_large_blocks_only(student, setting) ->
         torch.testing.assert_close(small, want, rtol=1e-5, atol=1e-6)
     graded = int8.pair_head(g_src, folded.point_features(dst.clone().requires_grad_(True), bias))
     torch.testing.assert_close(graded.detach(), want, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
+def test_int8_teacher_runs_the_feature_product_in_int8_where_its_point_mlp_does(
+    net, student, setting
+) -> None:
+    """A teacher with ``embed_precision="int8"``: the student's ``n → m`` feature product runs
+    int8 after the teacher's int8 point MLP (batches of INT8_MIN_ROWS points or more, no
+    autograd; a few per cent from float32), and float32 exactly everywhere else."""
+    _, folded, bias, _ = setting
+    int8 = FoldedSmallHead(student, FoldedGeodesicNet(net, embed_precision="int8"))
+    points = torch.rand(INT8_MIN_ROWS + 40, 3, generator=torch.Generator().manual_seed(4)) - 0.5
+    with torch.no_grad():
+        want = folded.point_features(points, bias)
+        got = int8.point_features(points, bias)
+        hidden = int8.teacher.hidden(points, bias)  # the teacher's int8 products alone
+        assert not torch.equal(got, torch.addmm(int8.g_b, hidden, int8.g_wt))  # ran in int8
+        assert (got - want).abs().mean() < 0.03 * want.abs().mean()
+        assert (got - want).abs().max() < 0.1 * want.abs().max()
+        small = int8.point_features(points[: INT8_MIN_ROWS - 1], bias)
+        torch.testing.assert_close(small, want[: INT8_MIN_ROWS - 1], rtol=1e-5, atol=1e-6)
+    traced = int8.point_features(points.clone().requires_grad_(True), bias)
+    torch.testing.assert_close(traced.detach(), want, rtol=1e-5, atol=1e-6)
