@@ -19,7 +19,7 @@ the calibration shapes include ones the network does not know (``scripts/build_f
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -68,6 +68,13 @@ VETO_LIMIT_TOLERANCE = 0.01
 """A lower OOD limit of the veto must lower the calibration's mean fused error by more than this
 fraction: :func:`choose_veto_limit` keeps the largest limit (none first) within it of the best,
 so the veto stays where the calibration shapes cannot tell (they seldom score between 2 and 6)."""
+
+GATE_OOD_TOLERANCE = 0.01
+"""How much of the mean fused error of the model's own calibration clouds
+:func:`fit_gate_with_ood` may give up (a fraction) to serve clouds of no training family."""
+GATE_OOD_PENALTY = 1000.0
+"""Weight of the in-kind excess over its bound in :func:`fit_gate_with_ood`'s objective (a
+large one: the bound is a constraint)."""
 
 
 @dataclass(frozen=True)
@@ -378,25 +385,66 @@ def fit_gate(
 ) -> tuple[float, float, float, float]:
     """The cloud gate ``(a, c_z, c_n, c_r)`` minimising the mean fused error of the cloud
     samples under ``calibration``'s other constants (Nelder–Mead from ``w = 1/2``)."""
-    from scipy.optimize import minimize
-
     clouds = [s for s in samples if not s.mesh]
+    return _minimize_gate(
+        lambda gate: mean_fused_error(clouds, gate), calibration, (0.0, 0.0, 0.0, 0.0)
+    )
+
+
+def fit_gate_with_ood(
+    samples: Sequence[FusionSample],
+    ood_samples: Sequence[FusionSample],
+    calibration: FusionCalibration,
+    tolerance: float = GATE_OOD_TOLERANCE,
+) -> tuple[float, float, float, float]:
+    """The cloud gate that lowers the mean fused error of
+    ``ood_samples`` (clouds of no training family) as far as it can while the mean over the
+    clouds of ``samples`` (the model's own kind) stays within ``tolerance`` of what
+    ``calibration``'s gate gives them; ``calibration``'s gate where no such gate does better on
+    the OOD clouds. Both read with ``calibration``'s veto limit (:func:`with_veto_limit`)."""
+    clouds = [s for s in samples if not s.mesh]
+    unusual = [s for s in ood_samples if not s.mesh]
+    if not clouds or not unusual:
+        return calibration.gate
+    bound = mean_fused_error(clouds, calibration) * (1.0 + tolerance)
+
+    def objective(gate: FusionCalibration) -> float:
+        excess = max(0.0, mean_fused_error(clouds, gate) - bound)
+        return mean_fused_error(unusual, gate) + GATE_OOD_PENALTY * excess
+
+    # from the in-kind gate and from w = 1/2 (a saturated gate is flat: the search stalls)
+    starts = (calibration.gate, (0.0, 0.0, 0.0, 0.0))
+    fits = [_minimize_gate(objective, calibration, start) for start in starts]
+    fitted = min(fits, key=lambda gate: objective(replace(calibration, gate=gate)))
+    refit = replace(calibration, gate=fitted)
+    keeps_kind = mean_fused_error(clouds, refit) <= bound
+    gains = mean_fused_error(unusual, refit) < mean_fused_error(unusual, calibration)
+    return fitted if keeps_kind and gains else calibration.gate
+
+
+def _minimize_gate(
+    objective: Callable[[FusionCalibration], float],
+    calibration: FusionCalibration,
+    start: tuple[float, float, float, float],
+) -> tuple[float, float, float, float]:
+    """The gate minimising ``objective`` of ``calibration`` with that gate, by Nelder–Mead
+    from ``start`` with unit steps (scipy's default simplex is 0.00025 wide around zero)."""
+    from scipy.optimize import minimize
 
     def with_gate(gate: NDArray) -> FusionCalibration:
         a, c_z, c_n, c_r = (float(v) for v in gate)
         return replace(calibration, gate=(a, c_z, c_n, c_r))
 
-    start = np.zeros(4)
-    # unit steps from w = 1/2 (scipy's default simplex is 0.00025 wide around zero)
+    origin = np.asarray(start, dtype=np.float64)
     fitted = minimize(
-        lambda gate: mean_fused_error(clouds, with_gate(gate)),
-        start,
+        lambda gate: objective(with_gate(gate)),
+        origin,
         method="Nelder-Mead",
         options={
             "xatol": 1e-3,
             "fatol": 1e-4,
             "maxiter": 2000,
-            "initial_simplex": np.vstack([start, start + np.eye(start.size)]),
+            "initial_simplex": np.vstack([origin, origin + np.eye(origin.size)]),
         },
     ).x
     return with_gate(fitted).gate

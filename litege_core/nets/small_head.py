@@ -160,7 +160,8 @@ class FoldedSmallHead:
             self._packed = None
             if precision == "int8" and self.device.type == "cpu":
                 self._packed = pack_int8(head.hidden.weight.double(), head.hidden.bias.double())
-            self._packed_features: object | None = None  # the teacher's int8 point MLP goes on in int8
+            # after the teacher's int8 point MLP, its n → m product goes on in int8
+            self._packed_features: object | None = None
             if teacher.embed_precision == "int8":
                 self._packed_features = pack_int8(a @ e_w, a @ e_b)
 
