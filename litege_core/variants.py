@@ -13,6 +13,7 @@ Remeshing needs the optional ``pymeshlab`` package (extra ``litege[data]``).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -176,6 +177,20 @@ def point_cloud(
 def add_noise(points: NDArray, sigma: float, seed: int | np.random.Generator = 0) -> NDArray:
     """Add isotropic Gaussian noise of standard deviation ``sigma`` (units of ``points``)."""
     return points + np.random.default_rng(seed).normal(0.0, sigma, size=points.shape)
+
+
+def add_outliers(
+    points: NDArray, fraction: float, seed: int | np.random.Generator = 0, margin: float = 0.1
+) -> NDArray:
+    """``points`` followed by ``round(fraction · N)`` stray points drawn uniformly in their
+    bounding box grown by ``margin`` × its extent on every side (a scan's outliers)."""
+    if not (math.isfinite(fraction) and fraction >= 0.0):
+        raise ArrayShapeError(f"fraction must be finite and >= 0, got {fraction}")
+    low, high = points.min(axis=0), points.max(axis=0)
+    pad = margin * (high - low)
+    count = round(fraction * points.shape[0])
+    stray = np.random.default_rng(seed).uniform(low - pad, high + pad, size=(count, 3))
+    return np.concatenate([points, stray])
 
 
 def cut_by_planes(

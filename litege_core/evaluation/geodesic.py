@@ -38,7 +38,7 @@ from litege_core.errors import ComputationError, InputError
 from litege_core.metrics import geodesic_error
 from litege_core.sampling import farthest_point_sampling, sample_surface
 from litege_core.shape import Shape
-from litege_core.variants import add_noise, cut_by_planes, small_rotation
+from litege_core.variants import add_noise, add_outliers, cut_by_planes, small_rotation
 
 SETTINGS = ("mesh", "cloud_2000", "cloud_300", "noise_0.01", "cut_10", "cut_15")
 KNN_NEIGHBOURS = 10
@@ -223,13 +223,16 @@ def generated_eval_shapes(
     return shapes
 
 
-SETTING_FORMS = "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0) or cut_P (0 ≤ P < 100 %)"
+SETTING_FORMS = (
+    "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %) or outliers_P "
+    "(P ≥ 0 %)"
+)
 
 
 def parse_setting(setting: str) -> tuple[str, float]:
     """``(kind, value)`` of a setting name (see :func:`make_input`): ``"mesh"`` →
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
-    ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``.
+    ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -239,9 +242,11 @@ def parse_setting(setting: str) -> tuple[str, float]:
     kind, _, value = str(setting).partition("_")
     if setting == "mesh":
         return "mesh", 0.0
-    if kind in ("cloud", "cut") and is_count(value):
+    if kind in ("cloud", "cut", "outliers") and is_count(value):
         number = int(value)
         if (kind == "cloud" and number >= 1) or (kind == "cut" and number < 100):
+            return kind, float(number)
+        if kind == "outliers":
             return kind, float(number)
     elif kind == "noise":
         try:
@@ -276,8 +281,10 @@ def parse_settings(text: str | None) -> list[str]:
 def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     """The input of ``setting`` for ``shape`` (deterministic per seed): ``"mesh"``, a cloud of
     ``N`` surface samples ``"cloud_N"`` (the sources included), or a 2000-point cloud with
-    Gaussian noise of that std (``"noise_0.01"``, unit-area units) or cut by planes
-    (``"cut_10"``: 10 %).
+    Gaussian noise of that std (``"noise_0.01"``, unit-area units), cut by planes
+    (``"cut_10"``: 10 %) or followed by stray points (``"outliers_5"``: 5 % of its count,
+    uniform in its bounding box grown by 10 % per side; their ground truth is 0, so no pair
+    that ends on one is scored).
 
     Raises:
         InputError: a bad setting (see :func:`parse_setting`), or a cloud of fewer points
@@ -299,6 +306,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
     if kind == "noise":
         points = add_noise(points, value, seed)  # ground truth stays clean
+    if kind == "outliers":  # appended after the surface points; 0: not scored
+        points = add_outliers(points, value / 100.0, seed)
+        gt = np.pad(gt, ((0, 0), (0, points.shape[0] - gt.shape[1])))
     kept = np.ones(points.shape[0], dtype=bool)
     if kind == "cut":
         kept = cut_by_planes(points, value / 100.0, seed)

@@ -208,3 +208,21 @@ def test_mean_nearest_neighbour_distance_of_grid():
     assert mean_nearest_neighbour_distance([[0, 0, 0], [0, 0, 2.0]]) == pytest.approx(2.0)
     with pytest.raises(DegenerateShapeError):
         mean_nearest_neighbour_distance([[0.0, 0.0, 0.0]])
+
+
+def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
+    from litege_core.sampling import isolated_points
+
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(2000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    assert not isolated_points(sphere).any()  # a clean cloud: none
+    noisy = sphere + rng.normal(0.0, 0.02, sphere.shape)  # noise is not straying
+    assert not isolated_points(noisy).any()
+    strays = np.array([[3.0, 0.0, 0.0], [0.0, -2.5, 0.5], [1.2, 1.2, 1.2]])
+    flagged = isolated_points(np.concatenate([sphere, strays]))
+    np.testing.assert_array_equal(np.flatnonzero(flagged), [2000, 2001, 2002])
+    # too few points to tell, or half of them or more flagged: none
+    assert not isolated_points(np.concatenate([sphere[:6], strays])).any()
+    lattice = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), axis=-1).reshape(-1, 3)
+    assert not isolated_points(lattice, k=1, factor=0.5).any()  # every point would be

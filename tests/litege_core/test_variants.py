@@ -6,6 +6,7 @@ from litege_core.errors import ArrayShapeError
 from litege_core.validate import triangle_areas
 from litege_core.variants import (
     add_noise,
+    add_outliers,
     anisotropic_remesh,
     broken_mesh,
     cut_by_planes,
@@ -106,3 +107,19 @@ def test_add_noise_has_requested_sigma():
     noisy = add_noise(points, 0.01, seed=0)
     assert noisy.std() == pytest.approx(0.01, rel=0.03)
     np.testing.assert_array_equal(noisy, add_noise(points, 0.01, seed=0))
+
+
+def test_add_outliers_appends_seeded_strays_in_the_grown_box():
+    points = np.random.default_rng(0).uniform(-1.0, 1.0, size=(1000, 3)) * [2.0, 1.0, 0.5]
+    stray = add_outliers(points, 0.05, seed=3)
+    assert stray.shape == (1050, 3)
+    np.testing.assert_array_equal(stray[:1000], points)
+    low, high = points.min(0), points.max(0)
+    pad = 0.1 * (high - low)
+    assert (stray[1000:] >= low - pad).all() and (stray[1000:] <= high + pad).all()
+    assert (np.abs(stray[1000:]) > np.abs(points).max(0)).any()  # some lie outside the box
+    np.testing.assert_array_equal(stray, add_outliers(points, 0.05, seed=3))
+    assert add_outliers(points, 0.0).shape == points.shape
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ArrayShapeError):
+            add_outliers(points, bad)

@@ -71,6 +71,15 @@ def test_corruptions_keep_queries_consistent(eval_shape):
     assert cut.gt.shape == (cut.source_index.size, cut.shape.n_points)
     kept_points = cut.shape.vertices[cut.source_index]
     assert np.isin(kept_points, clean.shape.vertices[:6]).all()
+    stray = make_input(eval_shape, "outliers_5", seed=0)  # 100 stray points after the 2000
+    assert stray.shape.n_points == 2100 and stray.gt.shape == (6, 2100)
+    np.testing.assert_array_equal(stray.shape.vertices[:2000], clean.shape.vertices)
+    np.testing.assert_array_equal(stray.gt[:, :2000], clean.gt)
+    assert not stray.gt[:, 2000:].any()  # 0: never scored
+    low, high = clean.shape.vertices.min(0), clean.shape.vertices.max(0)
+    margin = 0.1 * (high - low) + 1e-9
+    assert (stray.shape.vertices[2000:] >= low - margin).all()
+    assert (stray.shape.vertices[2000:] <= high + margin).all()
 
 
 def test_setting_names_are_parsed_in_one_place(eval_shape):
@@ -81,11 +90,22 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         ("cloud", 300),
     ]
     assert parse_setting("noise_0.01") == ("noise", 0.01) and parse_setting("cut_10") == ("cut", 10)
+    assert parse_setting("outliers_5") == ("outliers", 5)
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
         "mesh",
         "cut_5",
     ]
-    for bad in ("bogus", "cloud_abc", "cut_abc", "cloud_0", "cut_100", "noise_nan", "cloud_²"):
+    for bad in (
+        "bogus",
+        "cloud_abc",
+        "cut_abc",
+        "cloud_0",
+        "cut_100",
+        "noise_nan",
+        "cloud_²",
+        "outliers_x",
+        "outliers_-1",
+    ):
         with pytest.raises(InputError, match="cloud_N"):
             parse_setting(bad)
     with pytest.raises(InputError, match="no setting"):

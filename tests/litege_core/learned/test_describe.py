@@ -45,6 +45,27 @@ def test_point_cloud_descriptor_ignores_point_order(basis):
     )
 
 
+def test_stray_points_of_a_cloud_leave_its_frame_and_descriptor_as_they_were(basis):
+    """A scan's outliers (here 40 points on a shell well outside the shape) are left out of
+    the descriptor's samples: frame and descriptor equal the clean cloud's, though the stray
+    points would have moved the frame. A clean cloud keeps every point."""
+    from litege_core.canonical import canonicalize_bbox
+
+    points = shape_samples(_ellipsoid(103), 1500, seed=0)
+    np.testing.assert_array_equal(shape_samples(Shape.from_arrays(points)), points)
+    rng = np.random.default_rng(1)
+    directions = rng.normal(size=(40, 3))
+    shell = (
+        directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(3, 4, (40, 1))
+    )
+    stray = Shape.from_arrays(np.concatenate([points, shell]))
+    np.testing.assert_array_equal(shape_samples(stray), points)
+    noisy, clean = describe_shape(stray, basis), describe_shape(Shape.from_arrays(points), basis)
+    assert noisy.transform.allclose(clean.transform)
+    np.testing.assert_array_equal(noisy.descriptor, clean.descriptor)
+    assert not canonicalize_bbox(stray.vertices).allclose(clean.transform, atol=1e-3)
+
+
 def test_residual_flags_out_of_distribution_shapes(basis):
     inside = describe_shape(_ellipsoid(102), basis).residual
     box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
