@@ -44,6 +44,7 @@ from litege_core.sampling import (
     poisson_disk_subsample,
     random_generator,
     sample_surface,
+    without_isolated,
 )
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits, triangle_areas, validate_arrays
@@ -636,12 +637,14 @@ def poisson_frame(
     """Poisson-spacing canonicalization of a shape (spec §1.4) and the cloud it used.
 
     Returns:
-        ``(transform, cloud)``: the cloud (input units) is the point cloud itself, ``n_cloud``
-        surface samples of a mesh, or their Poisson subset when ``setting.subset_is_cloud``.
+        ``(transform, cloud)``: the cloud (input units) is the point cloud itself less its
+        isolated points (:func:`~litege_core.sampling.without_isolated`), ``n_cloud`` surface
+        samples of a mesh, or their Poisson subset when ``setting.subset_is_cloud``.
     """
     rng = random_generator(seed)
-    cloud = shape.vertices
-    if shape.faces is not None:
+    if shape.faces is None:  # a scan's stray points would pull the centre and the spacing
+        cloud = without_isolated(shape.vertices)
+    else:
         cloud = sample_surface(shape.vertices, shape.faces, setting.n_cloud, rng).points
     n_poisson = setting.n_poisson
     if setting.subset_is_cloud:  # the subset is the cloud: its spacing is used as is

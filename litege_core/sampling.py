@@ -371,6 +371,12 @@ def isolated_points(
     return flagged if 2 * int(flagged.sum()) < pts.shape[0] else np.zeros_like(flagged)
 
 
+def without_isolated(points: NDArray) -> NDArray:
+    """``points`` less its :func:`isolated_points` (``points`` itself where there are none)."""
+    isolated = isolated_points(points)
+    return points[~isolated] if isolated.any() else points
+
+
 def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
     """Mean Euclidean distance from each point to its nearest other point (input units).
 
@@ -394,4 +400,5 @@ __all__ = [
     "poisson_disk_subsample",
     "random_generator",
     "sample_surface",
+    "without_isolated",
 ]

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
 from litege_core.descriptor import UdfPcaBasis
-from litege_core.sampling import isolated_points, sample_surface
+from litege_core.sampling import sample_surface, without_isolated
 from litege_core.shape import Shape
 
 if TYPE_CHECKING:
@@ -53,9 +53,7 @@ def shape_samples(shape: Shape, n_samples: int = DEFAULT_MESH_SAMPLES, seed: int
     (:func:`~litege_core.sampling.isolated_points`: a scan's stray points would pull the frame
     and write false surface into the UDF; every point is still embedded and answered)."""
     if shape.faces is None:
-        points = np.asarray(shape.vertices)
-        isolated = isolated_points(points)
-        return points[~isolated] if isolated.any() else points
+        return without_isolated(np.asarray(shape.vertices))
     return sample_surface(shape.vertices, shape.faces, n_samples, seed).points
 
 

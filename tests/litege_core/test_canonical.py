@@ -505,3 +505,18 @@ def test_canonicalize_rejects_bad_requests(box_shape):
     tiny = Shape.from_arrays(np.random.default_rng(0).random((3, 3)))
     with pytest.raises(DegenerateShapeError):
         canonicalize(tiny, "bbox")
+
+
+def test_poisson_frame_of_a_cloud_leaves_its_stray_points_out(sphere_cloud):
+    """A scan's stray points (far from the surface) would pull the centre and the spacing;
+    the matching frame of the cloud with them equals the clean cloud's."""
+    from litege_core.canonical import poisson_frame
+
+    stray = np.array([[4.0, 0.0, 0.0], [0.0, -3.5, 1.0], [2.5, 2.5, 2.5]])
+    clean = poisson_frame(Shape.from_arrays(sphere_cloud), POISSON_8K_CLOUD, seed=2)
+    noisy = poisson_frame(
+        Shape.from_arrays(np.concatenate([sphere_cloud, stray])), POISSON_8K_CLOUD, seed=2
+    )
+    assert noisy[0].allclose(clean[0], atol=0.0)
+    np.testing.assert_array_equal(noisy[1], clean[1])
+    assert not np.allclose(np.concatenate([sphere_cloud, stray]).mean(0), clean[0].center)

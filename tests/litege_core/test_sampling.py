@@ -211,7 +211,7 @@ def test_mean_nearest_neighbour_distance_of_grid():
 
 
 def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
-    from litege_core.sampling import isolated_points
+    from litege_core.sampling import isolated_points, without_isolated
 
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(2000, 3))
@@ -222,6 +222,8 @@ def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
     strays = np.array([[3.0, 0.0, 0.0], [0.0, -2.5, 0.5], [1.2, 1.2, 1.2]])
     flagged = isolated_points(np.concatenate([sphere, strays]))
     np.testing.assert_array_equal(np.flatnonzero(flagged), [2000, 2001, 2002])
+    np.testing.assert_array_equal(without_isolated(np.concatenate([sphere, strays])), sphere)
+    assert without_isolated(sphere) is sphere  # nothing isolated: no copy
     # too few points to tell, or half of them or more flagged: none
     assert not isolated_points(np.concatenate([sphere[:6], strays])).any()
     lattice = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), axis=-1).reshape(-1, 3)
