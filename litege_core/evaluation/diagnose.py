@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.engines import compute_distances
+from litege_core.evaluation.matching_data import read_vts
 from litege_core.shape import Shape
 from litege_core.validate import triangle_areas
 
@@ -386,10 +387,6 @@ def region_colors(labels: NDArray) -> NDArray:
 # --------------------------------------------------------------------------- real-set labels
 
 
-def _load_vts(path: Path) -> NDArray:
-    return np.loadtxt(path, dtype=np.int64).reshape(-1) - 1  # 1-based vertex ids
-
-
 def _cached_labels(cache_dir, name: str, vertices: NDArray, compute) -> NDArray:
     import hashlib
 
@@ -453,9 +450,9 @@ def real_region_labels(
                 compute = functools.partial(biped_tip_regions, ref.vertices, ref.faces)
 
             labels = _cached_labels(cache_dir, ref_name, ref.vertices, compute)
-            references[klass] = (labels, _load_vts(folder / "corres" / f"{ref_name}.vts"))
+            references[klass] = (labels, read_vts(folder / "corres" / f"{ref_name}.vts"))
         labels, ref_map = references[klass]
-        target_map = _load_vts(folder / "corres" / f"{name}.vts")
+        target_map = read_vts(folder / "corres" / f"{name}.vts")
         out.append(transfer_labels(labels, ref_map, target_map, faces, vertices.shape[0]))
     return out
 
