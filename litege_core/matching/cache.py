@@ -76,6 +76,26 @@ def _knn(data: NDArray, queries: NDArray, k: int) -> NDArray:
     return np.asarray(index, dtype=np.int64).reshape(queries.shape[0], k)
 
 
+def _candidate_indices(candidates: ArrayLike | None, n_points: int) -> NDArray:
+    """``(C,)`` sorted distinct int64 point indices of ``candidates`` (``None``: all ``N``).
+
+    Raises:
+        InputError: not a non-empty 1-d integer array, or repeated indices.
+        IndexOutOfRangeError: an index outside ``[0, N)``.
+    """
+    if candidates is None:
+        return np.arange(n_points, dtype=np.int64)
+    pool = np.asarray(candidates)
+    if pool.ndim != 1 or pool.size == 0 or not np.issubdtype(pool.dtype, np.integer):
+        raise InputError(f"candidates must be a non-empty 1-d integer array, got {pool.shape}")
+    if pool.min() < 0 or pool.max() >= n_points:
+        raise IndexOutOfRangeError(f"a candidate lies outside [0, {n_points})")
+    pool = np.sort(pool.astype(np.int64))
+    if np.any(pool[1:] == pool[:-1]):
+        raise InputError("candidates must not repeat")
+    return pool
+
+
 def coverage_radius(points: ArrayLike, subset: ArrayLike) -> float:
     """Largest distance from any point to its nearest point of ``subset``.
 
@@ -131,6 +151,7 @@ class NNCache:
         strategy: TierStrategy = "fps",
         seed: int = 0,
         start_index: int = 0,
+        candidates: ArrayLike | None = None,
     ) -> NNCache:
         """Build the cache of a target shape.
 
@@ -144,12 +165,17 @@ class NNCache:
             strategy: ``"fps"`` (nested farthest-point tiers) or ``"random"`` (the
                 reference's independent uniform samples).
             seed: seed of the random tiers.
-            start_index: first point of the FPS ordering.
+            start_index: first point of the FPS ordering (the first candidate where it is
+                not one).
+            candidates: ``(C,)`` indices of the points a search may return (default: all;
+                e.g. a scan less its stray points): the tiers and the last link hold only
+                these, and with fewer than ``N`` a target too small for any tier gets one
+                tier of them all.
 
         Raises:
             ArrayShapeError, EmptyShapeError, NonFiniteError: bad ``points``.
-            InputError: bad sizes, neighbour counts or strategy.
-            IndexOutOfRangeError: ``start_index`` outside the points.
+            InputError: bad sizes, neighbour counts, strategy or candidates.
+            IndexOutOfRangeError: ``start_index`` or a candidate outside the points.
         """
         pts = as_points(points)
         n_points = pts.shape[0]
@@ -169,19 +195,24 @@ class NNCache:
             raise InputError(f"seed must be an integer, got {seed!r}")
         if not 0 <= start_index < n_points:
             raise IndexOutOfRangeError(f"start_index {start_index} outside [0, {n_points})")
-        kept = [s for s in sizes if s < n_points]
+        pool = _candidate_indices(candidates, n_points)  # (C,) sorted point indices
+        kept = [s for s in sizes if s < pool.shape[0]]
         if strategy == "fps":
-            order = farthest_point_sampling(pts, kept[-1], int(start_index)) if kept else None
-            tiers = [order[:size] for size in kept] if order is not None else []
+            at = int(np.searchsorted(pool, start_index))
+            first = at if at < pool.shape[0] and pool[at] == start_index else 0
+            order = farthest_point_sampling(pts[pool], kept[-1], first) if kept else None
+            tiers = [pool[order[:size]] for size in kept] if order is not None else []
         else:
             rng = np.random.default_rng(int(seed))
-            tiers = [rng.choice(n_points, size=size, replace=False) for size in kept]
-        full = np.arange(n_points, dtype=np.int64)
+            tiers = [pool[rng.choice(pool.shape[0], size=size, replace=False)] for size in kept]
+        if not tiers and pool.shape[0] < n_points:  # one tier: every candidate
+            tiers = [pool]
         tables = []
         for j, tier in enumerate(tiers):
-            finer = tiers[j + 1] if j + 1 < len(tiers) else full
+            finer = tiers[j + 1] if j + 1 < len(tiers) else pool
             k = min(counts[j], finer.shape[0])
-            tables.append(_knn(pts[finer], pts[tier], k))
+            rows = _knn(pts[finer], pts[tier], k)
+            tables.append(rows if j + 1 < len(tiers) else pool[rows])  # last link: points
         return cls(
             n_points=n_points,
             tiers=tuple(frozen(t, np.int64) for t in tiers),

@@ -80,6 +80,7 @@ from litege_core.nets.folded import resolve_precision
 from litege_core.nets.orientation import OrientationNet
 from litege_core.projection import CloudProjector, MeshProjector, Projector, snap
 from litege_core.query import QueryLike, check_points, parse_indices, parse_query
+from litege_core.sampling import isolated_points
 from litege_core.shape import Shape
 
 SIDES: tuple[str, ...] = ("frame", "network")
@@ -482,12 +483,16 @@ class MatchingModel:
             zip(shapes, aligned_frames, strict=True)
         ):
             aligned = transform.apply(shape.vertices)
+            # a scan's stray points are never matched: the network scores off-surface points
+            # as near anything (5 % strays drew 17–49 % of FAUST matches, BENCHMARKS "outliers")
+            isolated = isolated_points(aligned) if shape.faces is None else None
             cache = NNCache.build(
                 aligned,
                 tier_sizes=search.tier_sizes,
                 neighbours=search.neighbours,
                 strategy=search.strategy,  # type: ignore[arg-type]
                 seed=int(seed),
+                candidates=np.flatnonzero(~isolated) if isolated is not None else None,
             )
             prepared.append(
                 MatchingShape(

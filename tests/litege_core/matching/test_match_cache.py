@@ -135,6 +135,40 @@ def test_small_shapes_drop_tiers() -> None:
     assert clipped.neighbour_counts == (50, 80)
 
 
+def test_candidates_restrict_tiers_and_the_last_link() -> None:
+    """``candidates``: tiers and the last link's neighbours hold only them (exact k-NN among
+    them); all points as candidates build the cache without them; bad candidates are refused."""
+    points = _cloud(4, 900)
+    excluded = np.arange(0, 900, 7)
+    candidates = np.setdiff1d(np.arange(900), excluded)
+    cache = NNCache.build(points, candidates=candidates[::-1].copy(), start_index=0)
+    assert cache.tier_sizes == (*DEFAULT_TIER_SIZES, 900)
+    for tier in (*cache.tiers, cache.neighbours[-1].ravel()):
+        assert not np.isin(tier, excluded).any()
+    last = cache.neighbours[-1]
+    distance = cdist(points[cache.tiers[-1]], points[candidates])
+    expected = np.sort(distance, axis=1)[:, : last.shape[1]]
+    got = np.linalg.norm(points[cache.tiers[-1]][:, None] - points[last], axis=2)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    assert cache.tiers[0][0] == candidates[0]  # start_index 0 is excluded: the first candidate
+    plain = NNCache.build(points)
+    every = NNCache.build(points, candidates=np.arange(900))
+    arrays = zip((*plain.tiers, *plain.neighbours), (*every.tiers, *every.neighbours), strict=True)
+    for a, b in arrays:
+        np.testing.assert_array_equal(a, b)
+    NNCache.from_arrays(cache.to_arrays())  # a valid cache layout
+    for bad, error in (
+        (np.array([], dtype=np.int64), InputError),
+        (np.array([0.5, 1.5]), InputError),
+        (np.array([1, 1, 2]), InputError),
+        (np.array([[1, 2]]), InputError),
+        (np.array([0, 900]), IndexOutOfRangeError),
+        (np.array([-1, 3]), IndexOutOfRangeError),
+    ):
+        with pytest.raises(error):
+            NNCache.build(points, candidates=bad)
+
+
 def test_coverage_radius() -> None:
     points = _cloud(3, 50)
     assert coverage_radius(points, np.arange(50)) == 0.0

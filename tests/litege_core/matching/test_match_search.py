@@ -313,6 +313,36 @@ def test_single_tier_cache_is_exhaustive() -> None:
     assert max_evaluations(cache) == 40
 
 
+def test_the_search_returns_candidates_only() -> None:
+    """Points left out of ``candidates`` (a scan's strays) are never scored nor returned, even
+    where they score best, with tiers or with one tier of candidates; among the candidates a
+    cache without tiers is exhaustive."""
+    rng = np.random.default_rng(2)
+    for n_points in (40, 3000):
+        points = rng.normal(size=(n_points, 3))
+        excluded = rng.choice(n_points, n_points // 10, replace=False)
+        table = torch.as_tensor(rng.random((9, n_points)))
+        table[:, excluded] = -1.0  # the best score of all
+        candidates = np.setdiff1d(np.arange(n_points), excluded)
+        cache = NNCache.build(points, candidates=candidates)
+        scored: list[np.ndarray] = []
+        lookup = table_score(table)
+
+        def score(
+            rows: torch.Tensor, cand: torch.Tensor, scored=scored, lookup=lookup
+        ) -> torch.Tensor:
+            scored.append(cand.numpy().ravel())
+            return lookup(rows, cand)
+
+        matches, _ = coarse_to_fine_search(cache, score, 9)
+        assert not np.isin(matches.numpy(), excluded).any()
+        assert not np.isin(np.concatenate(scored), excluded).any()
+        if n_points == 40:  # one tier of every candidate: exhaustive over them
+            assert cache.tier_sizes == (36, 40)
+            best = candidates[table[:, candidates].argmin(dim=1).numpy()]
+            np.testing.assert_array_equal(matches.numpy(), best)
+
+
 def test_no_queries() -> None:
     cache = NNCache.build(np.random.default_rng(0).normal(size=(100, 3)))
 

@@ -242,6 +242,22 @@ def test_point_clouds_and_broken_meshes_match_end_to_end(model, shapes, prepared
     assert result.indices.shape == (500,) and result.indices.max() < broken.n_points
 
 
+def test_stray_points_of_a_target_cloud_are_never_matched(model, shapes, prepared):
+    """A cloud with stray points far from its surface: its frame is the clean cloud's, and no
+    query lands on a stray (the search never scores them)."""
+    rng = np.random.default_rng(2)
+    clean = shapes[1].vertices[rng.choice(shapes[1].n_points, 2000, False)]
+    low, high = clean.min(0), clean.max(0)
+    strays = rng.uniform(low - (high - low), high + (high - low), size=(300, 3))
+    strays = strays[np.abs(strays - clean.mean(0)).max(axis=1) > (high - low).max()][:40]
+    with_strays = Shape.from_arrays(np.concatenate([clean, strays]))
+    target, plain = model.prepare_many([with_strays, Shape.from_arrays(clean)])
+    assert target.transform.allclose(plain.transform)
+    result = model.match(prepared[0], target)
+    assert result.indices.max() < 2000
+    assert not np.isin(np.arange(2000, 2000 + len(strays)), target.cache.tiers[0]).any()
+
+
 def test_features_are_memoized_per_shape(model, prepared):
     x = prepared[0]
     first = model.features(x)
