@@ -359,7 +359,8 @@ def isolated_points(
     """``(N,)`` bool: the points far from the surface the others sample (a scan's stray points):
     those whose ``k``-th nearest other point lies farther than ``factor`` × the median of that
     distance over the cloud. None is flagged in a cloud of at most ``k + 1`` points, nor where
-    half the points or more would be (then there is no one surface to stray from)."""
+    half the points or more would be (then there is no one surface to stray from) or that
+    median is 0 (most points repeated)."""
     from pykdtree.kdtree import KDTree  # imported on first use (CLI start-up)
 
     pts = as_points(points)
@@ -367,7 +368,10 @@ def isolated_points(
     if pts.shape[0] <= k + 1:
         return flagged
     reach = KDTree(pts).query(pts, k=k + 1)[0][:, -1]  # itself first
-    flagged = reach > factor * np.median(reach)
+    typical = float(np.median(reach))
+    if not typical > 0.0:  # most points repeated: no spacing to measure against
+        return flagged
+    flagged = reach > factor * typical
     return flagged if 2 * int(flagged.sum()) < pts.shape[0] else np.zeros_like(flagged)
 
 

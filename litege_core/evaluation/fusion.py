@@ -397,11 +397,11 @@ def fit_gate_with_ood(
     calibration: FusionCalibration,
     tolerance: float = GATE_OOD_TOLERANCE,
 ) -> tuple[float, float, float, float]:
-    """The cloud gate that lowers the mean fused error of
-    ``ood_samples`` (clouds of no training family) as far as it can while the mean over the
-    clouds of ``samples`` (the model's own kind) stays within ``tolerance`` of what
-    ``calibration``'s gate gives them; ``calibration``'s gate where no such gate does better on
-    the OOD clouds. Both read with ``calibration``'s veto limit (:func:`with_veto_limit`)."""
+    """The cloud gate that lowers the mean fused error of ``ood_samples`` (clouds of no
+    training family) as far as it can while the mean over the clouds of ``samples`` (the
+    model's own kind) stays within ``tolerance`` of what ``calibration``'s gate gives them;
+    ``calibration``'s gate where no such gate does better on the OOD clouds. Both sets are read
+    as ``calibration``'s veto limit reads them (:func:`with_veto_limit`)."""
     clouds = [s for s in samples if not s.mesh]
     unusual = [s for s in ood_samples if not s.mesh]
     if not clouds or not unusual:

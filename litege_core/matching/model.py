@@ -484,7 +484,7 @@ class MatchingModel:
         ):
             aligned = transform.apply(shape.vertices)
             # a scan's stray points are never matched: the network scores off-surface points
-            # as near anything (5 % strays drew 17–49 % of FAUST matches, BENCHMARKS "outliers")
+            # as near anything (5 % strays drew 71 % of FAUST matches, BENCHMARKS "outliers")
             isolated = isolated_points(aligned) if shape.faces is None else None
             cache = NNCache.build(
                 aligned,

@@ -228,3 +228,5 @@ def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
     assert not isolated_points(np.concatenate([sphere[:6], strays])).any()
     lattice = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), axis=-1).reshape(-1, 3)
     assert not isolated_points(lattice, k=1, factor=0.5).any()  # every point would be
+    repeated = np.concatenate([np.repeat(sphere[:100], 20, axis=0), sphere[100:]])
+    assert not isolated_points(repeated).any()  # median spacing 0: nothing to measure against
