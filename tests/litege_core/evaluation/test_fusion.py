@@ -312,11 +312,7 @@ def _gate_samples(z_score: float, network_factor: float, graph_noise: float, see
 
 
 def test_the_gate_refit_for_unusual_shapes_keeps_the_familiar_ones_within_tolerance() -> None:
-    from litege_core.evaluation.fusion import (
-        GATE_OOD_TOLERANCE,
-        fit_gate_with_ood,
-        mean_fused_error,
-    )
+    from litege_core.evaluation.fusion import fit_gate_with_ood, mean_fused_error
 
     # familiar shapes (z 0 and 1): the network is right, the graph noisy; the in-kind fit
     # never sees a high z, so it trusts the network on the unusual shapes (z = 8) too, where
@@ -325,21 +321,23 @@ def test_the_gate_refit_for_unusual_shapes_keeps_the_familiar_ones_within_tolera
     unusual = _gate_samples(8.0, 1.3, 0.02, 2)
     calibration = fit_fusion(familiar, "h" * 64, k=8, prune_ratio=1.3)
     assert calibration.network_weight(8.0, 1000, 0.1) > 0.5
-    refit = dataclasses.replace(calibration, gate=fit_gate_with_ood(familiar, unusual, calibration))
+    refit = dataclasses.replace(
+        calibration, gate=fit_gate_with_ood(familiar, unusual, calibration, 0.01)
+    )
     assert refit.network_weight(8.0, 1000, 0.1) < 0.2
     assert mean_fused_error(unusual, refit) < 0.5 * mean_fused_error(unusual, calibration)
-    bound = mean_fused_error(familiar, calibration) * (1 + GATE_OOD_TOLERANCE)
+    bound = mean_fused_error(familiar, calibration) * 1.01
     assert mean_fused_error(familiar, refit) <= bound
     # unusual shapes the gate cannot tell from familiar ones (same z and roughness): the
     # bound binds, and the familiar shapes keep nearly all the network's weight
     lookalikes = [dataclasses.replace(s, z_score=0.0) for s in unusual]
     bound_refit = dataclasses.replace(
-        calibration, gate=fit_gate_with_ood(familiar, lookalikes, calibration)
+        calibration, gate=fit_gate_with_ood(familiar, lookalikes, calibration, 0.01)
     )
     assert mean_fused_error(familiar, bound_refit) <= bound
     assert bound_refit.network_weight(0.0, 1000, 0.1) > 0.9
     # no unusual clouds: the gate as it was
-    assert fit_gate_with_ood(familiar, [], calibration) == calibration.gate
+    assert fit_gate_with_ood(familiar, [], calibration, 0.01) == calibration.gate
 
 
 def test_ood_samples_read_the_fitted_graph_with_and_without_its_veto(
