@@ -218,12 +218,32 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
+_KEY_WEIGHTS = np.array([1.0, 0.7548776662466927, 0.5698402909980532])
+"""A generic projection of :func:`first_copies`' quick check: distinct points seldom share it,
+and when they do the exact test runs anyway."""
+
+
+def first_copies(points: NDArray) -> NDArray:
+    """``(N,)`` int64: for each point the index of the first point at exactly its position (its
+    own index where it is the first): the welding of a mesh stored with repeated vertices (a
+    triangle soup, an OBJ split along its UV seams)."""
+    n = points.shape[0]
+    key = np.sort(points @ _KEY_WEIGHTS)  # equal points share a key: no repeat, no copies
+    if n < 2 or np.all(key[1:] != key[:-1]):
+        return np.arange(n, dtype=np.int64)
+    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
+    return first[inverse.reshape(-1)].astype(np.int64)
+
+
 def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
     faces stay apart, while the chords across each vertex's neighbourhood straighten the
-    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges).
+    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Vertices stored more than
+    once at one position (:func:`first_copies`) count as one: the rings run over the welded
+    faces, between each position's first copies, and every other copy joins its first copy by
+    a chord of length 0, so a mesh split along seams is connected across them.
 
     Args:
         points: ``(N, 3)`` float64 vertices.
@@ -235,8 +255,12 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
         zeros: coincident vertices), as :func:`edge_graph` builds it.
     """
     n = points.shape[0]
-    faces = np.asarray(faces, dtype=np.int64)
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    first = first_copies(points)
+    faces = first[np.asarray(faces, dtype=np.int64)]  # welded: a position's first copy
+    copies = np.flatnonzero(first != np.arange(n))
+    half = np.concatenate(
+        [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]], np.stack([first[copies], copies], 1)]
+    )
     ones = np.ones(len(half))  # repeated pairs add up: only membership matters
     step = sp.coo_array((ones, (half[:, 0], half[:, 1])), shape=(n, n)).tocsr()
     step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included
@@ -297,6 +321,7 @@ __all__ = [
     "dijkstra_rows",
     "dijkstra_tree",
     "edge_graph",
+    "first_copies",
     "knn_graph",
     "knn_neighbours",
     "mesh_ring_graph",

@@ -552,6 +552,30 @@ def test_the_mesh_ring_graph_equals_a_breadth_first_reference(blob, rings) -> No
     np.testing.assert_allclose(fast.toarray(), slow.toarray(), rtol=1e-12)
 
 
+def test_a_mesh_stored_as_a_triangle_soup_gets_the_welded_mesh_distances(blob) -> None:
+    """Every corner its own vertex (a soup, or an OBJ split along seams): the ring graph joins
+    the copies of a position by chords of length 0, so its Dijkstra equals the welded mesh's
+    at every copy; the reference's BFS on the soup's own faces reaches one triangle only."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from litege_core.engines.graph import first_copies
+
+    shape = blob(2, 2)
+    points, faces = np.asarray(shape.vertices, np.float64), np.asarray(shape.faces)
+    soup_points = points[faces.reshape(-1)]
+    soup_faces = np.arange(soup_points.shape[0]).reshape(-1, 3)
+    np.testing.assert_array_equal(
+        soup_points[first_copies(soup_points)], soup_points
+    )  # a copy is at its first copy's position
+    assert np.unique(first_copies(soup_points)).size == points.shape[0]
+    corner = faces.reshape(-1)  # soup vertex → welded vertex
+    welded = dijkstra(mesh_ring_graph(points, faces, 2), directed=False, indices=corner[[0, 9]])
+    soup = dijkstra(mesh_ring_graph(soup_points, soup_faces, 2), directed=False, indices=[0, 9])
+    np.testing.assert_allclose(soup, welded[:, corner], atol=1e-12)
+    lonely = dijkstra(_reference_ring_graph(soup_points, soup_faces, 2), directed=False, indices=0)
+    assert np.isinf(lonely).sum() == soup_points.shape[0] - 3
+
+
 def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
     predictor, calibration = _graph_only_predictor(bundle_dir)
     shape = blob(3)
