@@ -40,11 +40,11 @@ from litege_core.errors import (
 )
 from litege_core.sampling import (
     as_points,
+    evenly_spread,
     mean_nearest_neighbour_distance,
     poisson_disk_subsample,
     random_generator,
     sample_surface,
-    without_isolated,
 )
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits, triangle_areas, validate_arrays
@@ -637,13 +637,14 @@ def poisson_frame(
     """Poisson-spacing canonicalization of a shape (spec §1.4) and the cloud it used.
 
     Returns:
-        ``(transform, cloud)``: the cloud (input units) is the point cloud itself less its
-        isolated points (:func:`~litege_core.sampling.without_isolated`), ``n_cloud`` surface
-        samples of a mesh, or their Poisson subset when ``setting.subset_is_cloud``.
+        ``(transform, cloud)``: the cloud (input units) is the point cloud itself, less its
+        isolated points and thinned to an even spread (:func:`~litege_core.sampling.
+        evenly_spread`), ``n_cloud`` surface samples of a mesh, or their Poisson subset when
+        ``setting.subset_is_cloud``.
     """
     rng = random_generator(seed)
-    if shape.faces is None:  # a scan's stray points would pull the centre and the spacing
-        cloud = without_isolated(shape.vertices)
+    if shape.faces is None:  # a scan's strays and uneven density would pull the frame
+        cloud = evenly_spread(shape.vertices, rng)
     else:
         cloud = sample_surface(shape.vertices, shape.faces, setting.n_cloud, rng).points
     n_poisson = setting.n_poisson

@@ -351,6 +351,27 @@ OUTLIER_FACTOR = 4.0
 that distance. Clean, noisy (σ 0.02 at unit area) and cut real dev clouds of 300 to 2000 points
 have almost none (at most 3 points of a cut TOSCA cloud); at 3.0, sparse FAUST clouds lost up to
 4 true points (BENCHMARKS "outliers")."""
+EVEN_QUANTILE = 75.0
+""":func:`evenly_spread` thins a cloud to the spacing of this percentile of its points' k-th
+neighbour distances, over its surface (each point weighed by its area; BENCHMARKS
+"even-density")."""
+
+
+def _reach(points: NDArray, k: int) -> NDArray:
+    """``(N,)`` distance from each point to its ``k``-th nearest other point."""
+    from pykdtree.kdtree import KDTree  # imported on first use (CLI start-up)
+
+    return KDTree(points).query(points, k=k + 1)[0][:, -1]  # itself first
+
+
+def _isolated(reach: NDArray, factor: float) -> NDArray:
+    """:func:`isolated_points` from the points' k-th neighbour distances ``reach``."""
+    flagged = np.zeros(reach.shape[0], dtype=bool)
+    typical = float(np.median(reach))
+    if not typical > 0.0:  # most points repeated: no spacing to measure against
+        return flagged
+    flagged = reach > factor * typical
+    return flagged if 2 * int(flagged.sum()) < reach.shape[0] else np.zeros_like(flagged)
 
 
 def isolated_points(
@@ -361,24 +382,56 @@ def isolated_points(
     distance over the cloud. None is flagged in a cloud of at most ``k + 1`` points, nor where
     half the points or more would be (then there is no one surface to stray from) or that
     median is 0 (most points repeated)."""
-    from pykdtree.kdtree import KDTree  # imported on first use (CLI start-up)
-
     pts = as_points(points)
-    flagged = np.zeros(pts.shape[0], dtype=bool)
     if pts.shape[0] <= k + 1:
-        return flagged
-    reach = KDTree(pts).query(pts, k=k + 1)[0][:, -1]  # itself first
-    typical = float(np.median(reach))
-    if not typical > 0.0:  # most points repeated: no spacing to measure against
-        return flagged
-    flagged = reach > factor * typical
-    return flagged if 2 * int(flagged.sum()) < pts.shape[0] else np.zeros_like(flagged)
+        return np.zeros(pts.shape[0], dtype=bool)
+    return _isolated(_reach(pts, k), factor)
 
 
 def without_isolated(points: NDArray) -> NDArray:
     """``points`` less its :func:`isolated_points` (``points`` itself where there are none)."""
     isolated = isolated_points(points)
     return points[~isolated] if isolated.any() else points
+
+
+def _area_percentile(reach: NDArray, percent: float) -> float:
+    """The ``percent`` percentile of ``reach`` with each point weighed by the area it stands
+    for (``∝ reach²``): a dense part's many points count for the little surface they cover."""
+    ordered = np.sort(reach)
+    covered = np.cumsum(ordered**2)
+    if not covered[-1] > 0.0:
+        return 0.0
+    return float(ordered[np.searchsorted(covered, percent / 100.0 * covered[-1])])
+
+
+def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArray:
+    """``points`` less their :func:`isolated_points`, thinned where they lie denser than most:
+    a point is kept with probability ``min(1, (r / r_ref)²)``, ``r`` its distance to its
+    :data:`OUTLIER_NEIGHBOURS`-th nearest point and ``r_ref`` the :data:`EVEN_QUANTILE`
+    percentile of ``r`` over the surface (each point weighed by the area it stands for,
+    ``∝ r²``: the points per area go as ``1 / r²``), so a scan denser in some parts than
+    others comes out about evenly spread, as the area-weighted samples a network is trained
+    on (a uniform cloud keeps most of its points). Deterministic per seed;
+    ``points`` itself for a cloud of at most ``k + 1`` points, and not thinned where too few
+    would be left.
+
+    Returns:
+        ``(M, 3)`` a subset of ``points``, in their order.
+    """
+    pts = as_points(points)
+    if pts.shape[0] <= OUTLIER_NEIGHBOURS + 1:
+        return points
+    reach = _reach(pts, OUTLIER_NEIGHBOURS)
+    kept = ~_isolated(reach, OUTLIER_FACTOR)
+    reference = _area_percentile(reach[kept], EVEN_QUANTILE)
+    if reference > 0.0:
+        chance = np.minimum(1.0, (reach[kept] / reference) ** 2)
+        # one draw per kept point: isolated points take none (a scan with strays spreads as
+        # the scan without them, and the stream goes on alike)
+        thinned = random_generator(seed).random(chance.shape[0]) < chance
+        if np.count_nonzero(thinned) > OUTLIER_NEIGHBOURS:  # else too few to thin
+            kept[kept] = thinned
+    return np.asarray(points)[kept]
 
 
 def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
@@ -398,6 +451,7 @@ __all__ = [
     "SurfaceSamples",
     "as_points",
     "check_seed",
+    "evenly_spread",
     "farthest_point_sampling",
     "isolated_points",
     "mean_nearest_neighbour_distance",
