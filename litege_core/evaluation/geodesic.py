@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from litege_core.engines import compute_distances
 from litege_core.errors import ComputationError, InputError
 from litege_core.metrics import geodesic_error
-from litege_core.sampling import farthest_point_sampling, sample_surface
+from litege_core.sampling import SurfaceSamples, farthest_point_sampling, sample_surface
 from litege_core.shape import Shape
 from litege_core.variants import add_noise, add_outliers, cut_by_planes, small_rotation
 
@@ -224,15 +224,18 @@ def generated_eval_shapes(
 
 
 SETTING_FORMS = (
-    "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %) or outliers_P "
-    "(P ≥ 0 %)"
+    "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %), outliers_P "
+    "(P ≥ 0 %) or uneven_A (A ≥ 0)"
 )
+UNEVEN_CANDIDATES = 4
+"""An ``uneven_A`` cloud is drawn from this many × its count of area-weighted samples."""
 
 
 def parse_setting(setting: str) -> tuple[str, float]:
     """``(kind, value)`` of a setting name (see :func:`make_input`): ``"mesh"`` →
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
-    ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``.
+    ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``,
+    ``"uneven_3"`` → ``("uneven", 3)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -248,13 +251,13 @@ def parse_setting(setting: str) -> tuple[str, float]:
             return kind, float(number)
         if kind == "outliers":
             return kind, float(number)
-    elif kind == "noise":
+    elif kind in ("noise", "uneven"):
         try:
-            sigma = float(value)
+            amount = float(value)
         except ValueError:
-            sigma = math.nan
-        if math.isfinite(sigma) and sigma >= 0:
-            return kind, sigma
+            amount = math.nan
+        if math.isfinite(amount) and amount >= 0:
+            return kind, amount
     raise InputError(
         f"unknown evaluation setting {setting!r}: expected {SETTING_FORMS} "
         f"(default {','.join(SETTINGS)})"
@@ -284,7 +287,10 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     Gaussian noise of that std (``"noise_0.01"``, unit-area units), cut by planes
     (``"cut_10"``: 10 %) or followed by stray points (``"outliers_5"``: 5 % of its count,
     uniform in its bounding box grown by 10 % per side; their ground truth is 0, so no pair
-    that ends on one is scored).
+    that ends on one is scored) or sampled unevenly (``"uneven_3"``: the density grows as
+    ``exp(3 t)`` along the mesh's x axis, ``t`` from 0 to 1, so one end is e³ ≈ 20 times denser
+    than the other, as a scan taken from one side; drawn from :data:`UNEVEN_CANDIDATES` × as
+    many area-weighted samples).
 
     Raises:
         InputError: a bad setting (see :func:`parse_setting`), or a cloud of fewer points
@@ -299,7 +305,10 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
         raise InputError(
             f"setting {setting!r} has fewer points than the {n_sources} sources of {shape.name}"
         )
-    samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
+    if kind == "uneven":
+        samples = _uneven_samples(shape, n_points - n_sources, value, seed)
+    else:
+        samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
     corner_gt = shape.gt[:, shape.faces[samples.face_index]]  # (R, n, 3)
     sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
     points = np.concatenate([shape.vertices[shape.sources], samples.points])
@@ -317,6 +326,18 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     return EvalInput(
         Shape.from_arrays(points[kept]), new_index[source_rows], gt[np.ix_(source_rows, kept)]
     )
+
+
+def _uneven_samples(shape: EvalShape, count: int, steepness: float, seed: int) -> SurfaceSamples:
+    """``count`` surface samples of ``shape`` whose density grows as ``exp(steepness · t)``
+    along its x axis (``t`` from 0 to 1), without replacement from
+    :data:`UNEVEN_CANDIDATES` × ``count`` area-weighted samples (seeded)."""
+    pool = sample_surface(shape.vertices, shape.faces, UNEVEN_CANDIDATES * count, seed)
+    x = pool.points[:, 0]
+    weights = np.exp(steepness * (x - x.min()) / max(float(np.ptp(x)), 1e-12))
+    rng = np.random.default_rng(seed)
+    pick = np.sort(rng.choice(len(x), count, replace=False, p=weights / weights.sum()))
+    return SurfaceSamples(pool.points[pick], pool.face_index[pick], pool.barycentric[pick])
 
 
 Method = Callable[[EvalInput], NDArray]

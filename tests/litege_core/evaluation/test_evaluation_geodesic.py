@@ -76,6 +76,16 @@ def test_corruptions_keep_queries_consistent(eval_shape):
     np.testing.assert_array_equal(stray.shape.vertices[:2000], clean.shape.vertices)
     np.testing.assert_array_equal(stray.gt[:, :2000], clean.gt)
     assert not stray.gt[:, 2000:].any()  # 0: never scored
+    uneven = make_input(eval_shape, "uneven_3", seed=0)  # denser towards +x
+    assert uneven.shape.n_points == 2000 and uneven.gt.shape == (6, 2000)
+    x = uneven.shape.vertices[6:, 0]
+    middle = 0.5 * (x.min() + x.max())
+    assert np.count_nonzero(x > middle) > 2.5 * np.count_nonzero(x <= middle)
+    again = make_input(eval_shape, "uneven_3", seed=0)
+    np.testing.assert_array_equal(again.shape.vertices, uneven.shape.vertices)
+    flat = make_input(eval_shape, "uneven_0", seed=0)  # A = 0: a plain area-weighted draw
+    x = flat.shape.vertices[6:, 0]
+    assert np.count_nonzero(x > middle) < 2 * np.count_nonzero(x <= middle)
     low, high = clean.shape.vertices.min(0), clean.shape.vertices.max(0)
     margin = 0.1 * (high - low) + 1e-9
     assert (stray.shape.vertices[2000:] >= low - margin).all()
@@ -91,6 +101,7 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
     ]
     assert parse_setting("noise_0.01") == ("noise", 0.01) and parse_setting("cut_10") == ("cut", 10)
     assert parse_setting("outliers_5") == ("outliers", 5)
+    assert parse_setting("uneven_3") == ("uneven", 3.0)
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
         "mesh",
         "cut_5",
@@ -105,6 +116,8 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         "cloud_²",
         "outliers_x",
         "outliers_-1",
+        "uneven_nan",
+        "uneven_-1",
     ):
         with pytest.raises(InputError, match="cloud_N"):
             parse_setting(bad)
