@@ -62,6 +62,12 @@ UNMETERED = ("/healthz", "/readyz", "/metrics")
 BODY_METHODS = ("POST", "PUT", "PATCH")
 """Methods whose body is read only once the API key is checked."""
 MULTIPART_OVERHEAD = 64 * 1024
+DRAIN_BYTES = 64 * 1024
+"""A refused request declaring a body of at most this many bytes has it read and dropped
+before the refusal (so the connection closes cleanly, or stays open); a larger one is refused
+unread and its connection closed."""
+DRAIN_TIMEOUT_S = 1.0
+"""Longest wait for such a body (at most the body-read timeout)."""
 INLINE_JSON_BYTES = 64 * 1024
 """JSON bodies up to this size are validated on the event loop; larger ones in a thread."""
 
@@ -168,11 +174,23 @@ def _install_error_handlers(app: FastAPI) -> None:
 # --------------------------------------------------------------------------- middleware
 
 
+def _declared_length(scope: Scope) -> int | None:
+    """The request's ``Content-Length`` (``None``: absent or not a number)."""
+    for name, value in scope.get("headers", ()):
+        if name == b"content-length":
+            with contextlib.suppress(ValueError):
+                return int(value)
+            return None
+    return None
+
+
 class GuardMiddleware:
     """Pure ASGI middleware around every request, in this order:
 
     1. API key, for requests with a body (``POST``/``PUT``/``PATCH``): a wrong or missing key
-       is answered 401 before a byte of the body is read;
+       is answered 401; a body declared at most :data:`DRAIN_BYTES` long is read and dropped
+       first (a server that closes with unread bytes sends a TCP reset, which can reach the
+       client before the 401 does), a longer one is never read and its connection closed;
     2. the body, read in full under ``LITEGE_BODY_READ_TIMEOUT_S`` (408) and the size limit
        (413), so a slow or huge upload holds no concurrency slot;
     3. a concurrency slot of :class:`service.runtime.Admission`, shared with gRPC (429);
@@ -213,11 +231,15 @@ class GuardMiddleware:
                 await self._call_app(scope, receive, send_wrapper, state)
                 return
             refusal: LiteGEError | None = self._authenticate(scope)
+            drained = False
             if refusal is None:
                 body, refusal = await self._read_body(scope, receive)
+            else:
+                drained = await self._drain_small_body(scope, receive)
             if refusal is not None:
                 response = problem_response(refusal, path)
-                response.headers["Connection"] = "close"  # the unread body cannot be skipped
+                if not drained:
+                    response.headers["Connection"] = "close"  # the unread body cannot be skipped
                 await response(scope, receive, send_wrapper)
                 return
             try:
@@ -274,14 +296,33 @@ class GuardMiddleware:
                 break
         return AuthenticationError("missing or wrong X-API-Key header")
 
+    async def _drain_small_body(self, scope: Scope, receive: Receive) -> bool:
+        """Read and drop a body declared at most :data:`DRAIN_BYTES` long (within
+        :data:`DRAIN_TIMEOUT_S`); whether all of it came."""
+        declared = _declared_length(scope)
+        if declared is None or declared > DRAIN_BYTES:
+            return False
+        size = 0
+        try:
+            async with asyncio.timeout(min(self.body_timeout_s, DRAIN_TIMEOUT_S)):
+                while True:
+                    message = await receive()
+                    if message["type"] == "http.disconnect":
+                        return False
+                    size += len(message.get("body", b""))
+                    if size > DRAIN_BYTES:
+                        return False
+                    if not message.get("more_body", False):
+                        return True
+        except TimeoutError:
+            return False
+
     async def _read_body(self, scope: Scope, receive: Receive) -> tuple[bytes, LiteGEError | None]:
         """The whole body, or the refusal: over the size limit (declared or actual), or not
         sent within the body-read timeout."""
-        for name, value in scope.get("headers", ()):
-            if name == b"content-length":
-                with contextlib.suppress(ValueError):
-                    if int(value) > self.max_body:
-                        return b"", self._too_large()
+        declared = _declared_length(scope)
+        if declared is not None and declared > self.max_body:
+            return b"", self._too_large()
         chunks, size = [], 0
         try:
             async with asyncio.timeout(self.body_timeout_s):

@@ -358,6 +358,26 @@ def test_rest_hostile_input_is_a_4xx_problem(service, http, shape_ids, case):
     _assert_still_answers(http, shape_ids[0])
 
 
+def test_a_refused_small_body_is_read_first_and_the_connection_kept(service, shape_ids):
+    """A wrong key with a small body: the body is drained before the 401, so the connection
+    closes cleanly (no reset racing the answer) and stays open for the next request; an
+    unsent large body is refused unread and its connection closed."""
+    body = json.dumps({"shape_id": shape_ids[0], "sources": [0]}).encode()
+    with httpx.Client(base_url=service.base_url, timeout=30) as client:
+        for _ in range(20):  # one connection, reused each time
+            refused = client.post("/geodesic", content=body, headers={"X-API-Key": "x"})
+            assert refused.status_code == 401
+            assert refused.headers.get("connection") != "close"
+        answered = client.post(
+            "/geodesic",
+            content=body,
+            headers={"X-API-Key": API_KEY, "Content-Type": "application/json"},
+        )
+        assert answered.status_code == 200
+    unsent = _raw(service, _post_head("/geodesic", UPLOAD_BYTES // 2, key="x"))
+    assert unsent.status_code == 401 and unsent.headers.get("connection") == "close"
+
+
 def test_sources_all_says_why(http, shape_ids):
     response = http.post("/geodesic", json={"shape_id": shape_ids[0], "sources": "all"})
     assert response.status_code == 422
