@@ -1,9 +1,9 @@
 """From a user's shape to its UDF-PCA descriptor (geodesic-regression pipeline, spec §1.2, §2).
 
 ``describe_shape`` = sample (meshes: ``n_samples`` area-weighted surface points; point clouds:
-their own points, isolated ones left out) → centre, PCA-align and bounding-box scale → UDF at
-the informative voxels → PCA projection. The transform is returned so every output can be
-mapped back to the user's frame, and the PCA reconstruction residual serves as an
+their own points, isolated ones left out, evenly spread) → centre, PCA-align and bounding-box
+scale → UDF at the informative voxels → PCA projection. The transform is returned so every
+output can be mapped back to the user's frame, and the PCA reconstruction residual serves as an
 out-of-distribution score.
 
 ``frame_candidates`` other than ``"pca"`` replaces the plain PCA sign rule by the lowest-residual
@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from litege_core.canonical import Transform, canonicalize_bbox
 from litege_core.descriptor import UdfPcaBasis
-from litege_core.sampling import sample_surface, without_isolated
+from litege_core.sampling import evenly_spread, sample_surface
 from litege_core.shape import Shape
 
 if TYPE_CHECKING:
@@ -49,11 +49,12 @@ class ShapeDescription:
 
 def shape_samples(shape: Shape, n_samples: int = DEFAULT_MESH_SAMPLES, seed: int = 0) -> NDArray:
     """``(P, 3)`` points the descriptor is computed from, in the user's frame: a mesh's
-    ``n_samples`` surface samples; a cloud's points without its isolated ones
-    (:func:`~litege_core.sampling.isolated_points`: a scan's stray points would pull the frame
-    and write false surface into the UDF; every point is still embedded and answered)."""
+    ``n_samples`` surface samples; a cloud's points less its isolated ones, thinned to an even
+    spread (:func:`~litege_core.sampling.evenly_spread`, seeded: a scan's stray points would
+    pull the frame and write false surface into the UDF, and its denser parts would weigh more
+    than the surface they cover; every point is still embedded and answered)."""
     if shape.faces is None:
-        return without_isolated(np.asarray(shape.vertices))
+        return evenly_spread(np.asarray(shape.vertices), seed)
     return sample_surface(shape.vertices, shape.faces, n_samples, seed).points
 
 

@@ -233,23 +233,29 @@ def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
 
 
 def test_evenly_spread_thins_dense_parts_to_the_typical_spacing():
-    from litege_core.sampling import evenly_spread
+    from litege_core.sampling import evenly_spread, without_isolated
 
     rng = np.random.default_rng(3)
     sphere = rng.normal(size=(6000, 3))
     sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
     uniform = sphere[:2000]
-    kept = evenly_spread(uniform, seed=1)
-    assert 0.6 * 2000 < len(kept) < 2000  # an even cloud keeps most of its points
-    assert np.isin(kept, uniform).all(axis=1).all()
-    np.testing.assert_array_equal(kept, evenly_spread(uniform, seed=1))  # seeded
+    np.testing.assert_array_equal(evenly_spread(uniform, seed=1), uniform)  # even: as it is
     # the upper half ten times denser than the lower one: about even afterwards
     upper, lower = sphere[sphere[:, 2] > 0][:2000], sphere[sphere[:, 2] <= 0][:200]
-    spread = evenly_spread(np.concatenate([upper, lower]), seed=1)
+    uneven = np.concatenate([upper, lower])
+    spread = evenly_spread(uneven, seed=1)
+    assert np.isin(spread, uneven).all(axis=1).all()
     ratio = np.count_nonzero(spread[:, 2] > 0) / np.count_nonzero(spread[:, 2] <= 0)
     assert ratio < 2.0  # was 10
+    np.testing.assert_array_equal(spread, evenly_spread(uneven, seed=1))  # seeded
+    assert not np.array_equal(spread, evenly_spread(uneven, seed=2))
     # stray points are dropped, and take no draw: the rest spreads as without them
     strays = np.array([[3.0, 0.0, 0.0], [0.0, -2.5, 0.5]])
-    np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, strays]), 1), kept)
+    np.testing.assert_array_equal(evenly_spread(np.concatenate([uneven, strays]), 1), spread)
+    np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, strays])), uniform)
+    # too few points to judge the spacing by: not thinned (only strays left out)
+    sparse = np.concatenate([upper[:400], lower[:40]])
+    np.testing.assert_array_equal(evenly_spread(sparse, seed=1), without_isolated(sparse))
+    assert len(without_isolated(sparse)) > 430
     tiny = uniform[:9]
     assert evenly_spread(tiny) is tiny
