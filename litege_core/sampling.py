@@ -396,12 +396,6 @@ def isolated_points(
     return _isolated(_reach(pts, k), factor)
 
 
-def without_isolated(points: NDArray) -> NDArray:
-    """``points`` less its :func:`isolated_points` (``points`` itself where there are none)."""
-    isolated = isolated_points(points)
-    return points[~isolated] if isolated.any() else points
-
-
 def _area_percentile(reach: NDArray, percent: float) -> float:
     """The ``percent`` percentile of ``reach`` with each point weighed by the area it stands
     for (``∝ reach²``): a dense part's many points count for the little surface they cover."""
@@ -468,5 +462,4 @@ __all__ = [
     "poisson_disk_subsample",
     "random_generator",
     "sample_surface",
-    "without_isolated",
 ]

@@ -211,7 +211,7 @@ def test_mean_nearest_neighbour_distance_of_grid():
 
 
 def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
-    from litege_core.sampling import isolated_points, without_isolated
+    from litege_core.sampling import isolated_points
 
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(2000, 3))
@@ -222,8 +222,6 @@ def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
     strays = np.array([[3.0, 0.0, 0.0], [0.0, -2.5, 0.5], [1.2, 1.2, 1.2]])
     flagged = isolated_points(np.concatenate([sphere, strays]))
     np.testing.assert_array_equal(np.flatnonzero(flagged), [2000, 2001, 2002])
-    np.testing.assert_array_equal(without_isolated(np.concatenate([sphere, strays])), sphere)
-    assert without_isolated(sphere) is sphere  # nothing isolated: no copy
     # too few points to tell, or half of them or more flagged: none
     assert not isolated_points(np.concatenate([sphere[:6], strays])).any()
     lattice = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), axis=-1).reshape(-1, 3)
@@ -233,7 +231,7 @@ def test_isolated_points_are_the_strays_far_from_the_sampled_surface():
 
 
 def test_evenly_spread_thins_dense_parts_to_the_typical_spacing():
-    from litege_core.sampling import evenly_spread, without_isolated
+    from litege_core.sampling import evenly_spread, isolated_points
 
     rng = np.random.default_rng(3)
     sphere = rng.normal(size=(6000, 3))
@@ -255,7 +253,7 @@ def test_evenly_spread_thins_dense_parts_to_the_typical_spacing():
     np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, strays])), uniform)
     # too few points to judge the spacing by: not thinned (only strays left out)
     sparse = np.concatenate([upper[:400], lower[:40]])
-    np.testing.assert_array_equal(evenly_spread(sparse, seed=1), without_isolated(sparse))
-    assert len(without_isolated(sparse)) > 430
+    np.testing.assert_array_equal(evenly_spread(sparse, seed=1), sparse[~isolated_points(sparse)])
+    assert np.count_nonzero(isolated_points(sparse)) < 10
     tiny = uniform[:9]
     assert evenly_spread(tiny) is tiny
