@@ -403,7 +403,8 @@ def _area_percentile(reach: NDArray, percent: float) -> float:
     covered = np.cumsum(ordered**2)
     if not covered[-1] > 0.0:
         return 0.0
-    return float(ordered[np.searchsorted(covered, percent / 100.0 * covered[-1])])
+    at = int(np.searchsorted(covered, percent / 100.0 * covered[-1]))
+    return float(ordered[min(at, ordered.shape[0] - 1)])
 
 
 def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArray:
