@@ -513,7 +513,8 @@ def test_poisson_frame_of_a_cloud_leaves_its_stray_points_out(sphere_cloud):
     the matching frame of the cloud with them equals the clean cloud's."""
     from litege_core.canonical import poisson_frame
 
-    stray = np.array([[4.0, 0.0, 0.0], [0.0, -3.5, 1.0], [2.5, 2.5, 2.5]])
+    shell = np.random.default_rng(5).normal(size=(200, 3))  # 2.5 % strays, far out
+    stray = shell * (4.0 / np.linalg.norm(shell, axis=1, keepdims=True))
     clean = poisson_frame(Shape.from_arrays(sphere_cloud), POISSON_8K_CLOUD, seed=2)
     noisy = poisson_frame(
         Shape.from_arrays(np.concatenate([sphere_cloud, stray])), POISSON_8K_CLOUD, seed=2

@@ -250,7 +250,9 @@ def test_evenly_spread_thins_dense_parts_to_the_typical_spacing():
     # stray points are dropped, and take no draw: the rest spreads as without them
     strays = np.array([[3.0, 0.0, 0.0], [0.0, -2.5, 0.5]])
     np.testing.assert_array_equal(evenly_spread(np.concatenate([uneven, strays]), 1), spread)
-    np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, strays])), uniform)
+    shell = rng.normal(size=(40, 3))  # 2 % strays on a far shell: the probe sees them
+    shell *= 3.0 / np.linalg.norm(shell, axis=1, keepdims=True)
+    np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, shell])), uniform)
     # too few points to judge the spacing by: not thinned (only strays left out)
     sparse = np.concatenate([upper[:400], lower[:40]])
     np.testing.assert_array_equal(evenly_spread(sparse, seed=1), sparse[~isolated_points(sparse)])
