@@ -432,8 +432,26 @@ def _looks_clean(tree: Any, pts: NDArray) -> bool:
     return kept >= EVEN_MAX_KEEP + PROBE_MARGIN
 
 
+_KEY_WEIGHTS = np.array([1.0, 0.7548776662466927, 0.5698402909980532])
+"""A generic projection of :func:`first_copies`' quick check: distinct points seldom share it,
+and when they do the exact test runs anyway."""
+
+
+def first_copies(points: NDArray) -> NDArray:
+    """``(N,)`` int64: for each point the index of the first point at exactly its position (its
+    own index where it is the first): the welding of a mesh stored with repeated vertices (a
+    triangle soup, an OBJ split along its UV seams)."""
+    n = points.shape[0]
+    key = np.sort(points @ _KEY_WEIGHTS)  # equal points share a key: no repeat, no copies
+    if n < 2 or np.all(key[1:] != key[:-1]):
+        return np.arange(n, dtype=np.int64)
+    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
+    return first[inverse.reshape(-1)].astype(np.int64)
+
+
 def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArray:
-    """``points`` less their :func:`isolated_points`, thinned where they lie denser than most:
+    """``points`` less their repeats (:func:`first_copies`: one per position) and their
+    :func:`isolated_points`, thinned where they lie denser than most:
     a point is kept with probability ``min(1, (r / r_ref)²)``, ``r`` its distance to its
     :data:`OUTLIER_NEIGHBOURS`-th nearest point and ``r_ref`` the :data:`EVEN_QUANTILE`
     percentile of ``r`` over the surface (each point weighed by the area it stands for,
@@ -450,11 +468,17 @@ def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArr
     pts = as_points(points)
     if pts.shape[0] <= OUTLIER_NEIGHBOURS + 1:
         return points
+    # one sample per position: repeated points add no surface (a cloud sent twice is the cloud)
+    index = np.flatnonzero(first_copies(pts) == np.arange(pts.shape[0]))
+    if index.shape[0] < pts.shape[0]:
+        pts = pts[index]
+        if pts.shape[0] <= OUTLIER_NEIGHBOURS + 1:
+            return np.asarray(points)[index]
     from pykdtree.kdtree import KDTree  # imported on first use (CLI start-up)
 
     tree = KDTree(pts)
     if pts.shape[0] > 2 * PROBE_POINTS and _looks_clean(tree, pts):
-        return points
+        return points if index.shape[0] == len(points) else np.asarray(points)[index]
     reach = tree.query(pts, k=OUTLIER_NEIGHBOURS + 1)[0][:, -1]  # itself first
     kept = ~_isolated(reach, OUTLIER_FACTOR)
     reference = _area_percentile(reach[kept], EVEN_QUANTILE)
@@ -467,7 +491,7 @@ def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArr
         # one draw per kept point: isolated points take none (a scan with strays spreads as
         # the scan without them, and the stream goes on alike)
         kept[kept] = random_generator(seed).random(chance.shape[0]) < chance
-    return np.asarray(points)[kept]
+    return np.asarray(points)[index[kept]]
 
 
 def mean_nearest_neighbour_distance(points: ArrayLike) -> float:
@@ -489,6 +513,7 @@ __all__ = [
     "check_seed",
     "evenly_spread",
     "farthest_point_sampling",
+    "first_copies",
     "isolated_points",
     "mean_nearest_neighbour_distance",
     "poisson_disk_subsample",

@@ -19,6 +19,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
+from litege_core.sampling import first_copies
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -218,32 +219,16 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
-_KEY_WEIGHTS = np.array([1.0, 0.7548776662466927, 0.5698402909980532])
-"""A generic projection of :func:`first_copies`' quick check: distinct points seldom share it,
-and when they do the exact test runs anyway."""
-
-
-def first_copies(points: NDArray) -> NDArray:
-    """``(N,)`` int64: for each point the index of the first point at exactly its position (its
-    own index where it is the first): the welding of a mesh stored with repeated vertices (a
-    triangle soup, an OBJ split along its UV seams)."""
-    n = points.shape[0]
-    key = np.sort(points @ _KEY_WEIGHTS)  # equal points share a key: no repeat, no copies
-    if n < 2 or np.all(key[1:] != key[:-1]):
-        return np.arange(n, dtype=np.int64)
-    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
-    return first[inverse.reshape(-1)].astype(np.int64)
-
-
 def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
     faces stay apart, while the chords across each vertex's neighbourhood straighten the
     zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Vertices stored more than
-    once at one position (:func:`first_copies`) count as one: the rings run over the welded
-    faces, between each position's first copies, and every other copy joins its first copy by
-    a chord of length 0, so a mesh split along seams is connected across them.
+    once at one position (:func:`~litege_core.sampling.first_copies`) count as one: the rings
+    run over the welded faces, between each position's first copies, and every other copy
+    joins its first copy by a chord of length 0, so a mesh split along seams is connected
+    across them.
 
     Args:
         points: ``(N, 3)`` float64 vertices.
@@ -321,7 +306,6 @@ __all__ = [
     "dijkstra_rows",
     "dijkstra_tree",
     "edge_graph",
-    "first_copies",
     "knn_graph",
     "knn_neighbours",
     "mesh_ring_graph",

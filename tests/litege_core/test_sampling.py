@@ -257,5 +257,7 @@ def test_evenly_spread_thins_dense_parts_to_the_typical_spacing():
     sparse = np.concatenate([upper[:400], lower[:40]])
     np.testing.assert_array_equal(evenly_spread(sparse, seed=1), sparse[~isolated_points(sparse)])
     assert np.count_nonzero(isolated_points(sparse)) < 10
+    # a cloud sent twice is the cloud: one sample per position
+    np.testing.assert_array_equal(evenly_spread(np.concatenate([uniform, uniform])), uniform)
     tiny = uniform[:9]
     assert evenly_spread(tiny) is tiny

@@ -558,7 +558,7 @@ def test_a_mesh_stored_as_a_triangle_soup_gets_the_welded_mesh_distances(blob) -
     at every copy; the reference's BFS on the soup's own faces reaches one triangle only."""
     from scipy.sparse.csgraph import dijkstra
 
-    from litege_core.engines.graph import first_copies
+    from litege_core.sampling import first_copies
 
     shape = blob(2, 2)
     points, faces = np.asarray(shape.vertices, np.float64), np.asarray(shape.faces)
