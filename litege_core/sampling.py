@@ -378,7 +378,13 @@ def _reach(points: NDArray, k: int) -> NDArray:
     """``(N,)`` distance from each point to its ``k``-th nearest other point."""
     from pykdtree.kdtree import KDTree  # imported on first use (CLI start-up)
 
-    return KDTree(points).query(points, k=k + 1)[0][:, -1]  # itself first
+    return _reach_in(KDTree(points), points, k)
+
+
+def _reach_in(tree: Any, queries: NDArray, k: int) -> NDArray:
+    """``(Q,)`` distance from each of ``queries`` (points of the cloud ``tree`` holds: a
+    ``pykdtree`` KD-tree) to its ``k``-th nearest other point of the cloud."""
+    return tree.query(queries, k=k + 1)[0][:, -1]  # itself first
 
 
 def _isolated(reach: NDArray, factor: float) -> NDArray:
@@ -416,20 +422,24 @@ def _area_percentile(reach: NDArray, percent: float) -> float:
     return float(ordered[min(at, ordered.shape[0] - 1)])
 
 
+def _keep_chances(reach: NDArray) -> NDArray | None:
+    """:func:`evenly_spread`'s chance ``min(1, (r / r_ref)²)`` of keeping each point of these
+    k-th neighbour distances ``reach``; ``None`` where ``r_ref`` is 0 (no spacing)."""
+    reference = _area_percentile(reach, EVEN_QUANTILE)
+    return np.minimum(1.0, (reach / reference) ** 2) if reference > 0.0 else None
+
+
 def _looks_clean(tree: Any, pts: NDArray) -> bool:
     """Whether :data:`PROBE_POINTS` points of ``pts`` (a fixed random choice; ``tree`` a
     ``pykdtree`` KD-tree of ``pts``) show no isolated point and an even spread."""
     probe = np.random.default_rng(0).choice(pts.shape[0], PROBE_POINTS, replace=False)
-    reach = tree.query(pts[probe], k=OUTLIER_NEIGHBOURS + 1)[0][:, -1]
+    reach = _reach_in(tree, pts[probe], OUTLIER_NEIGHBOURS)
     if _isolated(reach, OUTLIER_FACTOR).any():
         return False
-    if pts.shape[0] < EVEN_MIN_POINTS:
+    chance = _keep_chances(reach)
+    if pts.shape[0] < EVEN_MIN_POINTS or chance is None:
         return True
-    reference = _area_percentile(reach, EVEN_QUANTILE)
-    if not reference > 0.0:
-        return True
-    kept = float(np.minimum(1.0, (reach / reference) ** 2).mean())
-    return kept >= EVEN_MAX_KEEP + PROBE_MARGIN
+    return float(chance.mean()) >= EVEN_MAX_KEEP + PROBE_MARGIN
 
 
 _KEY_WEIGHTS = np.array([1.0, 0.7548776662466927, 0.5698402909980532])
@@ -479,10 +489,9 @@ def evenly_spread(points: NDArray, seed: int | np.random.Generator = 0) -> NDArr
     tree = KDTree(pts)
     if pts.shape[0] > 2 * PROBE_POINTS and _looks_clean(tree, pts):
         return points if index.shape[0] == len(points) else np.asarray(points)[index]
-    reach = tree.query(pts, k=OUTLIER_NEIGHBOURS + 1)[0][:, -1]  # itself first
+    reach = _reach_in(tree, pts, OUTLIER_NEIGHBOURS)
     kept = ~_isolated(reach, OUTLIER_FACTOR)
-    reference = _area_percentile(reach[kept], EVEN_QUANTILE)
-    chance = np.minimum(1.0, (reach[kept] / reference) ** 2) if reference > 0.0 else None
+    chance = _keep_chances(reach[kept])
     if (
         chance is not None
         and chance.shape[0] >= EVEN_MIN_POINTS
