@@ -219,16 +219,27 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
+def _boundary_vertices(faces: NDArray, n: int) -> NDArray:
+    """``(n,)`` bool: the vertices on an edge that borders exactly one of ``faces``."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    rim = np.zeros(n, dtype=bool)
+    rim[unique[counts == 1].reshape(-1)] = True
+    return rim
+
+
 def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
     faces stay apart, while the chords across each vertex's neighbourhood straighten the
-    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Vertices stored more than
-    once at one position (:func:`~litege_core.sampling.first_copies`) count as one: the rings
-    run over the welded faces, between each position's first copies, and every other copy
-    joins its first copy by a chord of length 0, so a mesh split along seams is connected
-    across them.
+    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Boundary vertices stored
+    more than once at one position (:func:`~litege_core.sampling.first_copies`; both copies on
+    an edge of one face) count as one: the rings run over the welded faces, between each
+    position's first copies, and every other copy joins its first copy by a chord of length 0,
+    so a mesh split along seams (a triangle soup, an OBJ cut along its UV seams) is connected
+    across them. Coincident vertices inside a closed surface stay apart: they are where two
+    parts touch (FAUST's remeshed bodies have one to three).
 
     Args:
         points: ``(N, 3)`` float64 vertices.
@@ -240,9 +251,15 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
         zeros: coincident vertices), as :func:`edge_graph` builds it.
     """
     n = points.shape[0]
+    faces = np.asarray(faces, dtype=np.int64)
     first = first_copies(points)
-    faces = first[np.asarray(faces, dtype=np.int64)]  # welded: a position's first copy
     copies = np.flatnonzero(first != np.arange(n))
+    if copies.size:  # only seams are welded: copies on the boundary, with their first copy
+        rim = _boundary_vertices(faces, n)
+        unwelded = copies[~(rim[copies] & rim[first[copies]])]
+        first[unwelded] = unwelded
+        copies = np.flatnonzero(first != np.arange(n))
+    faces = first[faces]  # welded: a position's first copy
     half = np.concatenate(
         [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]], np.stack([first[copies], copies], 1)]
     )

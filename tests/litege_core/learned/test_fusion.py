@@ -574,6 +574,13 @@ def test_a_mesh_stored_as_a_triangle_soup_gets_the_welded_mesh_distances(blob) -
     np.testing.assert_allclose(soup, welded[:, corner], atol=1e-12)
     lonely = dijkstra(_reference_ring_graph(soup_points, soup_faces, 2), directed=False, indices=0)
     assert np.isinf(lonely).sum() == soup_points.shape[0] - 3
+    # two closed surfaces touching at one vertex (a coincident pair on no boundary): not welded
+    other = points - points[5] + points[0]  # its vertex 5 lies on the first one's vertex 0
+    touching = mesh_ring_graph(
+        np.concatenate([points, other]), np.concatenate([faces, faces + len(points)]), 2
+    )
+    apart = dijkstra(touching, directed=False, indices=0)
+    assert np.isinf(apart[len(points) :]).all() and np.isfinite(apart[: len(points)]).all()
 
 
 def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
