@@ -11,13 +11,17 @@ accepts (measured with pygeodesic 0.1.11, tvb-gdist 2.9.2 and potpourri3d 1.4.0)
   642-vertex unit icosphere move distances by up to 0.022);
 * an unreferenced vertex makes pygeodesic refuse the mesh (it prints and returns ``None``);
 * a disconnected mesh gives finite garbage values with the heat method on the components that
-  do not hold the source.
+  do not hold the source;
+* a mesh stored with its seams split (a triangle soup, an OBJ split along its UV seams) is one
+  component per piece to every solver.
 
-:class:`MeshTopology` is computed once per engine: it drops faces with a repeated corner and
-duplicated faces (same corner set, first one kept), renumbers the referenced vertices
-compactly, lists non-manifold edges and labels connected components. Engines run on the
-compact mesh and scatter the rows back with :meth:`MeshTopology.scatter_rows`, which puts
-``+inf`` on every vertex the source cannot reach.
+:class:`MeshTopology` is computed once per engine: it welds seams (:func:`seam_welds`), drops
+faces with a repeated corner and duplicated faces (same corner set, first one kept), renumbers
+the referenced vertices compactly, lists non-manifold edges and labels connected components.
+Engines run on the compact mesh and scatter the rows back with
+:meth:`MeshTopology.scatter_rows`, which puts ``+inf`` on every vertex the source cannot reach;
+a seam copy takes its first copy's values
+(:meth:`~litege_core.engines.base.MeshGeodesicEngine._solved_rows`).
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from litege_core.arrays import frozen
+from litege_core.sampling import first_copies
 
 
 def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
@@ -48,6 +53,30 @@ def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
     return edges.astype(np.int64), counts.astype(np.int64)
 
 
+def boundary_vertices(faces: NDArray, n: int) -> NDArray:
+    """``(n,)`` bool: the vertices on an edge that borders exactly one of ``faces``."""
+    edges, counts = unique_edges(np.asarray(faces, dtype=np.int64))
+    rim = np.zeros(n, dtype=bool)
+    rim[edges[counts == 1].reshape(-1)] = True
+    return rim
+
+
+def seam_welds(points: NDArray, faces: NDArray) -> NDArray:
+    """``(N,)`` int64: each vertex's welded index. A vertex stored more than once at one
+    position (:func:`~litege_core.sampling.first_copies`) is welded to the first copy when
+    both lie on a boundary edge: the seams of a triangle soup or of an OBJ split along its UV
+    seams. Coincident vertices inside a closed surface stay apart (their own index): they are
+    where two parts touch (FAUST's remeshed bodies have one to three)."""
+    n = points.shape[0]
+    first = first_copies(points)
+    copies = np.flatnonzero(first != np.arange(n))
+    if copies.size:
+        rim = boundary_vertices(faces, n)
+        unwelded = copies[~(rim[copies] & rim[first[copies]])]
+        first[unwelded] = unwelded
+    return first
+
+
 @dataclass(frozen=True, eq=False)
 class MeshTopology:
     """A triangle mesh prepared for the C++ geodesic solvers.
@@ -58,12 +87,15 @@ class MeshTopology:
             duplicates removed, original order kept.
         to_original: ``(M,)`` int64, original index of each compact vertex.
         to_compact: ``(N,)`` int64, compact index of each original vertex, ``-1`` when no
-            kept face references it.
+            kept face references it; a seam copy (:func:`seam_welds`) shares its first
+            copy's.
         component: ``(N,)`` int64 connected-component label of each original vertex (an
             unreferenced vertex is a component of its own).
-        edges: ``(E, 2)`` int64 undirected edges in original indices.
+        edges: ``(E, 2)`` int64 undirected edges in original indices (of welded faces).
         nonmanifold_edges: ``(K, 2)`` int64 edges with more than two incident faces.
         n_dropped_faces: faces removed (repeated corner or duplicate).
+        welded: ``(C,)`` int64 seam copies (:func:`seam_welds`), each a vertex at the position
+            of the earlier vertex ``welded_to`` ``(C,)`` names; faces use that one instead.
 
     All arrays are read-only.
     """
@@ -76,12 +108,16 @@ class MeshTopology:
     edges: NDArray
     nonmanifold_edges: NDArray
     n_dropped_faces: int
+    welded: NDArray
+    welded_to: NDArray
 
     @classmethod
     def from_arrays(cls, vertices: NDArray, faces: NDArray) -> MeshTopology:
         """Clean ``faces`` of the ``(N, 3)`` mesh ``vertices`` (see the module docstring)."""
         n = int(vertices.shape[0])
-        faces = np.asarray(faces, dtype=np.int64)
+        weld = seam_welds(np.asarray(vertices, np.float64), np.asarray(faces, dtype=np.int64))
+        welded = np.flatnonzero(weld != np.arange(n))
+        faces = weld[np.asarray(faces, dtype=np.int64)]  # seam copies: their first copy
         distinct = (
             (faces[:, 0] != faces[:, 1])
             & (faces[:, 1] != faces[:, 2])
@@ -97,12 +133,14 @@ class MeshTopology:
         to_original = np.flatnonzero(used).astype(np.int64)
         to_compact = np.full(n, -1, dtype=np.int64)
         to_compact[to_original] = np.arange(to_original.size, dtype=np.int64)
+        to_compact[welded] = to_compact[weld[welded]]
 
         edges, counts = unique_edges(kept)  # kept is non-empty: a validated mesh has area > 0
         adjacency = sp.coo_matrix(
             (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(n, n)
         )
         _, labels = connected_components(adjacency, directed=False)
+        labels[welded] = labels[weld[welded]]
         return cls(
             vertices=frozen(vertices[to_original]),
             faces=frozen(to_compact[kept]),
@@ -112,6 +150,8 @@ class MeshTopology:
             edges=frozen(edges),
             nonmanifold_edges=frozen(edges[counts > 2]),
             n_dropped_faces=n_dropped,
+            welded=frozen(welded),
+            welded_to=frozen(weld[welded]),
         )
 
     @property

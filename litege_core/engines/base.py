@@ -119,7 +119,7 @@ class GeodesicEngine(ABC):
         """
         indices = parse_indices(sources, self.n_points)
         unique, inverse = np.unique(indices, return_inverse=True)
-        rows = np.asarray(self._rows(unique), dtype=np.float64)
+        rows = np.asarray(self._solved_rows(unique), dtype=np.float64)
         if rows.shape != (unique.size, self.n_points):
             raise ComputationError(
                 f"{self.method} solver returned shape {rows.shape}, "
@@ -139,6 +139,10 @@ class GeodesicEngine(ABC):
     @abstractmethod
     def _rows(self, sources: NDArray) -> NDArray:
         """``(S, N)`` distances for validated, unique, sorted ``(S,)`` int64 sources."""
+
+    def _solved_rows(self, sources: NDArray) -> NDArray:
+        """:meth:`_rows` as :meth:`distances` reads them (a mesh engine welds seams first)."""
+        return self._rows(sources)
 
     def __repr__(self) -> str:
         params = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
@@ -161,6 +165,20 @@ class MeshGeodesicEngine(GeodesicEngine):
             assert self._shape.faces is not None  # mesh_only
             self._topology = MeshTopology.from_arrays(self._shape.vertices, self._shape.faces)
         return self._topology
+
+    def _solved_rows(self, sources: NDArray) -> NDArray:
+        """:meth:`_rows` on the mesh with its seams welded (:func:`~litege_core.engines.
+        _topology.seam_welds`): a seam copy is solved as its first copy, and each copy's column
+        is its first copy's (a triangle soup gets the welded mesh's distances)."""
+        topology = self.topology
+        if topology.welded.size == 0:
+            return self._rows(sources)
+        welds = np.arange(self.n_points)
+        welds[topology.welded] = topology.welded_to
+        solved, back = np.unique(welds[sources], return_inverse=True)
+        rows = np.asarray(self._rows(solved), dtype=np.float64)[back.reshape(-1)]
+        rows[:, topology.welded] = rows[:, topology.welded_to]
+        return rows
 
 
 def wrap_foreign(method: str, exc: Exception) -> ComputationError:

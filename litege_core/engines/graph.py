@@ -17,9 +17,9 @@ from numpy.typing import NDArray
 from pykdtree.kdtree import KDTree  # 1.4x faster than scipy's cKDTree on 2K-point clouds
 from scipy.sparse.csgraph import dijkstra
 
+from litege_core.engines._topology import seam_welds
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
-from litege_core.sampling import first_copies
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -219,27 +219,18 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
-def _boundary_vertices(faces: NDArray, n: int) -> NDArray:
-    """``(n,)`` bool: the vertices on an edge that borders exactly one of ``faces``."""
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    rim = np.zeros(n, dtype=bool)
-    rim[unique[counts == 1].reshape(-1)] = True
-    return rim
-
-
 def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
     faces stay apart, while the chords across each vertex's neighbourhood straighten the
-    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Boundary vertices stored
-    more than once at one position (:func:`~litege_core.sampling.first_copies`; both copies on
-    an edge of one face) count as one: the rings run over the welded faces, between each
+    zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Seam copies
+    (:func:`~litege_core.engines._topology.seam_welds`: boundary vertices stored more than
+    once at one position) count as one: the rings run over the welded faces, between each
     position's first copies, and every other copy joins its first copy by a chord of length 0,
     so a mesh split along seams (a triangle soup, an OBJ cut along its UV seams) is connected
     across them. Coincident vertices inside a closed surface stay apart: they are where two
-    parts touch (FAUST's remeshed bodies have one to three).
+    parts touch.
 
     Args:
         points: ``(N, 3)`` float64 vertices.
@@ -252,13 +243,8 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
     """
     n = points.shape[0]
     faces = np.asarray(faces, dtype=np.int64)
-    first = first_copies(points)
+    first = seam_welds(points, faces)
     copies = np.flatnonzero(first != np.arange(n))
-    if copies.size:  # only seams are welded: copies on the boundary, with their first copy
-        rim = _boundary_vertices(faces, n)
-        unwelded = copies[~(rim[copies] & rim[first[copies]])]
-        first[unwelded] = unwelded
-        copies = np.flatnonzero(first != np.arange(n))
     faces = first[faces]  # welded: a position's first copy
     half = np.concatenate(
         [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]], np.stack([first[copies], copies], 1)]

@@ -581,6 +581,7 @@ class SurfaceRouter:
         self._flip: Any = None
         self._topology: MeshTopology | None = None
         n = self.vertices.shape[0]
+        self._welds = np.arange(n, dtype=np.int64)  # a mesh's seam copies: their first copy
         self._given_graph = graph is not None and faces is None
         self._fallback: SurfaceRouter | None = None  # built on the first pair it must route
         self._trees = trees if self._given_graph else None
@@ -599,6 +600,7 @@ class SurfaceRouter:
             self.graph = edge_graph(n, edges, lengths)
             self.graph_method = MESH_EDGES
             self._topology = topology
+            self._welds[topology.welded] = topology.welded_to
             self._flip_refused = topology.nonmanifold_edges.shape[0] > 0
         _, self.component = connected_components(self.graph, directed=False)
 
@@ -606,8 +608,9 @@ class SurfaceRouter:
         """Routes from ``starts[i]`` to ``ends[i]`` (vertex / point indices): each a polyline
         ``(R, 3)`` from ``vertices[starts[i]]`` to ``vertices[ends[i]]`` (``R ≥ 1``) and the
         method that produced it."""
-        starts = np.asarray(starts, dtype=np.int64).reshape(-1)
-        ends = np.asarray(ends, dtype=np.int64).reshape(-1)
+        # a seam copy routes as its first copy (the same position)
+        starts = self._welds[np.asarray(starts, dtype=np.int64).reshape(-1)]
+        ends = self._welds[np.asarray(ends, dtype=np.int64).reshape(-1)]
         from litege_core.engines.graph import dijkstra_tree
 
         with self._lock:

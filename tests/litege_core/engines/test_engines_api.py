@@ -11,6 +11,7 @@ from litege_core.engines import (
     make_engine,
 )
 from litege_core.errors import ArrayShapeError, IndexOutOfRangeError, InputError
+from litege_core.shape import Shape
 
 MESH_METHODS = ["exact", "heat", "pointcloud_heat", "knn_graph", "edge_dijkstra", "euclidean"]
 CLOUD_METHODS = ["pointcloud_heat", "knn_graph", "euclidean"]
@@ -104,3 +105,17 @@ def test_repr_and_params(sphere3):
     result = engine.distances([0])
     assert dict(result.params) == {"k": 12}
     assert "knn_graph" in repr(result) and "1x642" in repr(result)
+
+
+@pytest.mark.parametrize("method", ["exact", "heat", "edge_dijkstra"])
+def test_a_triangle_soup_gets_the_welded_mesh_distances(sphere3, method):
+    """Every corner its own vertex (a soup, or an OBJ split along its UV seams): the engines
+    that follow the mesh's connectivity weld the seams, so each copy gets the welded mesh's
+    value at its position instead of ``inf`` beyond its own triangle."""
+    pytest.importorskip("pygeodesic") if method == "exact" else None
+    vertices, faces = np.asarray(sphere3.vertices), np.asarray(sphere3.faces)
+    corner = faces.reshape(-1)  # soup vertex → welded vertex
+    soup = Shape.from_arrays(vertices[corner], np.arange(corner.size).reshape(-1, 3))
+    welded = compute_distances(sphere3, corner[[0, 40]], method).distances
+    rows = compute_distances(soup, np.array([0, 40]), method).distances
+    np.testing.assert_allclose(rows, welded[:, corner], rtol=1e-9, atol=1e-12)

@@ -239,3 +239,18 @@ def test_straight_only_between_components(sphere_mesh):
     assert method == STRAIGHT and across.shape == (2, 3)
     assert other == MESH_ROUTE and within.shape[0] > 2
     assert same.shape == (1, 3) and third == MESH_EDGES
+
+
+def test_routes_on_a_triangle_soup_cross_its_seams(sphere_mesh):
+    """A soup (every corner its own vertex) routes as the welded mesh, not straight between
+    triangles: each copy of a position is routed from its first copy."""
+    vertices, faces = sphere_mesh
+    corner = faces.reshape(-1)  # soup vertex → welded vertex
+    soup = SurfaceRouter(vertices[corner], np.arange(corner.size).reshape(-1, 3))
+    welded = SurfaceRouter(vertices, faces)
+    starts, ends = np.array([0, 5, 99]), np.array([700, 301, 2])
+    for (route, method), (expected, how) in zip(
+        soup.routes(starts, ends), welded.routes(corner[starts], corner[ends]), strict=True
+    ):
+        assert method == how != STRAIGHT
+        np.testing.assert_allclose(route, expected, atol=1e-12)
