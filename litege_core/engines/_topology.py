@@ -15,12 +15,12 @@ accepts (measured with pygeodesic 0.1.11, tvb-gdist 2.9.2 and potpourri3d 1.4.0)
 * a mesh stored with its seams split (a triangle soup, an OBJ split along its UV seams) is one
   component per piece to every solver.
 
-:class:`MeshTopology` is computed once per engine: it welds seams (:func:`seam_welds`), drops
-faces with a repeated corner and duplicated faces (same corner set, first one kept), renumbers
-the referenced vertices compactly, lists non-manifold edges and labels connected components.
-Engines run on the compact mesh and scatter the rows back with
-:meth:`MeshTopology.scatter_rows`, which puts ``+inf`` on every vertex the source cannot reach;
-a seam copy takes its first copy's values
+:class:`MeshTopology` is computed once per engine: it welds seams
+(:func:`~litege_core.seams.seam_welds`), drops faces with a repeated corner and duplicated faces
+(same corner set, first one kept), renumbers the referenced vertices compactly, lists
+non-manifold edges and labels connected components. Engines run on the compact mesh and scatter
+the rows back with :meth:`MeshTopology.scatter_rows`, which puts ``+inf`` on every vertex the
+source cannot reach; a seam copy takes its first copy's values
 (:meth:`~litege_core.engines.base.MeshGeodesicEngine._solved_rows`).
 """
 
@@ -34,47 +34,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from litege_core.arrays import frozen
-from litege_core.sampling import first_copies
-
-
-def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
-    """Undirected edges of a triangle list and how many faces use each.
-
-    Args:
-        faces: ``(F, 3)`` int64 triangles.
-
-    Returns:
-        ``edges (E, 2)`` int64 with ``edges[:, 0] < edges[:, 1]``, sorted lexicographically,
-        and ``counts (E,)`` int64, the number of faces incident to each edge.
-    """
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    half = np.sort(half, axis=1)
-    edges, counts = np.unique(half, axis=0, return_counts=True)
-    return edges.astype(np.int64), counts.astype(np.int64)
-
-
-def boundary_vertices(faces: NDArray, n: int) -> NDArray:
-    """``(n,)`` bool: the vertices on an edge that borders exactly one of ``faces``."""
-    edges, counts = unique_edges(np.asarray(faces, dtype=np.int64))
-    rim = np.zeros(n, dtype=bool)
-    rim[edges[counts == 1].reshape(-1)] = True
-    return rim
-
-
-def seam_welds(points: NDArray, faces: NDArray) -> NDArray:
-    """``(N,)`` int64: each vertex's welded index. A vertex stored more than once at one
-    position (:func:`~litege_core.sampling.first_copies`) is welded to the first copy when
-    both lie on a boundary edge: the seams of a triangle soup or of an OBJ split along its UV
-    seams. Coincident vertices inside a closed surface stay apart (their own index): they are
-    where two parts touch (FAUST's remeshed bodies have one to three)."""
-    n = points.shape[0]
-    first = first_copies(points)
-    copies = np.flatnonzero(first != np.arange(n))
-    if copies.size:
-        rim = boundary_vertices(faces, n)
-        unwelded = copies[~(rim[copies] & rim[first[copies]])]
-        first[unwelded] = unwelded
-    return first
+from litege_core.seams import seam_welds, unique_edges
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,15 +47,16 @@ class MeshTopology:
             duplicates removed, original order kept.
         to_original: ``(M,)`` int64, original index of each compact vertex.
         to_compact: ``(N,)`` int64, compact index of each original vertex, ``-1`` when no
-            kept face references it; a seam copy (:func:`seam_welds`) shares its first
-            copy's.
+            kept face references it; a seam copy (:func:`~litege_core.seams.seam_welds`)
+            shares its first copy's.
         component: ``(N,)`` int64 connected-component label of each original vertex (an
             unreferenced vertex is a component of its own).
         edges: ``(E, 2)`` int64 undirected edges in original indices (of welded faces).
         nonmanifold_edges: ``(K, 2)`` int64 edges with more than two incident faces.
         n_dropped_faces: faces removed (repeated corner or duplicate).
-        welded: ``(C,)`` int64 seam copies (:func:`seam_welds`), each a vertex at the position
-            of the earlier vertex ``welded_to`` ``(C,)`` names; faces use that one instead.
+        welded: ``(C,)`` int64 seam copies (:func:`~litege_core.seams.seam_welds`), each at
+            the position of the earlier vertex ``welded_to`` ``(C,)`` names; faces use that
+            one instead.
 
     All arrays are read-only.
     """

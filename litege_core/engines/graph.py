@@ -17,9 +17,9 @@ from numpy.typing import NDArray
 from pykdtree.kdtree import KDTree  # 1.4x faster than scipy's cKDTree on 2K-point clouds
 from scipy.sparse.csgraph import dijkstra
 
-from litege_core.engines._topology import seam_welds
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
+from litege_core.seams import seam_welds
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -225,7 +225,7 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
     faces stay apart, while the chords across each vertex's neighbourhood straighten the
     zig-zag of edge-only paths (``rings = 1``: the mesh's own edges). Seam copies
-    (:func:`~litege_core.engines._topology.seam_welds`: boundary vertices stored more than
+    (:func:`~litege_core.seams.seam_welds`: boundary vertices stored more than
     once at one position) count as one: the rings run over the welded faces, between each
     position's first copies, and every other copy joins its first copy by a chord of length 0,
     so a mesh split along seams (a triangle soup, an OBJ cut along its UV seams) is connected

@@ -55,8 +55,8 @@ from scipy.spatial import cKDTree
 
 from litege_core.errors import MissingDependencyError
 from litege_core.evaluation.matching_data import MatchPair
-from litege_core.matching.frame import boundary_edge_fraction
 from litege_core.metrics import auc
+from litege_core.seams import boundary_edge_fraction
 from litege_core.shape import Shape
 
 N_THRESHOLDS = 40
@@ -344,7 +344,10 @@ class ZoomOutMethod:
             None if shape.faces is None else np.asarray(shape.faces),
             normalize=shape.is_mesh,
         )
-        robust = shape.faces is None or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
+        robust = (
+            shape.faces is None
+            or boundary_edge_fraction(shape.vertices, shape.faces) > ROBUST_BOUNDARY
+        )
         mesh.process(k=s.n_eigen, robust=robust)
         if not shape.is_mesh:  # unit area as the point-cloud Laplacian's mass measures it
             mesh.scale(1.0 / np.sqrt(float(mesh.A.sum())))

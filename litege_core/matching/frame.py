@@ -42,6 +42,7 @@ from litege_core.canonical import (
 from litege_core.errors import InputError
 from litege_core.nets import TNet
 from litege_core.sampling import random_generator, sample_surface
+from litege_core.seams import boundary_edge_fraction
 from litege_core.shape import Shape
 
 Scaling = Literal["auto", "unit_area", "broken_mesh", "cloud_8k", "cloud_500"]
@@ -115,13 +116,6 @@ class MatchingPipeline:
         raise InputError(f"{scaling!r} is not a Poisson scaling")
 
 
-def boundary_edge_fraction(faces: NDArray) -> float:
-    """Fraction of a triangle mesh's undirected edges that border exactly one face."""
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return float((counts == 1).sum() / max(counts.size, 1))
-
-
 def choose_scaling(shape: Shape, pipeline: MatchingPipeline, scaling: str = "auto") -> str:
     """Resolve ``"auto"`` to a concrete scaling for ``shape`` (see the module docstring)."""
     if scaling not in SCALINGS:
@@ -135,7 +129,7 @@ def choose_scaling(shape: Shape, pipeline: MatchingPipeline, scaling: str = "aut
         return scaling
     if scaling != "auto":
         return scaling
-    broken = boundary_edge_fraction(np.asarray(shape.faces)) > pipeline.broken_boundary_fraction
+    broken = boundary_edge_fraction(shape.vertices, shape.faces) > pipeline.broken_boundary_fraction
     return "broken_mesh" if broken else "unit_area"
 
 
@@ -315,7 +309,6 @@ __all__ = [
     "MatchingPipeline",
     "Scaling",
     "align_shapes",
-    "boundary_edge_fraction",
     "candidate_turns",
     "choose_scaling",
     "cube_rotations",

@@ -20,7 +20,8 @@ from litege_core.matching import (
     load_matching_bundle,
     save_matching_bundle,
 )
-from litege_core.matching.frame import boundary_edge_fraction, choose_scaling
+from litege_core.matching.frame import choose_scaling
+from litege_core.seams import boundary_edge_fraction
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 
@@ -219,8 +220,11 @@ def test_scaling_is_chosen_from_the_input(model, shapes):
     rng = np.random.default_rng(0)
     keep = rng.random(mesh.faces.shape[0]) > 0.4
     broken = Shape.from_arrays(mesh.vertices, mesh.faces[keep])
-    assert boundary_edge_fraction(np.asarray(broken.faces)) > 0.1
+    assert boundary_edge_fraction(broken.vertices, broken.faces) > 0.1
     assert choose_scaling(broken, model.pipeline) == "broken_mesh"
+    corner = np.asarray(mesh.faces).reshape(-1)  # a soup of the mesh: whole once welded
+    soup = Shape.from_arrays(mesh.vertices[corner], np.arange(corner.size).reshape(-1, 3))
+    assert choose_scaling(soup, model.pipeline) == "unit_area"
     small = Shape.from_arrays(mesh.vertices[:500], None)
     large = Shape.from_arrays(mesh.vertices, None)
     assert choose_scaling(small, model.pipeline) == "cloud_500"
