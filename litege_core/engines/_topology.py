@@ -116,6 +116,14 @@ class MeshTopology:
         )
 
     @property
+    def welds(self) -> NDArray:
+        """``(N,)`` int64: each original vertex's welded index (its first copy for a seam
+        copy, else itself)."""
+        welds = np.arange(self.n_vertices, dtype=np.int64)
+        welds[self.welded] = self.welded_to
+        return welds
+
+    @property
     def n_vertices(self) -> int:
         """Number of original vertices ``N``."""
         return int(self.to_compact.shape[0])

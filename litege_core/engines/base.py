@@ -173,9 +173,7 @@ class MeshGeodesicEngine(GeodesicEngine):
         topology = self.topology
         if topology.welded.size == 0:
             return self._rows(sources)
-        welds = np.arange(self.n_points)
-        welds[topology.welded] = topology.welded_to
-        solved, back = np.unique(welds[sources], return_inverse=True)
+        solved, back = np.unique(topology.welds[sources], return_inverse=True)
         rows = np.asarray(self._rows(solved), dtype=np.float64)[back.reshape(-1)]
         rows[:, topology.welded] = rows[:, topology.welded_to]
         return rows

@@ -310,8 +310,9 @@ class ExactGeodesicEngine(MeshGeodesicEngine):
         ends = parse_indices(np.array([source, target]), self.n_points, "path end")
         self.prepare()
         assert self._solver is not None
+        welded = self.topology.welds[ends]  # a seam copy: from its first copy (same position)
         try:
-            return self._solver.path(int(ends[0]), int(ends[1]))
+            return self._solver.path(int(welded[0]), int(welded[1]))
         except LiteGEError:
             raise
         except _FOREIGN_ERRORS as exc:

@@ -19,6 +19,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
+from litege_core.sampling import first_copies
 from litege_core.seams import seam_welds
 from litege_core.shape import Shape
 
@@ -143,6 +144,11 @@ def knn_graph(
 ) -> sp.csr_array:
     """Symmetric k-NN graph: ``i ~ j`` when either is among the other's ``k`` nearest.
 
+    Without ``neighbours``, a position stored more than once (a cloud sent twice, a mesh's
+    seam copies: :func:`~litege_core.sampling.first_copies`) counts once: the graph joins the
+    distinct positions, and each copy joins its first copy by an edge of length 0 (copies
+    would otherwise fill each other's neighbour lists and split the graph).
+
     Args:
         points: ``(N, 3)`` float64.
         k: neighbours per point (clamped to ``N - 1``).
@@ -152,6 +158,19 @@ def knn_graph(
         ``(N, N)`` upper-triangular CSR of Euclidean edge lengths (see :func:`edge_graph`).
     """
     n = points.shape[0]
+    if neighbours is None:
+        first = first_copies(np.asarray(points, dtype=np.float64))
+        distinct = np.flatnonzero(first == np.arange(n))
+        if 1 < distinct.size < n:
+            inner = knn_graph(points[distinct], k).tocoo()
+            copies = np.flatnonzero(first != np.arange(n))
+            edges = np.concatenate(
+                [
+                    np.column_stack([distinct[inner.row], distinct[inner.col]]),
+                    np.column_stack([first[copies], copies]),
+                ]
+            )
+            return edge_graph(n, edges, np.concatenate([inner.data, np.zeros(copies.size)]))
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
     lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]

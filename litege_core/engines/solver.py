@@ -702,7 +702,17 @@ class ClassicalSolver:
         return query.check(self._shape.n_points, what)
 
     def _resolve(self, queries: list[PointQuery]) -> tuple[_Domain, list[NDArray]]:
-        """Node ids of each query on the domain that answers them all (``None``: all)."""
+        """Node ids of each query on the domain that answers them all (``None``: all); a mesh's
+        seam copy is answered as its first copy (:func:`~litege_core.seams.seam_welds`)."""
+        domain, nodes = self._resolve_nodes(queries)
+        if self._shape.is_mesh and self.topology.welded.size:
+            welds = self.topology.welds  # shape vertices are the domain's first nodes
+            n = welds.size
+            nodes = [np.where(q < n, welds[np.minimum(q, n - 1)], q) for q in nodes]
+        return domain, nodes
+
+    def _resolve_nodes(self, queries: list[PointQuery]) -> tuple[_Domain, list[NDArray]]:
+        """:meth:`_resolve` before the welding."""
         n = self._shape.n_points
         projector = None
         if any(query.is_points for query in queries):

@@ -600,7 +600,7 @@ class SurfaceRouter:
             self.graph = edge_graph(n, edges, lengths)
             self.graph_method = MESH_EDGES
             self._topology = topology
-            self._welds[topology.welded] = topology.welded_to
+            self._welds = topology.welds
             self._flip_refused = topology.nonmanifold_edges.shape[0] > 0
         _, self.component = connected_components(self.graph, directed=False)
 

@@ -406,3 +406,19 @@ def test_solvers_are_built_from_the_stored_geometry(service, client, shapes):
     got = client.geodesic(shape_id, [3], [4, 5], method="exact")
     np.testing.assert_array_equal(got, _solver(shape, "exact").distances([3], [4, 5]))
     assert len(runtime.repository._live) == 0  # the learned model was not involved
+
+
+@pytest.mark.parametrize("method", ["learned", "heat", "graph"])
+def test_a_triangle_soup_is_answered_as_its_welded_mesh(client, shapes, method):
+    """A mesh sent with its seams split (every corner its own vertex, as a soup or an OBJ cut
+    along its UV seams) gets the welded mesh's distances at every copy, not ``inf`` beyond
+    each triangle."""
+    shape, shape_id = shapes["mesh"]
+    corner = np.asarray(shape.faces).reshape(-1)  # soup vertex → welded vertex
+    soup_id = client.register_arrays(shape.vertices[corner], np.arange(corner.size).reshape(-1, 3))[
+        "shape_id"
+    ]
+    got = client.geodesic(soup_id, [0, 40], [5, 900, 3000], method=method)
+    expected = client.geodesic(shape_id, corner[[0, 40]], corner[[5, 900, 3000]], method=method)
+    assert np.isfinite(got).all()
+    np.testing.assert_allclose(got, expected, rtol=1e-5)

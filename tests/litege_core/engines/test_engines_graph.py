@@ -79,8 +79,8 @@ def test_mutual_knn_graph_equals_the_brute_force_reference(k):
     fast, slow = mutual_knn_graph(points, k), mutual_knn_graph_reference(points, k)
     assert (fast != slow).nnz == 0 and fast.nnz > 0
     np.testing.assert_allclose(fast.data, slow.data, rtol=1e-12)
-    # a subgraph of the symmetric k-NN graph, with the same edge lengths there
-    union = knn_graph(points, k)
+    # a subgraph of the symmetric k-NN graph of the same lists, with the same edge lengths
+    union = knn_graph(points, k, knn_neighbours(points, k))
     assert (fast.astype(bool) > union.astype(bool)).nnz == 0
     np.testing.assert_allclose(union[fast.astype(bool)], fast[fast.astype(bool)])
     # known neighbours give the same graph
@@ -166,3 +166,13 @@ def test_edge_dijkstra_on_a_square_and_components(two_spheres):
     np.testing.assert_allclose(rows[0], [1.0, 0.0, 2.0, 1.0])
     rows = compute_distances(two_spheres, [0], "edge_dijkstra").distances
     assert np.isinf(rows[0, 162:]).all() and np.isfinite(rows[0, :162]).all()
+
+
+def test_a_cloud_sent_twice_gets_the_clouds_distances(sphere_cloud):
+    """Repeated positions count once: copies do not fill each other's neighbour lists."""
+    points = np.asarray(sphere_cloud.vertices)[:400]
+    twice = Shape.from_arrays(np.concatenate([points, points]))
+    once = compute_distances(Shape.from_arrays(points), [0, 7], "knn_graph", k=6).distances
+    rows = compute_distances(twice, [0, 407], "knn_graph", k=6).distances
+    np.testing.assert_allclose(rows, np.tile(once, 2), rtol=1e-12)
+    assert np.isfinite(rows).all()

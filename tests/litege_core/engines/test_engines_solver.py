@@ -380,3 +380,29 @@ def test_duplicated_vertices_are_zero_apart(sphere3, method):
     distances = solver.distances([0, 642, 5], [642, 0, 5])
     assert distances[0, 0] == 0.0 and distances[1, 1] == 0.0 and distances[2, 2] == 0.0
     assert distances[1, 2] == np.inf or method == "graph"  # the k-NN graph joins the copy
+
+
+@pytest.mark.parametrize("method", ["exact", "heat", "graph"])
+def test_a_triangle_soup_is_answered_as_its_welded_mesh(bumpy_torus, method):
+    """Every corner its own vertex (a soup, or an OBJ split along its UV seams): index and xyz
+    queries, fields and paths equal the welded mesh's at every copy."""
+    if method == "exact":
+        pytest.importorskip("pygeodesic")
+    vertices, faces = np.asarray(bumpy_torus.vertices), np.asarray(bumpy_torus.faces)
+    corner = faces.reshape(-1)  # soup vertex → welded vertex
+    soup = Shape.from_arrays(vertices[corner], np.arange(corner.size).reshape(-1, 3))
+    welded, split = ClassicalSolver(bumpy_torus, method), ClassicalSolver(soup, method)
+    xyz = vertices[[3, 500]] * 1.01  # off the surface: projected
+    np.testing.assert_allclose(
+        split.distances([0, 40], [5, 900, 3000]),
+        welded.distances(corner[[0, 40]], corner[[5, 900, 3000]]),
+        rtol=1e-6,
+    )
+    np.testing.assert_allclose(
+        split.distances(xyz, [5, 900]), welded.distances(xyz, corner[[5, 900]]), rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        split.distance_field(7), welded.distance_field(int(corner[7]))[corner], rtol=1e-6
+    )
+    path, expected = split.path(0, 3000), welded.path(int(corner[0]), int(corner[3000]))
+    np.testing.assert_allclose(path.length, expected.length, rtol=1e-9)
