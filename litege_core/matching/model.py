@@ -462,16 +462,26 @@ class MatchingModel:
         if not shapes:
             return []
         mode = self.resolve_frames(frames)
+        # a scan's stray points are never matched (the network scores off-surface points as
+        # near anything: 5 % strays drew 71 % of FAUST matches, BENCHMARKS "outliers") and
+        # they pull no frame: one check serves both
+        isolated = [isolated_points(s.vertices) if s.faces is None else None for s in shapes]
+        on_surface = [
+            shape
+            if strays is None or not strays.any()
+            else Shape.from_arrays(shape.vertices[~strays])
+            for shape, strays in zip(shapes, isolated, strict=True)
+        ]
         aligned_frames = align_shapes(
-            shapes, self.bundle.tnet, self.pipeline, scaling=scaling, seed=int(seed)
+            on_surface, self.bundle.tnet, self.pipeline, scaling=scaling, seed=int(seed)
         )
         names = ["tnet"] * len(shapes)
         if mode == "judged":
             aligned_frames, names = self._judged_frames(
-                shapes, aligned_frames, frame_margin, int(seed)
+                on_surface, aligned_frames, frame_margin, int(seed)
             )
         elif mode == "intrinsic":
-            aligned_frames, names = self._intrinsic_frames(shapes, aligned_frames, int(seed))
+            aligned_frames, names = self._intrinsic_frames(on_surface, aligned_frames, int(seed))
         described = self._engine.describe_with_residual(
             [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
@@ -479,20 +489,17 @@ class MatchingModel:
         residuals = described.residual.detach().cpu().numpy().astype(np.float64)
         search = self.search
         prepared = []
-        for b, (shape, (transform, cloud, chosen)) in enumerate(
-            zip(shapes, aligned_frames, strict=True)
+        for b, (shape, strays, (transform, cloud, chosen)) in enumerate(
+            zip(shapes, isolated, aligned_frames, strict=True)
         ):
             aligned = transform.apply(shape.vertices)
-            # a scan's stray points are never matched: the network scores off-surface points
-            # as near anything (5 % strays drew 71 % of FAUST matches, BENCHMARKS "outliers")
-            isolated = isolated_points(aligned) if shape.faces is None else None
             cache = NNCache.build(
                 aligned,
                 tier_sizes=search.tier_sizes,
                 neighbours=search.neighbours,
                 strategy=search.strategy,  # type: ignore[arg-type]
                 seed=int(seed),
-                candidates=np.flatnonzero(~isolated) if isolated is not None else None,
+                candidates=np.flatnonzero(~strays) if strays is not None else None,
             )
             prepared.append(
                 MatchingShape(
