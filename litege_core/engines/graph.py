@@ -162,21 +162,38 @@ def knn_graph(
         first = first_copies(np.asarray(points, dtype=np.float64))
         distinct = np.flatnonzero(first == np.arange(n))
         if 1 < distinct.size < n:
-            inner = knn_graph(points[distinct], k).tocoo()
-            copies = np.flatnonzero(first != np.arange(n))
-            edges = np.concatenate(
-                [
-                    np.column_stack([distinct[inner.row], distinct[inner.col]]),
-                    np.column_stack([first[copies], copies]),
-                ]
-            )
-            return edge_graph(n, edges, np.concatenate([inner.data, np.zeros(copies.size)]))
+            return with_copies(knn_graph(points[distinct], k), distinct, first)
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
     lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
     sources = np.repeat(np.arange(n), k + 1)
     edges = np.column_stack([sources, nearest.reshape(-1)])
     return edge_graph(n, edges, lengths.reshape(-1))
+
+
+def with_copies(graph: sp.csr_array, distinct: NDArray, first: NDArray) -> sp.csr_array:
+    """A graph of the distinct positions of a point set, on all its points: each copy of a
+    position joins its first copy by an edge of length 0.
+
+    Args:
+        graph: ``(D, D)`` upper-triangular CSR on the points ``distinct`` ``(D,)`` names.
+        distinct: ``(D,)`` int64 indices of each position's first copy, increasing.
+        first: ``(N,)`` int64 each point's first copy
+            (:func:`~litege_core.sampling.first_copies`).
+
+    Returns:
+        ``(N, N)`` upper-triangular CSR (see :func:`edge_graph`).
+    """
+    n = first.shape[0]
+    inner = graph.tocoo()
+    copies = np.flatnonzero(first != np.arange(n))
+    edges = np.concatenate(
+        [
+            np.column_stack([distinct[inner.row], distinct[inner.col]]),
+            np.column_stack([first[copies], copies]),
+        ]
+    )
+    return edge_graph(n, edges, np.concatenate([inner.data, np.zeros(copies.size)]))
 
 
 MUTUAL_BLOCK = 65_536
@@ -334,4 +351,5 @@ __all__ = [
     "mutual_knn_graph",
     "mutual_knn_graph_reference",
     "run_minima",
+    "with_copies",
 ]

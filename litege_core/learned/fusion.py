@@ -317,24 +317,43 @@ def shape_graph(
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
-    normal_cos = calibration.normal_limit(points.shape[0])
+    first, distinct = distinct_points(points, kept)
+    normal_cos = calibration.normal_limit(distinct.size)
     vetoed = calibration.vetoes(z_score)
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
     graph, surface = kept.get(key), kept.get("fusion.surface")
     if graph is None or surface is None:  # one neighbour search serves both (k = 16)
-        from litege_core.engines.graph import knn_neighbours  # scipy: on first use
+        from litege_core.engines.graph import knn_neighbours, with_copies  # scipy: on first use
 
-        neighbours = knn_neighbours(points, calibration.reach)
+        # a position sent more than once counts once (copies would fill the neighbour lists)
+        repeated = distinct.size < points.shape[0]
+        base = points[distinct] if repeated else points
+        neighbours = knn_neighbours(base, calibration.reach)
         if surface is None:
             shared = calibration.reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
-            flatness, normals = local_surface(points, nearest=neighbours[1] if shared else None)
+            flatness, normals = local_surface(base, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:
             unvetoed = pruned_knn_graph(
-                points, k, ratio, None, neighbours, surface[1], normal_cos, mutual
+                base, k, ratio, None, neighbours, surface[1], normal_cos, mutual
             )
+            if repeated:
+                unvetoed = with_copies(unvetoed, distinct, first)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
     return graph, surface[0]
+
+
+def distinct_points(points: NDArray, kept: dict[str, Any]) -> tuple[NDArray, NDArray]:
+    """``(first (N,), distinct (D,))`` of a cloud (:func:`~litege_core.sampling.first_copies`
+    and the indices of each position's first copy), kept in ``kept`` (``fusion.distinct``):
+    the fusion's graph, its roughness and its point count read the distinct positions."""
+    found = kept.get("fusion.distinct")
+    if found is None:
+        from litege_core.sampling import first_copies
+
+        first = first_copies(np.asarray(points, dtype=np.float64))
+        found = kept["fusion.distinct"] = (first, np.flatnonzero(first == np.arange(first.size)))
+    return found
 
 
 def cloud_graph_key(
@@ -380,7 +399,8 @@ def fused_distances(
     mesh = faces is not None
     if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
         return rows / calibration.graph_bias(points.shape[0], mesh=True)
-    return fuse(network(), rows, calibration, ood_score, points.shape[0], roughness, mesh)
+    n = points.shape[0] if mesh else distinct_points(points, kept)[1].size
+    return fuse(network(), rows, calibration, ood_score, n, roughness, mesh)
 
 
 def route_trees(
@@ -739,6 +759,7 @@ __all__ = [
     "FusionCalibration",
     "cloud_graph_key",
     "corrected_graph",
+    "distinct_points",
     "fuse",
     "fused_distances",
     "graph_rows",
