@@ -32,6 +32,7 @@ LAYERS: dict[str, int] = {
     "litege_core.io": 3,
     "litege_core.projection": 3,
     "litege_core.sampling": 3,
+    "litege_core.seams": 3,
     "litege_core.canonical": 3,
     "litege_core.metrics": 3,
     "litege_core": 3,  # the package root: __version__ and re-exported foundations
@@ -172,6 +173,7 @@ SIBLINGS_ALLOWED = {
     ("litege_core", "litege_core.io"),  # the package root re-exports load_shape
     ("litege_core.shape", "litege_core.validate"),  # a Shape is validated on construction
     ("litege_core.canonical", "litege_core.sampling"),  # frames from farthest-point samples
+    ("litege_core.seams", "litege_core.sampling"),  # seams are repeated positions on a rim
     ("litege_core.variants", "litege_core.synth"),
     ("litege_core.matching", "litege_core.learned"),  # the matching bundle reuses bundle I/O
     ("litege_core.train", "litege_core.evaluation"),  # a run ends with a side-by-side evaluation
