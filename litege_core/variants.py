@@ -193,6 +193,16 @@ def add_outliers(
     return np.concatenate([points, stray])
 
 
+def repeated_points(n_points: int, fraction: float, seed: int | np.random.Generator = 0) -> NDArray:
+    """``(R,)`` int64 indices of ``round(fraction · N)`` of ``N`` points, drawn without
+    replacement (seeded): the points a scan sends twice (``points[index]`` appended)."""
+    if not (math.isfinite(fraction) and 0.0 <= fraction <= 1.0):
+        raise ArrayShapeError(f"fraction must be in [0, 1], got {fraction}")
+    count = round(fraction * n_points)
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(n_points, count, replace=False)).astype(np.int64)
+
+
 def cut_by_planes(
     points: NDArray,
     fraction_removed: float,
@@ -228,6 +238,7 @@ __all__ = [
     "locate_on_mesh",
     "point_cloud",
     "random_rotation",
+    "repeated_points",
     "rotate",
     "small_rotation",
 ]

@@ -38,7 +38,13 @@ from litege_core.errors import ComputationError, InputError
 from litege_core.metrics import geodesic_error
 from litege_core.sampling import SurfaceSamples, farthest_point_sampling, sample_surface
 from litege_core.shape import Shape
-from litege_core.variants import add_noise, add_outliers, cut_by_planes, small_rotation
+from litege_core.variants import (
+    add_noise,
+    add_outliers,
+    cut_by_planes,
+    repeated_points,
+    small_rotation,
+)
 
 SETTINGS = ("mesh", "cloud_2000", "cloud_300", "noise_0.01", "cut_10", "cut_15")
 KNN_NEIGHBOURS = 10
@@ -225,7 +231,7 @@ def generated_eval_shapes(
 
 SETTING_FORMS = (
     "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %), outliers_P "
-    "(P ≥ 0 %) or uneven_A (A ≥ 0)"
+    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %) or uneven_A (A ≥ 0)"
 )
 UNEVEN_CANDIDATES = 4
 """An ``uneven_A`` cloud is drawn from this many × its count of area-weighted samples."""
@@ -235,7 +241,7 @@ def parse_setting(setting: str) -> tuple[str, float]:
     """``(kind, value)`` of a setting name (see :func:`make_input`): ``"mesh"`` →
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
     ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``,
-    ``"uneven_3"`` → ``("uneven", 3)``.
+    ``"repeats_100"`` → ``("repeats", 100)``, ``"uneven_3"`` → ``("uneven", 3)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -245,11 +251,11 @@ def parse_setting(setting: str) -> tuple[str, float]:
     kind, _, value = str(setting).partition("_")
     if setting == "mesh":
         return "mesh", 0.0
-    if kind in ("cloud", "cut", "outliers") and is_count(value):
+    if kind in ("cloud", "cut", "outliers", "repeats") and is_count(value):
         number = int(value)
         if (kind == "cloud" and number >= 1) or (kind == "cut" and number < 100):
             return kind, float(number)
-        if kind == "outliers":
+        if kind == "outliers" or (kind == "repeats" and number <= 100):
             return kind, float(number)
     elif kind in ("noise", "uneven"):
         try:
@@ -287,7 +293,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     Gaussian noise of that std (``"noise_0.01"``, unit-area units), cut by planes
     (``"cut_10"``: 10 %) or followed by stray points (``"outliers_5"``: 5 % of its count,
     uniform in its bounding box grown by 10 % per side; their ground truth is 0, so no pair
-    that ends on one is scored) or sampled unevenly (``"uneven_3"``: the density grows as
+    that ends on one is scored), followed by exact copies of some of its points
+    (``"repeats_100"``: every point sent twice, as a scan merged with itself; scored as their
+    originals) or sampled unevenly (``"uneven_3"``: the density grows as
     ``exp(3 t)`` along the mesh's x axis, ``t`` from 0 to 1, so one end is e³ ≈ 20 times denser
     than the other, as a scan taken from one side; drawn from :data:`UNEVEN_CANDIDATES` × as
     many area-weighted samples).
@@ -318,6 +326,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     if kind == "outliers":  # appended after the surface points; 0: not scored
         points = add_outliers(points, value / 100.0, seed)
         gt = np.pad(gt, ((0, 0), (0, points.shape[0] - gt.shape[1])))
+    if kind == "repeats":  # exact copies appended after the cloud, scored as their originals
+        again = repeated_points(points.shape[0], value / 100.0, seed)
+        points, gt = np.concatenate([points, points[again]]), np.concatenate([gt, gt[:, again]], 1)
     kept = np.ones(points.shape[0], dtype=bool)
     if kind == "cut":
         kept = cut_by_planes(points, value / 100.0, seed)

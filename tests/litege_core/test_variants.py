@@ -14,6 +14,7 @@ from litege_core.variants import (
     locate_on_mesh,
     point_cloud,
     random_rotation,
+    repeated_points,
     rotate,
 )
 
@@ -123,3 +124,15 @@ def test_add_outliers_appends_seeded_strays_in_the_grown_box():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ArrayShapeError):
             add_outliers(points, bad)
+
+
+def test_repeated_points_are_a_seeded_draw_without_repeats():
+    index = repeated_points(1000, 0.25, seed=4)
+    assert index.shape == (250,) and np.unique(index).size == 250
+    assert index.min() >= 0 and index.max() < 1000 and (np.diff(index) > 0).all()
+    np.testing.assert_array_equal(index, repeated_points(1000, 0.25, seed=4))
+    np.testing.assert_array_equal(repeated_points(10, 1.0), np.arange(10))
+    assert repeated_points(10, 0.0).size == 0
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ArrayShapeError):
+            repeated_points(10, bad)

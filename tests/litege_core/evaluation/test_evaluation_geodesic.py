@@ -76,6 +76,15 @@ def test_corruptions_keep_queries_consistent(eval_shape):
     np.testing.assert_array_equal(stray.shape.vertices[:2000], clean.shape.vertices)
     np.testing.assert_array_equal(stray.gt[:, :2000], clean.gt)
     assert not stray.gt[:, 2000:].any()  # 0: never scored
+    twice = make_input(eval_shape, "repeats_100", seed=0)  # every point sent again
+    assert twice.shape.n_points == 4000 and twice.gt.shape == (6, 4000)
+    order = np.lexsort(twice.shape.vertices[2000:].T)
+    again = np.lexsort(clean.shape.vertices.T)
+    np.testing.assert_array_equal(twice.shape.vertices[2000:][order], clean.shape.vertices[again])
+    np.testing.assert_array_equal(twice.gt[:, 2000:][:, order], clean.gt[:, again])
+    some = make_input(eval_shape, "repeats_10", seed=0)
+    assert some.shape.n_points == 2200
+    assert np.isin(some.shape.vertices[2000:], clean.shape.vertices).all()
     uneven = make_input(eval_shape, "uneven_3", seed=0)  # denser towards +x
     assert uneven.shape.n_points == 2000 and uneven.gt.shape == (6, 2000)
     x = uneven.shape.vertices[6:, 0]
@@ -102,6 +111,7 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
     assert parse_setting("noise_0.01") == ("noise", 0.01) and parse_setting("cut_10") == ("cut", 10)
     assert parse_setting("outliers_5") == ("outliers", 5)
     assert parse_setting("uneven_3") == ("uneven", 3.0)
+    assert parse_setting("repeats_100") == ("repeats", 100)
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
         "mesh",
         "cut_5",
@@ -118,6 +128,8 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         "outliers_-1",
         "uneven_nan",
         "uneven_-1",
+        "repeats_101",
+        "repeats_x",
     ):
         with pytest.raises(InputError, match="cloud_N"):
             parse_setting(bad)
