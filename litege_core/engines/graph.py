@@ -162,7 +162,7 @@ def knn_graph(
         first = first_copies(np.asarray(points, dtype=np.float64))
         distinct = np.flatnonzero(first == np.arange(n))
         if 1 < distinct.size < n:
-            return with_copies(knn_graph(points[distinct], k), distinct, first)
+            return with_copies(knn_graph(points[distinct], k), points, distinct, first)
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
     lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
@@ -171,15 +171,18 @@ def knn_graph(
     return edge_graph(n, edges, lengths.reshape(-1))
 
 
-def with_copies(graph: sp.csr_array, distinct: NDArray, first: NDArray) -> sp.csr_array:
-    """A graph of the distinct positions of a point set, on all its points: each copy of a
-    position joins its first copy by an edge of length 0.
+def with_copies(
+    graph: sp.csr_array, points: NDArray, distinct: NDArray, first: NDArray
+) -> sp.csr_array:
+    """A graph of some of a point set's points, on all its points: each other point joins the
+    point it stands for by a straight edge (length 0 for an exact copy).
 
     Args:
-        graph: ``(D, D)`` upper-triangular CSR on the points ``distinct`` ``(D,)`` names.
-        distinct: ``(D,)`` int64 indices of each position's first copy, increasing.
-        first: ``(N,)`` int64 each point's first copy
-            (:func:`~litege_core.sampling.first_copies`).
+        graph: ``(D, D)`` upper-triangular CSR on the points ``distinct`` names.
+        points: ``(N, 3)`` float64.
+        distinct: ``(D,)`` int64 indices of the graph's points, increasing.
+        first: ``(N,)`` int64 the point of ``distinct`` each point joins (itself there), e.g.
+            its first copy (:func:`~litege_core.sampling.first_copies`).
 
     Returns:
         ``(N, N)`` upper-triangular CSR (see :func:`edge_graph`).
@@ -193,7 +196,8 @@ def with_copies(graph: sp.csr_array, distinct: NDArray, first: NDArray) -> sp.cs
             np.column_stack([first[copies], copies]),
         ]
     )
-    return edge_graph(n, edges, np.concatenate([inner.data, np.zeros(copies.size)]))
+    joins = np.linalg.norm(points[copies] - points[first[copies]], axis=1)
+    return edge_graph(n, edges, np.concatenate([inner.data, joins]))
 
 
 MUTUAL_BLOCK = 65_536

@@ -305,7 +305,8 @@ def shape_graph(
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
-            ``fusion.surface`` and :func:`cloud_graph_key`.
+            ``fusion.surface``, ``fusion.nodes`` (:func:`graph_nodes`) and
+            :func:`cloud_graph_key`.
         veto_key: names the veto head (its verdicts are kept in the graph).
         z_score: the shape's OOD z-score.
     """
@@ -317,43 +318,97 @@ def shape_graph(
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
         return graph, 0.0
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
-    first, distinct = distinct_points(points, kept)
-    normal_cos = calibration.normal_limit(distinct.size)
     vetoed = calibration.vetoes(z_score)
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
-    graph, surface = kept.get(key), kept.get("fusion.surface")
-    if graph is None or surface is None:  # one neighbour search serves both (k = 16)
+    graph, surface, nodes = kept.get(key), kept.get("fusion.surface"), kept.get("fusion.nodes")
+    if graph is None or surface is None or nodes is None:  # one search serves all (k = 16)
         from litege_core.engines.graph import knn_neighbours, with_copies  # scipy: on first use
 
-        # a position sent more than once counts once (copies would fill the neighbour lists)
-        repeated = distinct.size < points.shape[0]
-        base = points[distinct] if repeated else points
-        neighbours = knn_neighbours(base, calibration.reach)
+        if nodes is None:
+            nodes, neighbours = graph_nodes(points, calibration.reach)
+            kept["fusion.nodes"] = nodes
+        else:
+            neighbours = knn_neighbours(points[nodes[1]], calibration.reach)
+        first, index = nodes
+        merged = index.size < points.shape[0]
+        base = points[index] if merged else points
         if surface is None:
             shared = calibration.reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
             flatness, normals = local_surface(base, nearest=neighbours[1] if shared else None)
             surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
         if graph is None:
+            normal_cos = calibration.normal_limit(index.size)
             unvetoed = pruned_knn_graph(
                 base, k, ratio, None, neighbours, surface[1], normal_cos, mutual
             )
-            if repeated:
-                unvetoed = with_copies(unvetoed, distinct, first)
+            if merged:
+                unvetoed = with_copies(unvetoed, points, index, first)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
     return graph, surface[0]
 
 
-def distinct_points(points: NDArray, kept: dict[str, Any]) -> tuple[NDArray, NDArray]:
-    """``(first (N,), distinct (D,))`` of a cloud (:func:`~litege_core.sampling.first_copies`
-    and the indices of each position's first copy), kept in ``kept`` (``fusion.distinct``):
-    the fusion's graph, its roughness and its point count read the distinct positions."""
-    found = kept.get("fusion.distinct")
-    if found is None:
-        from litege_core.sampling import first_copies
+CLUMP_FRACTION = 0.1
+"""Two mutual nearest points of a cloud closer than this × its median distance to the 8th
+nearest point are twins for the fusion's graph (about a third of a typical spacing)."""
+CLUMPY_SHARE = 0.25
+"""The fusion's graph merges twins only in a cloud where at least this share of its points
+have a neighbour that close: a scan merged with a slightly moved copy of itself has nearly all
+(its graph's neighbour lists would fill with twins: TOSCA fused ~1 → ~5 on cats), the real dev
+clouds (2000 or 300 points, noisy, cut, uneven) 1–10 %, left as they are."""
 
-        first = first_copies(np.asarray(points, dtype=np.float64))
-        found = kept["fusion.distinct"] = (first, np.flatnonzero(first == np.arange(first.size)))
-    return found
+
+def graph_nodes(
+    points: NDArray, reach: int
+) -> tuple[tuple[NDArray, NDArray], tuple[NDArray, NDArray]]:
+    """The points of a cloud its fusion graph is built on, and their neighbour lists.
+
+    A position sent more than once counts once (:func:`~litege_core.sampling.first_copies`),
+    and in a cloud of twins (:data:`CLUMPY_SHARE`) two mutual nearest neighbours closer than
+    :data:`CLUMP_FRACTION` × its median 8th-neighbour distance count as one (the first of the
+    two): twins would fill each other's neighbour lists, and the graph would be a sparser one
+    than its calibration's. The others join their node by a straight edge.
+
+    Args:
+        points: ``(N, 3)`` float64 canonical points.
+        reach: neighbours per node to list.
+
+    Returns:
+        ``((first (N,), index (D,)), neighbours)``: the node each point joins (its own index
+        for a node) and the nodes' indices, increasing; the nodes'
+        :func:`~litege_core.engines.graph.knn_neighbours` (node positions ``0..D-1``).
+    """
+    from litege_core.engines.graph import knn_neighbours
+    from litege_core.sampling import first_copies
+
+    n = points.shape[0]
+    first = first_copies(np.asarray(points, dtype=np.float64))
+    index = np.flatnonzero(first == np.arange(n))
+    neighbours = knn_neighbours(points[index], reach)
+    clumps = _clump_heads(*neighbours)
+    if clumps is not None:  # each clump joins its first node
+        first = index[clumps[np.searchsorted(index, first)]]
+        index = index[clumps == np.arange(clumps.size)]
+        neighbours = knn_neighbours(points[index], reach)
+    return (first, index), neighbours
+
+
+def _clump_heads(lengths: NDArray, nearest: NDArray) -> NDArray | None:
+    """``(D,)`` the node each point joins, from the points' neighbour lists ``(D, k + 1)``
+    (itself first): the smaller index of each pair of mutual nearest neighbours closer than
+    the clump limit, else itself; ``None`` where the cloud is not clumpy (see
+    :func:`graph_nodes`)."""
+    from litege_core.sampling import OUTLIER_NEIGHBOURS
+
+    if lengths.shape[1] <= OUTLIER_NEIGHBOURS:
+        return None
+    limit = CLUMP_FRACTION * float(np.median(lengths[:, OUTLIER_NEIGHBOURS]))
+    close = lengths[:, 1] < limit
+    if not limit > 0.0 or close.mean() < CLUMPY_SHARE:
+        return None
+    points = np.arange(lengths.shape[0])
+    twin = nearest[:, 1]
+    paired = close & (nearest[twin, 1] == points)  # mutual: no chains through a cloud
+    return np.where(paired, np.minimum(points, twin), points)
 
 
 def cloud_graph_key(
@@ -399,7 +454,7 @@ def fused_distances(
     mesh = faces is not None
     if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
         return rows / calibration.graph_bias(points.shape[0], mesh=True)
-    n = points.shape[0] if mesh else distinct_points(points, kept)[1].size
+    n = points.shape[0] if mesh else kept["fusion.nodes"][1].size  # set by shape_graph
     return fuse(network(), rows, calibration, ood_score, n, roughness, mesh)
 
 
@@ -759,9 +814,9 @@ __all__ = [
     "FusionCalibration",
     "cloud_graph_key",
     "corrected_graph",
-    "distinct_points",
     "fuse",
     "fused_distances",
+    "graph_nodes",
     "graph_rows",
     "load_fusion",
     "local_surface",
