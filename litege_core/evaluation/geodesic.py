@@ -231,7 +231,7 @@ def generated_eval_shapes(
 
 SETTING_FORMS = (
     "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %), outliers_P "
-    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %) or uneven_A (A ≥ 0)"
+    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %), twins_S (std S ≥ 0) or uneven_A (A ≥ 0)"
 )
 UNEVEN_CANDIDATES = 4
 """An ``uneven_A`` cloud is drawn from this many × its count of area-weighted samples."""
@@ -241,7 +241,8 @@ def parse_setting(setting: str) -> tuple[str, float]:
     """``(kind, value)`` of a setting name (see :func:`make_input`): ``"mesh"`` →
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
     ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``,
-    ``"repeats_100"`` → ``("repeats", 100)``, ``"uneven_3"`` → ``("uneven", 3)``.
+    ``"repeats_100"`` → ``("repeats", 100)``, ``"twins_0.001"`` → ``("twins", 0.001)``,
+    ``"uneven_3"`` → ``("uneven", 3)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -257,7 +258,7 @@ def parse_setting(setting: str) -> tuple[str, float]:
             return kind, float(number)
         if kind == "outliers" or (kind == "repeats" and number <= 100):
             return kind, float(number)
-    elif kind in ("noise", "uneven"):
+    elif kind in ("noise", "uneven", "twins"):
         try:
             amount = float(value)
         except ValueError:
@@ -295,7 +296,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     uniform in its bounding box grown by 10 % per side; their ground truth is 0, so no pair
     that ends on one is scored), followed by exact copies of some of its points
     (``"repeats_100"``: every point sent twice, as a scan merged with itself; scored as their
-    originals) or sampled unevenly (``"uneven_3"``: the density grows as
+    originals), followed by a copy of every point moved by Gaussian noise of that std
+    (``"twins_0.001"``, unit-area units: a scan merged with a slightly moved copy of itself)
+    or sampled unevenly (``"uneven_3"``: the density grows as
     ``exp(3 t)`` along the mesh's x axis, ``t`` from 0 to 1, so one end is e³ ≈ 20 times denser
     than the other, as a scan taken from one side; drawn from :data:`UNEVEN_CANDIDATES` × as
     many area-weighted samples).
@@ -329,6 +332,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     if kind == "repeats":  # exact copies appended after the cloud, scored as their originals
         again = repeated_points(points.shape[0], value / 100.0, seed)
         points, gt = np.concatenate([points, points[again]]), np.concatenate([gt, gt[:, again]], 1)
+    if kind == "twins":  # every point again, moved by noise; scored as their originals
+        points = np.concatenate([points, add_noise(points, value, seed)])
+        gt = np.concatenate([gt, gt], axis=1)
     kept = np.ones(points.shape[0], dtype=bool)
     if kind == "cut":
         kept = cut_by_planes(points, value / 100.0, seed)

@@ -82,6 +82,12 @@ def test_corruptions_keep_queries_consistent(eval_shape):
     again = np.lexsort(clean.shape.vertices.T)
     np.testing.assert_array_equal(twice.shape.vertices[2000:][order], clean.shape.vertices[again])
     np.testing.assert_array_equal(twice.gt[:, 2000:][:, order], clean.gt[:, again])
+    moved = make_input(eval_shape, "twins_0.001", seed=0)  # every point again, moved a little
+    assert moved.shape.n_points == 4000 and moved.gt.shape == (6, 4000)
+    np.testing.assert_array_equal(moved.shape.vertices[:2000], clean.shape.vertices)
+    np.testing.assert_array_equal(moved.gt, np.concatenate([clean.gt, clean.gt], axis=1))
+    shift = moved.shape.vertices[2000:] - clean.shape.vertices
+    assert 0.0008 < shift.std() < 0.0012
     some = make_input(eval_shape, "repeats_10", seed=0)
     assert some.shape.n_points == 2200
     assert np.isin(some.shape.vertices[2000:], clean.shape.vertices).all()
@@ -112,6 +118,7 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
     assert parse_setting("outliers_5") == ("outliers", 5)
     assert parse_setting("uneven_3") == ("uneven", 3.0)
     assert parse_setting("repeats_100") == ("repeats", 100)
+    assert parse_setting("twins_0.001") == ("twins", 0.001)
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
         "mesh",
         "cut_5",
@@ -129,6 +136,7 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         "uneven_nan",
         "uneven_-1",
         "repeats_101",
+        "twins_-1",
         "repeats_x",
     ):
         with pytest.raises(InputError, match="cloud_N"):
