@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
-from litege_core.sampling import first_copies
+from litege_core.sampling import OUTLIER_NEIGHBOURS, first_copies
 from litege_core.seams import seam_welds
 from litege_core.shape import Shape
 
@@ -145,9 +145,10 @@ def knn_graph(
     """Symmetric k-NN graph: ``i ~ j`` when either is among the other's ``k`` nearest.
 
     Without ``neighbours``, a position stored more than once (a cloud sent twice, a mesh's
-    seam copies: :func:`~litege_core.sampling.first_copies`) counts once: the graph joins the
-    distinct positions, and each copy joins its first copy by an edge of length 0 (copies
-    would otherwise fill each other's neighbour lists and split the graph).
+    seam copies) and the twins of a cloud of twins count once (:func:`graph_nodes`): the graph
+    joins the distinct nodes, and each other point joins its node by a straight edge (length 0
+    for a copy; copies would otherwise fill each other's neighbour lists and split the
+    graph).
 
     Args:
         points: ``(N, 3)`` float64.
@@ -159,16 +160,75 @@ def knn_graph(
     """
     n = points.shape[0]
     if neighbours is None:
-        first = first_copies(np.asarray(points, dtype=np.float64))
-        distinct = np.flatnonzero(first == np.arange(n))
-        if 1 < distinct.size < n:
-            return with_copies(knn_graph(points[distinct], k), points, distinct, first)
+        (first, index), neighbours = graph_nodes(points, k)
+        if index.size < n:
+            return with_copies(knn_graph(points[index], k, neighbours), points, index, first)
     k = min(k, n - 1)
     lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
     lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
     sources = np.repeat(np.arange(n), k + 1)
     edges = np.column_stack([sources, nearest.reshape(-1)])
     return edge_graph(n, edges, lengths.reshape(-1))
+
+
+CLUMP_FRACTION = 0.1
+"""Two mutual nearest points of a cloud closer than this × its median distance to the 8th
+nearest point are twins for its k-NN graphs (about a third of a typical spacing)."""
+CLUMPY_SHARE = 0.25
+"""The k-NN graphs merge twins only in a cloud where at least this share of its points
+have a neighbour that close: a scan merged with a slightly moved copy of itself has nearly all
+(its graph's neighbour lists would fill with twins: TOSCA fused ~1 → ~5 on cats), the real dev
+clouds (2000 or 300 points, noisy, cut, uneven) 1–10 %, left as they are."""
+
+
+def graph_nodes(
+    points: NDArray, reach: int
+) -> tuple[tuple[NDArray, NDArray], tuple[NDArray, NDArray]]:
+    """The points of a cloud its k-NN graphs are built on, and their neighbour lists.
+
+    A position sent more than once counts once (:func:`~litege_core.sampling.first_copies`),
+    and in a cloud of twins (:data:`CLUMPY_SHARE`) two mutual nearest neighbours closer than
+    :data:`CLUMP_FRACTION` × its median 8th-neighbour distance count as one (the first of the
+    two): twins would fill each other's neighbour lists, and the graph would be sparser than
+    the one of the cloud without them. The others join their node by a straight edge
+    (:func:`with_copies`).
+
+    Args:
+        points: ``(N, 3)`` float64.
+        reach: neighbours per node to list.
+
+    Returns:
+        ``((first (N,), index (D,)), neighbours)``: the node each point joins (its own index
+        for a node) and the nodes' indices, increasing; the nodes'
+        :func:`~litege_core.engines.graph.knn_neighbours` (node positions ``0..D-1``).
+    """
+    n = points.shape[0]
+    first = first_copies(np.asarray(points, dtype=np.float64))
+    index = np.flatnonzero(first == np.arange(n))
+    lengths, nearest = knn_neighbours(points[index], max(reach, OUTLIER_NEIGHBOURS))
+    clumps = _clump_heads(lengths, nearest)
+    if clumps is None:
+        return (first, index), (lengths[:, : reach + 1], nearest[:, : reach + 1])
+    first = index[clumps[np.searchsorted(index, first)]]  # each twin joins its node
+    index = index[clumps == np.arange(clumps.size)]
+    return (first, index), knn_neighbours(points[index], reach)
+
+
+def _clump_heads(lengths: NDArray, nearest: NDArray) -> NDArray | None:
+    """``(D,)`` the node each point joins, from the points' neighbour lists ``(D, k + 1)``
+    (itself first): the smaller index of each pair of mutual nearest neighbours closer than
+    the clump limit, else itself; ``None`` where the cloud is not clumpy (see
+    :func:`graph_nodes`)."""
+    if lengths.shape[1] <= OUTLIER_NEIGHBOURS:
+        return None
+    limit = CLUMP_FRACTION * float(np.median(lengths[:, OUTLIER_NEIGHBOURS]))
+    close = lengths[:, 1] < limit
+    if not limit > 0.0 or close.mean() < CLUMPY_SHARE:
+        return None
+    points = np.arange(lengths.shape[0])
+    twin = nearest[:, 1]
+    paired = close & (nearest[twin, 1] == points)  # mutual: no chains through a cloud
+    return np.where(paired, np.minimum(points, twin), points)
 
 
 def with_copies(
@@ -349,6 +409,7 @@ __all__ = [
     "dijkstra_rows",
     "dijkstra_tree",
     "edge_graph",
+    "graph_nodes",
     "knn_graph",
     "knn_neighbours",
     "mesh_ring_graph",

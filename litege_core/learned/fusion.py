@@ -305,7 +305,8 @@ def shape_graph(
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
-            ``fusion.surface``, ``fusion.nodes`` (:func:`graph_nodes`) and
+            ``fusion.surface``, ``fusion.nodes``
+            (:func:`~litege_core.engines.graph.graph_nodes`) and
             :func:`cloud_graph_key`.
         veto_key: names the veto head (its verdicts are kept in the graph).
         z_score: the shape's OOD z-score.
@@ -322,7 +323,11 @@ def shape_graph(
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
     graph, surface, nodes = kept.get(key), kept.get("fusion.surface"), kept.get("fusion.nodes")
     if graph is None or surface is None or nodes is None:  # one search serves all (k = 16)
-        from litege_core.engines.graph import knn_neighbours, with_copies  # scipy: on first use
+        from litege_core.engines.graph import (  # scipy: on first use
+            graph_nodes,
+            knn_neighbours,
+            with_copies,
+        )
 
         if nodes is None:
             nodes, neighbours = graph_nodes(points, calibration.reach)
@@ -345,70 +350,6 @@ def shape_graph(
                 unvetoed = with_copies(unvetoed, points, index, first)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
     return graph, surface[0]
-
-
-CLUMP_FRACTION = 0.1
-"""Two mutual nearest points of a cloud closer than this × its median distance to the 8th
-nearest point are twins for the fusion's graph (about a third of a typical spacing)."""
-CLUMPY_SHARE = 0.25
-"""The fusion's graph merges twins only in a cloud where at least this share of its points
-have a neighbour that close: a scan merged with a slightly moved copy of itself has nearly all
-(its graph's neighbour lists would fill with twins: TOSCA fused ~1 → ~5 on cats), the real dev
-clouds (2000 or 300 points, noisy, cut, uneven) 1–10 %, left as they are."""
-
-
-def graph_nodes(
-    points: NDArray, reach: int
-) -> tuple[tuple[NDArray, NDArray], tuple[NDArray, NDArray]]:
-    """The points of a cloud its fusion graph is built on, and their neighbour lists.
-
-    A position sent more than once counts once (:func:`~litege_core.sampling.first_copies`),
-    and in a cloud of twins (:data:`CLUMPY_SHARE`) two mutual nearest neighbours closer than
-    :data:`CLUMP_FRACTION` × its median 8th-neighbour distance count as one (the first of the
-    two): twins would fill each other's neighbour lists, and the graph would be a sparser one
-    than its calibration's. The others join their node by a straight edge.
-
-    Args:
-        points: ``(N, 3)`` float64 canonical points.
-        reach: neighbours per node to list.
-
-    Returns:
-        ``((first (N,), index (D,)), neighbours)``: the node each point joins (its own index
-        for a node) and the nodes' indices, increasing; the nodes'
-        :func:`~litege_core.engines.graph.knn_neighbours` (node positions ``0..D-1``).
-    """
-    from litege_core.engines.graph import knn_neighbours
-    from litege_core.sampling import first_copies
-
-    n = points.shape[0]
-    first = first_copies(np.asarray(points, dtype=np.float64))
-    index = np.flatnonzero(first == np.arange(n))
-    neighbours = knn_neighbours(points[index], reach)
-    clumps = _clump_heads(*neighbours)
-    if clumps is not None:  # each clump joins its first node
-        first = index[clumps[np.searchsorted(index, first)]]
-        index = index[clumps == np.arange(clumps.size)]
-        neighbours = knn_neighbours(points[index], reach)
-    return (first, index), neighbours
-
-
-def _clump_heads(lengths: NDArray, nearest: NDArray) -> NDArray | None:
-    """``(D,)`` the node each point joins, from the points' neighbour lists ``(D, k + 1)``
-    (itself first): the smaller index of each pair of mutual nearest neighbours closer than
-    the clump limit, else itself; ``None`` where the cloud is not clumpy (see
-    :func:`graph_nodes`)."""
-    from litege_core.sampling import OUTLIER_NEIGHBOURS
-
-    if lengths.shape[1] <= OUTLIER_NEIGHBOURS:
-        return None
-    limit = CLUMP_FRACTION * float(np.median(lengths[:, OUTLIER_NEIGHBOURS]))
-    close = lengths[:, 1] < limit
-    if not limit > 0.0 or close.mean() < CLUMPY_SHARE:
-        return None
-    points = np.arange(lengths.shape[0])
-    twin = nearest[:, 1]
-    paired = close & (nearest[twin, 1] == points)  # mutual: no chains through a cloud
-    return np.where(paired, np.minimum(points, twin), points)
 
 
 def cloud_graph_key(
@@ -816,7 +757,6 @@ __all__ = [
     "corrected_graph",
     "fuse",
     "fused_distances",
-    "graph_nodes",
     "graph_rows",
     "load_fusion",
     "local_surface",

@@ -7,7 +7,9 @@ import scipy.sparse as sp
 from litege_core.engines import EdgeDijkstraEngine, KnnGraphEngine, compute_distances
 from litege_core.engines import graph as graph_module
 from litege_core.engines.graph import (
+    CLUMPY_SHARE,
     edge_graph,
+    graph_nodes,
     knn_graph,
     knn_neighbours,
     mutual_knn_graph,
@@ -176,3 +178,35 @@ def test_a_cloud_sent_twice_gets_the_clouds_distances(sphere_cloud):
     rows = compute_distances(twice, [0, 407], "knn_graph", k=6).distances
     np.testing.assert_allclose(rows, np.tile(once, 2), rtol=1e-12)
     assert np.isfinite(rows).all()
+
+
+def test_graph_nodes_merge_twins_only_in_a_cloud_of_twins(blob) -> None:
+    points = np.asarray(blob(3).vertices)
+    n = points.shape[0]
+    (first, index), _ = graph_nodes(points, 24)  # an even cloud: every point a node
+    np.testing.assert_array_equal(first, np.arange(n))
+    np.testing.assert_array_equal(index, np.arange(n))
+    shift = 1e-5 * np.random.default_rng(1).standard_normal(points.shape)
+    both = np.concatenate([points, points + shift, points[:5]])  # twins and 5 exact copies
+    (first, index), (lengths, _) = graph_nodes(both, 24)
+    np.testing.assert_array_equal(index, np.arange(n))
+    np.testing.assert_array_equal(first, np.r_[np.arange(n), np.arange(n), np.arange(5)])
+    assert lengths.shape == (n, 25)
+    some = n // 10  # a tenth twinned: a sixth of the cloud has a twin, not a cloud of twins
+    few = np.concatenate([points, points[:some] + shift[:some]])
+    assert 2 * some < CLUMPY_SHARE * few.shape[0]
+    (first, index), _ = graph_nodes(few, 24)
+    assert index.size == few.shape[0]
+
+
+def test_a_cloud_with_moved_twins_gets_the_clouds_knn_distances(sphere_cloud):
+    """The k-NN graph engine reads twins as the fusion does: each joins its first by a
+    straight edge, the graph is the first copies'."""
+    points = np.asarray(sphere_cloud.vertices)[:400]
+    shift = 1e-6 * np.random.default_rng(2).standard_normal(points.shape)
+    twins = Shape.from_arrays(np.concatenate([points, points + shift]))
+    once = compute_distances(Shape.from_arrays(points), [0, 7], "knn_graph", k=6).distances
+    rows = compute_distances(twins, [0, 7], "knn_graph", k=6).distances
+    np.testing.assert_allclose(rows[:, :400], once, rtol=1e-12)
+    joins = np.linalg.norm(shift, axis=1)
+    np.testing.assert_allclose(rows[:, 400:], once + joins, rtol=1e-12, atol=1e-15)

@@ -561,27 +561,6 @@ def test_a_cloud_merged_with_a_moved_copy_keeps_the_clouds_graph(bundle_dir, blo
     np.testing.assert_allclose(rows[:, n:], expected + joins, rtol=1e-5, atol=1e-6)
 
 
-def test_graph_nodes_merge_twins_only_in_a_cloud_of_twins(blob) -> None:
-    from litege_core.learned.fusion import CLUMPY_SHARE, graph_nodes
-
-    points = np.asarray(blob(3).vertices)
-    n = points.shape[0]
-    (first, index), _ = graph_nodes(points, 24)  # an even cloud: every point a node
-    np.testing.assert_array_equal(first, np.arange(n))
-    np.testing.assert_array_equal(index, np.arange(n))
-    shift = 1e-5 * np.random.default_rng(1).standard_normal(points.shape)
-    both = np.concatenate([points, points + shift, points[:5]])  # twins and 5 exact copies
-    (first, index), (lengths, _) = graph_nodes(both, 24)
-    np.testing.assert_array_equal(index, np.arange(n))
-    np.testing.assert_array_equal(first, np.r_[np.arange(n), np.arange(n), np.arange(5)])
-    assert lengths.shape == (n, 25)
-    some = n // 10  # a tenth twinned: a sixth of the cloud has a twin, not a cloud of twins
-    few = np.concatenate([points, points[:some] + shift[:some]])
-    assert 2 * some < CLUMPY_SHARE * few.shape[0]
-    (first, index), _ = graph_nodes(few, 24)
-    assert index.size == few.shape[0]
-
-
 def _reference_ring_graph(points: np.ndarray, faces: np.ndarray, rings: int):
     """Slow reference of :func:`mesh_ring_graph`: a breadth-first search from every vertex."""
     from litege_core.engines.graph import edge_graph
