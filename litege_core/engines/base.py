@@ -167,9 +167,9 @@ class MeshGeodesicEngine(GeodesicEngine):
         return self._topology
 
     def _solved_rows(self, sources: NDArray) -> NDArray:
-        """:meth:`_rows` on the mesh with its seams welded (:func:`~litege_core.engines.
-        seams.seam_welds`): a seam copy is solved as its first copy, and each copy's column
-        is its first copy's (a triangle soup gets the welded mesh's distances)."""
+        """:meth:`_rows` on the mesh with its seams welded (:func:`~litege_core.seams.
+        seam_welds`): a seam copy is solved as its first copy, and each copy's column is its
+        first copy's (a triangle soup gets the welded mesh's distances)."""
         topology = self.topology
         if topology.welded.size == 0:
             return self._rows(sources)

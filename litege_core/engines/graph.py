@@ -164,8 +164,7 @@ def knn_graph(
         if index.size < n:
             return with_copies(knn_graph(points[index], k, neighbours), points, index, first)
     k = min(k, n - 1)
-    lengths, nearest = knn_neighbours(points, k) if neighbours is None else neighbours
-    lengths, nearest = lengths[:, : k + 1], nearest[:, : k + 1]
+    lengths, nearest = neighbours[0][:, : k + 1], neighbours[1][:, : k + 1]
     sources = np.repeat(np.arange(n), k + 1)
     edges = np.column_stack([sources, nearest.reshape(-1)])
     return edge_graph(n, edges, lengths.reshape(-1))
@@ -199,8 +198,8 @@ def graph_nodes(
 
     Returns:
         ``((first (N,), index (D,)), neighbours)``: the node each point joins (its own index
-        for a node) and the nodes' indices, increasing; the nodes'
-        :func:`~litege_core.engines.graph.knn_neighbours` (node positions ``0..D-1``).
+        for a node) and the nodes' indices, increasing; the nodes' :func:`knn_neighbours`
+        (node positions ``0..D-1``).
     """
     n = points.shape[0]
     first = first_copies(np.asarray(points, dtype=np.float64))

@@ -457,7 +457,7 @@ def pruned_knn_graph(
 
     from litege_core.engines.graph import knn_graph, knn_neighbours, mutual_knn_graph
 
-    if neighbours is None:  # the lists as the fusion reads them (repeated points included)
+    if neighbours is None:  # the plain lists (the fusion passes its nodes': shape_graph)
         neighbours = knn_neighbours(points, max(k, mutual_k))
     if mutual_k:
         graph = mutual_knn_graph(points, mutual_k, neighbours)
