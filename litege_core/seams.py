@@ -54,12 +54,14 @@ def seam_welds(points: NDArray, faces: NDArray) -> NDArray:
     return first
 
 
-def boundary_edge_fraction(vertices: NDArray, faces: NDArray) -> float:
-    """Fraction of a triangle mesh's undirected edges that border exactly one face, with its
-    seams welded (:func:`seam_welds`: a soup of a closed surface has none)."""
+def boundary_edge_fraction(faces: NDArray, vertices: NDArray | None = None) -> float:
+    """Fraction of a triangle mesh's undirected edges that border exactly one face; with
+    ``vertices``, of the mesh with its seams welded (:func:`seam_welds`: a soup of a closed
+    surface has none)."""
     faces = np.asarray(faces, dtype=np.int64)
-    welded = seam_welds(np.asarray(vertices, dtype=np.float64), faces)[faces]
-    _, counts = unique_edges(welded)
+    if vertices is not None:
+        faces = seam_welds(np.asarray(vertices, dtype=np.float64), faces)[faces]
+    _, counts = unique_edges(faces)
     return float((counts == 1).sum() / max(counts.size, 1))
 
 

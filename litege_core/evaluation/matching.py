@@ -344,10 +344,8 @@ class ZoomOutMethod:
             None if shape.faces is None else np.asarray(shape.faces),
             normalize=shape.is_mesh,
         )
-        robust = (
-            shape.faces is None
-            or boundary_edge_fraction(shape.vertices, shape.faces) > ROBUST_BOUNDARY
-        )
+        # its own faces: pyFM reads the mesh as it is stored (a soup needs the robust one)
+        robust = shape.faces is None or boundary_edge_fraction(shape.faces) > ROBUST_BOUNDARY
         mesh.process(k=s.n_eigen, robust=robust)
         if not shape.is_mesh:  # unit area as the point-cloud Laplacian's mass measures it
             mesh.scale(1.0 / np.sqrt(float(mesh.A.sum())))

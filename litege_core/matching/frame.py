@@ -129,7 +129,8 @@ def choose_scaling(shape: Shape, pipeline: MatchingPipeline, scaling: str = "aut
         return scaling
     if scaling != "auto":
         return scaling
-    broken = boundary_edge_fraction(shape.vertices, shape.faces) > pipeline.broken_boundary_fraction
+    welded_boundary = boundary_edge_fraction(shape.faces, shape.vertices)  # a soup is whole
+    broken = welded_boundary > pipeline.broken_boundary_fraction
     return "broken_mesh" if broken else "unit_area"
 
 

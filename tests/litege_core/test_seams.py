@@ -40,8 +40,9 @@ def test_a_soup_welds_back_to_its_mesh():
     assert np.unique(welds).size == vertices.shape[0]
     assert np.array_equal(np.unique(corner[welds]), np.arange(vertices.shape[0]))
     assert boundary_vertices(soup_faces, corner.size).all()  # every soup edge is on a rim
-    assert boundary_edge_fraction(soup_points, soup_faces) == 0.0  # welded: a closed sphere
-    assert boundary_edge_fraction(vertices, faces) == 0.0
+    assert boundary_edge_fraction(soup_faces, soup_points) == 0.0  # welded: a closed sphere
+    assert boundary_edge_fraction(soup_faces) == 1.0  # as stored: every edge a rim
+    assert boundary_edge_fraction(faces, vertices) == 0.0
 
 
 def test_coincident_vertices_inside_closed_surfaces_stay_apart():
@@ -56,6 +57,6 @@ def test_coincident_vertices_inside_closed_surfaces_stay_apart():
 def test_an_open_mesh_keeps_its_boundary():
     vertices, faces = _sphere()
     open_faces = faces[vertices[faces].mean(axis=1)[:, 2] < 0.5]  # the cap cut off
-    assert 0.0 < boundary_edge_fraction(vertices, open_faces) < 0.2
+    assert 0.0 < boundary_edge_fraction(open_faces, vertices) < 0.2
     rim = boundary_vertices(open_faces, vertices.shape[0])
     assert 0 < rim.sum() < vertices.shape[0] // 4
