@@ -22,7 +22,7 @@ Workloads: **one pair**; a **distance field** (1 → every point); **64 shapes �
 (one pair each); a **1K × 1K** matrix (1000 × 1000 distinct vertices of the 5K mesh);
 **1K correspondences** (5K dog → 5K cat, 1000 query vertices).
 
-Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in eight configurations: the
+Methods: LiteGE (:class:`Predictor`, shipped ``quadrupeds``) in nine configurations: the
 network alone with the default head and lattice (row ``LiteGE``: float32, ``head="auto"`` and
 ``descriptor_lattice="auto"``: for the shipped model the distilled small head and the UDF at the
 1/8 of the voxels of the ``stride2`` lattice; ``fusion="none"``), the
@@ -33,7 +33,10 @@ fusion: row ``LiteGE graph fusion`` is the library's, the CLI's and the service'
 configuration since 2026-11-29, ``fusion="auto"`` on a shipped model) with the default head and
 lattice or the trained network; the network alone and the fusion each also with
 ``precision="int8", embed_precision="int8"`` (the point MLP's ``n × n`` products and the small
-head's per-pair product in dynamic int8);
+head's per-pair product in dynamic int8), and the network alone with
+``precision="auto", embed_precision="auto"`` (row ``LiteGE auto precision``: bfloat16 products
+where the CPU has AVX512-BF16 / AMX, else float32, the service's
+``LITEGE_GEODESIC_PRECISION=auto``);
 kNN-graph Dijkstra, point-cloud heat, mesh heat and exact (MMP) through
 :class:`litege_core.engines.ClassicalSolver` (``graph``, ``heat``, ``exact``); for
 correspondences the ``quadrupeds`` matching model (:class:`MatchingModel`), nearest neighbour
@@ -82,6 +85,7 @@ from litege_core.variants import isotropic_remesh, point_cloud
 LITEGE = {
     "LiteGE": ("float32", "auto", "auto", "none", "float32"),
     "LiteGE int8": ("int8", "auto", "auto", "none", "int8"),
+    "LiteGE auto precision": ("auto", "auto", "auto", "none", "auto"),
     "LiteGE full head": ("float32", "auto", "full", "none", "float32"),
     "LiteGE full head + full lattice": ("float32", "full", "full", "none", "float32"),
     "LiteGE full head + auto precision": ("auto", "auto", "full", "none", "float32"),

@@ -15,7 +15,8 @@ although the library's default is ``auto``: the labels of earlier runs keep thei
 ``C`` turns of it by at most ``D`` degrees, default 10,
 ``litege_core.evaluation.geodesic.frame_turns``) and ``int8`` (the point MLP's products in
 dynamic int8, ``Predictor(bundle, precision="int8", embed_precision="int8")``: the small
-head's product too); ``--no-baselines`` leaves out
+head's product too) or ``bf16`` (the point MLP's and the head's products in bfloat16,
+``precision="bfloat16", embed_precision="bfloat16"``); ``--no-baselines`` leaves out
 heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours. ``--dataset DIR``
 evaluates the test split of a dataset we build instead of a real set (e.g. the held-out solids
 of ``scripts/build_folder_cal.py --primitives test``: shapes of no training family), without
@@ -80,20 +81,24 @@ def load_predictor(name: str) -> Predictor:
     ``ttaC[xD]`` is read by :func:`frame_turns_of`."""
     name, _, text = name.partition("@")
     options = {o for o in text.split("+") if o and not TTA_OPTION.fullmatch(o)}
-    unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion", "int8"}
+    unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion", "int8", "bf16"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")
     lattices = options & {"full", "stride2", "bcc"}
     heads = options & {"small", "fullhead"}
-    if len(lattices) > 1 or len(heads) > 1:
-        raise SystemExit(f"more than one lattice or head in {name}@{text}")
+    arithmetics = options & {"int8", "bf16"}
+    if len(lattices) > 1 or len(heads) > 1 or len(arithmetics) > 1:
+        raise SystemExit(f"more than one lattice, head or arithmetic in {name}@{text}")
+    arithmetic = (
+        {"int8": "int8", "bf16": "bfloat16"}[arithmetics.pop()] if arithmetics else "float32"
+    )
     return Predictor(
         load_model(name),
         head={"small": "small", "fullhead": "full"}[heads.pop()] if heads else "auto",
         descriptor_lattice=lattices.pop() if lattices else "auto",
         fusion="graph" if "fusion" in options else "none",
-        precision="int8" if "int8" in options else "float32",
-        embed_precision="int8" if "int8" in options else "float32",
+        precision=arithmetic,
+        embed_precision=arithmetic,
     )
 
 

@@ -48,11 +48,14 @@ class Settings(BaseSettings):
     """Distance head of every learned answer: ``auto`` (per model: its distilled small head when
     it ships one, as the shipped ones do, else the trained head), ``full`` (the trained head:
     ~18× more operations per pair) or ``small`` (every model must ship one)."""
-    geodesic_precision: Literal["float32", "int8"] = "float32"
-    """Arithmetic of every learned answer: ``float32`` (as trained) or ``int8`` (CPU only: the
+    geodesic_precision: Literal["float32", "bfloat16", "int8", "auto"] = "float32"
+    """Arithmetic of every learned answer: ``float32`` (as trained), ``int8`` (CPU only: the
     point MLP's ``n × n`` products and the small head's per-pair product in dynamic int8,
     ``Predictor(precision="int8", embed_precision="int8")``: ~1.2–1.4× faster distance fields
-    and matrices at real-shape error within 0.07, BENCHMARKS.md "int8-point-mlp")."""
+    and matrices at real-shape error within 0.07, BENCHMARKS.md "int8-point-mlp"),
+    ``bfloat16`` (the point MLP's and the head's products in bfloat16: fast on a CPU with AMX
+    tiles or a GPU, slow on an AVX2 CPU; BENCHMARKS.md "bf16-point-mlp") or ``auto``
+    (bfloat16 where the device multiplies it natively, else float32)."""
     descriptor_lattice: Literal["auto", "full", "bcc", "stride2"] = "auto"
     """Voxels whose UDF a registration samples: ``auto`` (per model: ``stride2`` where its
     basis allows it, as the shipped ones do, else ``full``), ``full`` (the trained descriptor),

@@ -54,7 +54,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -282,6 +282,18 @@ def resolve_fusion(
     return load_fusion(bundle_dir, bundle_hash, name)
 
 
+class ShapeGraph(NamedTuple):
+    """What the fusion reads on one shape (:func:`shape_graph`)."""
+
+    graph: sp.csr_array | LazyVetoGraph
+    """``(N, N)`` over every point (a cloud's copies and twins join their node)."""
+    roughness: float
+    """Surface roughness (:func:`surface_roughness`; 0 on a mesh)."""
+    n_nodes: int
+    """Distinct nodes: the mesh's vertices, or the cloud's points without its copies and twins
+    (:func:`~litege_core.engines.graph.graph_nodes`): the ``N`` of the gate and the bias."""
+
+
 def shape_graph(
     points: NDArray,
     faces: NDArray | None,
@@ -289,8 +301,9 @@ def shape_graph(
     kept: dict[str, Any],
     veto_key: str,
     z_score: float,
-) -> tuple[sp.csr_array | LazyVetoGraph, float]:
-    """The graph the fusion reads on one shape and its surface roughness, kept in ``kept``.
+) -> ShapeGraph:
+    """The graph the fusion reads on one shape, its surface roughness and its node count, kept
+    in ``kept``.
 
     A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch),
     roughness 0. A cloud: its k-NN graph, normal-pruned where the calibration has normal
@@ -317,7 +330,7 @@ def shape_graph(
             from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
 
             graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
-        return graph, 0.0
+        return ShapeGraph(graph, 0.0, points.shape[0])
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     vetoed = calibration.vetoes(z_score)
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
@@ -349,7 +362,7 @@ def shape_graph(
             if merged:
                 unvetoed = with_copies(unvetoed, points, index, first)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
-    return graph, surface[0]
+    return ShapeGraph(graph, surface[0], int(nodes[1].size))
 
 
 def cloud_graph_key(
@@ -383,7 +396,7 @@ def fused_distances(
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
     KD-tree of ``points``, ``fusion.tree``, when free points join)."""
-    graph, roughness = shape_graph(points, faces, calibration, kept, veto_key, ood_score)
+    graph, roughness, n_nodes = shape_graph(points, faces, calibration, kept, veto_key, ood_score)
     tree = None
     if src[0] is None or dst[0] is None:  # free points join through a KD-tree
         tree = kept.get("fusion.tree")
@@ -395,8 +408,7 @@ def fused_distances(
     mesh = faces is not None
     if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
         return rows / calibration.graph_bias(points.shape[0], mesh=True)
-    n = points.shape[0] if mesh else kept["fusion.nodes"][1].size  # set by shape_graph
-    return fuse(network(), rows, calibration, ood_score, n, roughness, mesh)
+    return fuse(network(), rows, calibration, ood_score, n_nodes, roughness, mesh)
 
 
 def route_trees(
@@ -753,6 +765,7 @@ __all__ = [
     "FUSION_CONFIG",
     "MESH_RINGS",
     "FusionCalibration",
+    "ShapeGraph",
     "cloud_graph_key",
     "corrected_graph",
     "fuse",

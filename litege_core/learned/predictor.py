@@ -123,7 +123,7 @@ Gathering the features of a 1 → 2000 field costs more than its head (issue 17 
 
 DEFAULT_PRECISION = "float32"
 """Arithmetic of the folded network (see :class:`Predictor`)."""
-EMBED_PRECISIONS = ("float32", "int8")
+EMBED_PRECISIONS = ("float32", "bfloat16", "int8", "auto")
 """Values of :class:`Predictor`'s ``embed_precision``."""
 
 TABLE_FRACTION = 0.25
@@ -150,10 +150,13 @@ class Predictor:
             float32); see :mod:`litege_core.nets.folded` and BENCHMARKS.md
             ``predictor-accuracy``.
         embed_precision: arithmetic of the point MLP (the per-point cost of a distance
-            field) without autograd: ``"float32"`` (default) or ``"int8"`` (CPU only: its
-            ``n × n`` products in dynamic int8, fields ~1.2–1.4× faster on an AVX2 CPU, real-shape
-            error within 0.07: BENCHMARKS ``int8-point-mlp``); a predictor keeps its own
-            feature tables per setting.
+            field) without autograd: ``"float32"`` (default), ``"bfloat16"`` (its products
+            in bfloat16 with float32 accumulation: ~4× faster products where the CPU has AMX
+            tiles, slower on an AVX2 one; BENCHMARKS ``bf16-point-mlp``), ``"int8"`` (CPU
+            only: its ``n × n`` products in dynamic int8, fields ~1.2–1.4× faster on an AVX2
+            CPU, real-shape error within 0.07: BENCHMARKS ``int8-point-mlp``) or ``"auto"``
+            (bfloat16 where the device multiplies it natively, else float32); a predictor
+            keeps its own feature tables per setting.
         descriptor_lattice: the informative voxels the UDF is evaluated at: ``"auto"``
             (default: ``"stride2"`` where the basis keeps enough voxels there, as the shipped
             ones do, else ``"full"``; :meth:`~litege_core.descriptor.basis.UdfPcaBasis.
@@ -228,6 +231,7 @@ class Predictor:
             raise InputError(
                 f"embed_precision must be one of {EMBED_PRECISIONS}, got {embed_precision!r}"
             )
+        embed_precision = resolve_precision(embed_precision, self.device)
         self.embed_precision = embed_precision
         self.folded = FoldedGeodesicNet(
             self.network, self.device, precision=self.precision, embed_precision=embed_precision
@@ -923,9 +927,9 @@ class Predictor:
         key = f"surface_router.{graph_key}"
         router = state._lazy.get(key)
         if router is None:
-            graph, _ = shape_graph(
+            graph = shape_graph(
                 state.canonical_points, None, fusion, state._lazy, veto_key, z_score
-            )
+            ).graph
             if isinstance(graph, LazyVetoGraph):
                 edge_geodesics = self._edge_geodesics(state)
                 trees = functools.partial(route_trees, graph, edge_geodesics=edge_geodesics)

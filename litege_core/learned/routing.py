@@ -76,7 +76,7 @@ def shape_agreement(
 
     sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
     network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
-    graph, _ = shape_graph(points, faces, calibration, kept, veto_key, z_score)
+    graph = shape_graph(points, faces, calibration, kept, veto_key, z_score).graph
     every = np.arange(points.shape[0])
     rows = graph_rows(
         graph,

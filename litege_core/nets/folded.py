@@ -17,7 +17,10 @@ precision when no gradient is needed (the path tracer's autograd calls always ru
   symmetric int8 weights, per-row dynamic int8 activations (the activations are ≥ 0 after
   the ReLU), int32 accumulation (``torch._int_mm``).
 * ``embed_precision="bfloat16"``: the point MLP and the head-feature product in bfloat16
-  (float32 accumulation); the features are returned float32. ``"int8"`` (CPU): the point
+  (float32 accumulation) on blocks of :data:`BF16_MIN_ROWS` points or more on a CPU; the
+  features are returned float32, the hidden layer (:meth:`FoldedGeodesicNet.hidden`, which the
+  small head reads) bfloat16. ~3× faster products on a Xeon with AMX tiles, slower on an AVX2
+  CPU (BENCHMARKS "bf16-point-mlp"). ``"int8"`` (CPU): the point
   MLP's three ``n × n`` products with per-output-channel symmetric int8 weights and int8
   activations quantized per call, int32 accumulation (the CPU quantized engine's dynamic
   linear: ``torch.ops.quantized.linear_dynamic``, oneDNN where available), and the
@@ -57,6 +60,12 @@ run float32): the dynamic linear's fixed cost per call exceeds its saving below 
 INT8_ENGINES = ("onednn", "x86", "fbgemm", "qnnpack")
 """CPU quantized engines int8 products pack their weights for, the first supported one
 (oneDNN's dynamic linear was 1.3x faster than fbgemm's on a 2-core AMD EPYC, 2026-11-30)."""
+
+BF16_MIN_ROWS = 128
+"""Fewest points a CPU's bfloat16 point MLP takes (fewer run float32): its conversions and
+oneDNN calls cost ~0.12 ms per block, more than float32's products below ~100 rows
+(2-core Xeon with AMX, 2026-12-01: 16 rows 0.13 ms against 0.05 ms float32; 2000 rows 1.5 ms
+against 4.6 ms)."""
 
 _INT_MM_MIN_ROWS = 17  # torch._int_mm needs more than 16 rows
 
@@ -277,7 +286,11 @@ class FoldedGeodesicNet:
             self._bf16: dict[str, torch.Tensor] = {}
             if precision == "bfloat16" or embed_precision == "bfloat16":
                 self._bf16 = self._bfloat16_weights(
-                    h2_w, h2_b, f_w, [c1_w, w2, p1_w, w4, e_w, h1_w], [c1_b, b2, b4, e_b]
+                    h2_w,
+                    h2_b,
+                    f_w,
+                    [c1_w, w2, p1_w, w4, e_w, h1_w, h1_w @ e_w],
+                    [c1_b, b2, b4, e_b, h1_w @ e_b],
                 )
             self._int8: tuple[torch.Tensor, torch.Tensor] | None = None
             if precision == "int8":
@@ -304,7 +317,7 @@ class FoldedGeodesicNet:
             return t.to(device=self.device, dtype=torch.bfloat16).contiguous()
 
         weights = {"h2_b": bf(h2_b)}
-        names = ["h2", "f", "c1", "c2", "p1", "p2", "e", "h1"]
+        names = ["h2", "f", "c1", "c2", "p1", "p2", "e", "h1", "pf"]
         matrices = [h2_w, f_w[None, :], *embed_w]
         if self._low_rank is not None:  # (in, r) and (r, out) → oneDNN's (out, in)
             names += ["v", "us"]
@@ -312,7 +325,7 @@ class FoldedGeodesicNet:
         for name, w in zip(names, matrices, strict=True):
             weights[f"{name}_w"] = bf(w)  # (out, in): oneDNN's layout
             weights[f"{name}_wt"] = bf(w.T)
-        for name, b in zip(("c1", "c2", "p2", "e"), embed_b, strict=True):
+        for name, b in zip(("c1", "c2", "p2", "e", "pf"), embed_b, strict=True):
             weights[f"{name}_b"] = bf(b)
         return weights
 
@@ -344,7 +357,7 @@ class FoldedGeodesicNet:
         Returns:
             ``(R, n)``; differentiable in ``points``.
         """
-        if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
+        if self._runs_bf16(points, shape_bias):
             return self._embed_bf16(points, shape_bias)
         return torch.addmm(self.e_b, self.hidden(points, shape_bias), self.e_wt)
 
@@ -362,23 +375,36 @@ class FoldedGeodesicNet:
         h = linear(h, packed["p1"], False).add_(shape_bias).relu_()
         return linear_relu(h, packed["p2"], False)
 
-    def _embed_bf16(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
-        """:meth:`embed` with bfloat16 products (the first layer, ``3 → n``, stays float32:
-        it is cheap and sees the raw coordinates). Returns bfloat16."""
+    def _runs_bf16(self, points: torch.Tensor, shape_bias: torch.Tensor) -> bool:
+        """Whether the point MLP runs in bfloat16 on these ``(R, 3)`` points: with
+        ``embed_precision="bfloat16"``, no gradient needed, and on a CPU
+        :data:`BF16_MIN_ROWS` rows or more."""
+        if self.embed_precision != "bfloat16" or _needs_grad(points, shape_bias):
+            return False
+        return self.device.type != "cpu" or points.shape[0] >= BF16_MIN_ROWS
+
+    def _hidden_bf16(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
+        """:meth:`hidden` with bfloat16 products and float32 accumulation (the first layer,
+        ``3 → n``, stays float32: it is cheap and sees the raw coordinates; the per-shape bias
+        is added in float32). Returns bfloat16."""
         bf = self._bf16
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu_().to(torch.bfloat16)
         h = self._linear(h, "c2", bf["c2_b"], relu=True)
         h = (self._linear(h, "p1", None, relu=False).float() + shape_bias).relu_()
-        h = self._linear(h.to(torch.bfloat16), "p2", bf["p2_b"], relu=True)
-        return self._linear(h, "e", bf["e_b"], relu=False)
+        return self._linear(h.to(torch.bfloat16), "p2", bf["p2_b"], relu=True)
+
+    def _embed_bf16(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
+        """:meth:`embed` with bfloat16 products (:meth:`_hidden_bf16`). Returns bfloat16."""
+        return self._linear(self._hidden_bf16(points, shape_bias), "e", self._bf16["e_b"], False)
 
     def point_features(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical coordinates → ``(R, 2n)`` head features, as
         ``features(embed(points, shape_bias))`` with the two linear maps between the last
         ReLU and the features folded into one (one ``n × n`` product less per point; equal to
         float32 rounding). Differentiable in ``points``."""
-        if self.embed_precision == "bfloat16" and not _needs_grad(points, shape_bias):
-            return self.features(self._embed_bf16(points, shape_bias))
+        if self._runs_bf16(points, shape_bias):
+            hidden = self._hidden_bf16(points, shape_bias)
+            return self._linear(hidden, "pf", self._bf16["pf_b"], relu=False).float()
         if runs_int8(self._packed, points, shape_bias):
             assert self._packed is not None  # runs_int8 said so
             hidden = self._hidden_int8(points, shape_bias)
@@ -391,7 +417,10 @@ class FoldedGeodesicNet:
         map a head reads (the distilled head folds its own into it,
         :class:`~litege_core.nets.small_head.FoldedSmallHead`). Differentiable in ``points``
         (with ``embed_precision="int8"``, the int8 products run only where no gradient is
-        needed)."""
+        needed; with ``"bfloat16"``, the products run in bfloat16 there and the result is
+        bfloat16)."""
+        if self._runs_bf16(points, shape_bias):
+            return self._hidden_bf16(points, shape_bias)
         if runs_int8(self._packed, points, shape_bias):
             return self._hidden_int8(points, shape_bias)
         h = torch.addmm(self.c1_b, points, self.c1_wt).relu()

@@ -164,13 +164,21 @@ class FoldedSmallHead:
             self._packed_features: object | None = None
             if teacher.embed_precision == "int8":
                 self._packed_features = pack_int8(a @ e_w, a @ e_b)
+            # after the teacher's bfloat16 point MLP, its n → m product is bfloat16 too (the
+            # bias cancels in every difference g_s − g_d, so it stays float32)
+            self._g_wt_bf16 = None
+            if teacher.embed_precision == "bfloat16":
+                self._g_wt_bf16 = self.g_wt.to(torch.bfloat16)
 
     def point_features(self, points: torch.Tensor, shape_bias: torch.Tensor) -> torch.Tensor:
         """``(R, 3)`` canonical coordinates → ``(R, m)`` student features
         ``A e_p`` (through the teacher's point MLP; differentiable in ``points``; with the
-        teacher's ``embed_precision="int8"``, the ``n → m`` product is int8 too where its
-        point MLP's are)."""
+        teacher's ``embed_precision="int8"`` or ``"bfloat16"``, the ``n → m`` product runs
+        in that arithmetic too where its point MLP's do)."""
         hidden = self.teacher.hidden(points, shape_bias)
+        if hidden.dtype == torch.bfloat16:
+            assert self._g_wt_bf16 is not None  # the teacher's embed_precision says so
+            return (hidden @ self._g_wt_bf16).float().add_(self.g_b)
         if runs_int8(self._packed_features, points, shape_bias):
             return torch.ops.quantized.linear_dynamic(hidden, self._packed_features, False)
         return torch.addmm(self.g_b, hidden, self.g_wt)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from litege_core.learned import Predictor, load_shipped
-from litege_core.nets.folded import int8_engine
+from litege_core.nets.folded import fast_bfloat16, int8_engine
 from litege_core.shape import Shape
 from litege_core.synth import generate_shape
 from service.client import LiteGEClient
@@ -34,7 +34,7 @@ def test_the_settings_default_to_each_models_own_speed_configuration() -> None:
     with pytest.raises(ValueError):
         Settings(geodesic_head="tiny")
     with pytest.raises(ValueError):
-        Settings(geodesic_precision="bfloat16")
+        Settings(geodesic_precision="float16")
     with pytest.raises(ValueError):
         Settings(descriptor_lattice="sparse")
 
@@ -113,5 +113,29 @@ def test_an_int8_point_mlp_service_answers_as_the_library_does(live_service_fact
         field = client.geodesic(shape_id, [0])
     service.stop()
     assert (ready["precision"], ready["embed_precision"]) == ("int8", "int8")
+    expected = library.distances(library.register(dog), [0])
+    np.testing.assert_allclose(field, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_an_auto_precision_service_runs_bfloat16_where_the_cpu_does(
+    live_service_factory, dog
+) -> None:
+    """``LITEGE_GEODESIC_PRECISION=auto``: both products in bfloat16 where the CPU multiplies
+    it natively (AMX / AVX512-BF16), float32 elsewhere; the answers are the library's."""
+    service = live_service_factory(geodesic_precision="auto", geodesic_fusion="none")
+    library = Predictor(
+        load_shipped(TEST_MODEL),
+        torch.device("cpu"),
+        precision="auto",
+        embed_precision="auto",
+        fusion="none",
+    )
+    with LiteGEClient(service.base_url) as client:
+        ready = client.ready()["models"][TEST_MODEL]
+        shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
+        field = client.geodesic(shape_id, [0])
+    service.stop()
+    expected_arithmetic = "bfloat16" if fast_bfloat16("cpu") else "float32"
+    assert (ready["precision"], ready["embed_precision"]) == (expected_arithmetic,) * 2
     expected = library.distances(library.register(dog), [0])
     np.testing.assert_allclose(field, expected, rtol=1e-5, atol=1e-6)

@@ -26,7 +26,7 @@ from litege_core.learned import (
     shape_samples,
 )
 from litege_core.nets import TARGET_SCALE
-from litege_core.nets.folded import INT8_MIN_ROWS, int8_engine
+from litege_core.nets.folded import BF16_MIN_ROWS, INT8_MIN_ROWS, fast_bfloat16, int8_engine
 from litege_core.nets.testing import random_geodesic_net
 from litege_core.shape import Shape
 from litege_core.variants import random_rotation
@@ -144,7 +144,24 @@ def test_int8_point_mlp_predictor_stays_close_and_keeps_its_own_tables(bundle, m
     # not from the int8 table (row counts may move float32 rounding: 1e-7)
     np.testing.assert_allclose(exact.distances(state, [0, 5]), want, rtol=1e-5, atol=1e-6)
     with pytest.raises(InputError):
-        Predictor(bundle, embed_precision="bfloat16")
+        Predictor(bundle, embed_precision="float16")
+
+
+def test_bfloat16_point_mlp_predictor_stays_close_and_keeps_its_own_tables(bundle, mesh):
+    """``embed_precision="bfloat16"``: a distance field within a per cent of float32's from
+    its own feature table; ``"auto"`` is bfloat16 exactly where the CPU multiplies it
+    natively."""
+    exact, bf16 = Predictor(bundle), Predictor(bundle, embed_precision="bfloat16")
+    assert "embed_precision='bfloat16'" in repr(bf16)
+    auto = Predictor(bundle, embed_precision="auto").embed_precision
+    assert auto == ("bfloat16" if fast_bfloat16("cpu") else "float32")
+    state = exact.register(mesh, seed=3)
+    assert state.n_points >= BF16_MIN_ROWS
+    want = exact.distances(state, [0, 5])
+    got = bf16.distances(state, [0, 5])
+    assert not np.array_equal(got, want)  # its own table, in bfloat16
+    assert np.abs(got - want).mean() < 0.01 * np.abs(want).mean()
+    np.testing.assert_allclose(exact.distances(state, [0, 5]), want, rtol=1e-5, atol=1e-6)
 
 
 def test_cached_state_equals_fresh_computation(bundle, predictor, mesh, mesh_state):

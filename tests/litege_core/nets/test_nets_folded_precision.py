@@ -9,6 +9,7 @@ import torch
 from litege_core.errors import InputError
 from litege_core.nets import FoldedGeodesicNet, GeodesicNet
 from litege_core.nets.folded import (
+    BF16_MIN_ROWS,
     INT8_MIN_ROWS,
     PRECISIONS,
     fast_bfloat16,
@@ -107,6 +108,31 @@ def test_bfloat16_embeddings_stay_close_to_float32(net) -> None:
     positions = points[:4].clone().requires_grad_(True)
     grad_features = folded.features(folded.embed(positions, bias))
     torch.testing.assert_close(grad_features.detach(), want[:4], rtol=1e-5, atol=1e-5)
+
+
+def test_bfloat16_point_mlp_stays_close_to_float32_on_large_batches_only(net) -> None:
+    """The bfloat16 point MLP answers every entry point within a few per cent of float32
+    (the hidden layer in bfloat16, embeddings and head features float32) on a CPU batch of
+    BF16_MIN_ROWS points or more without autograd; smaller batches run float32, exactly."""
+    exact = FoldedGeodesicNet(net)
+    folded = FoldedGeodesicNet(net, embed_precision="bfloat16")
+    points = torch.rand(BF16_MIN_ROWS + 50, 3, generator=torch.Generator().manual_seed(3)) - 0.5
+    with torch.no_grad():
+        bias = exact.shape_bias(net.shape_embedding(torch.randn(1, K))[0])
+        for method in ("hidden", "embed", "point_features"):
+            want = getattr(exact, method)(points, bias)
+            got = getattr(folded, method)(points, bias)
+            kept = torch.bfloat16 if method != "point_features" else torch.float32
+            assert got.dtype == kept and got.shape == want.shape, method
+            got = got.float()
+            assert (got - want).abs().mean() < 0.02 * want.abs().mean(), method
+            assert (got - want).abs().max() < 0.05 * want.abs().max(), method
+            small = getattr(folded, method)(points[: BF16_MIN_ROWS - 1], bias)
+            assert small.dtype == torch.float32, method
+            torch.testing.assert_close(small, want[: BF16_MIN_ROWS - 1], rtol=1e-5, atol=1e-6)
+    positions = points.clone().requires_grad_(True)  # the path tracer's gradient: float32
+    traced = folded.point_features(positions, bias)
+    torch.testing.assert_close(traced.detach(), exact.point_features(points, bias))
 
 
 @pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")

@@ -8,7 +8,7 @@ import torch
 
 from litege_core.errors import InputError
 from litege_core.nets import FoldedGeodesicNet, GeodesicNet
-from litege_core.nets.folded import INT8_MIN_ROWS, int8_engine
+from litege_core.nets.folded import BF16_MIN_ROWS, INT8_MIN_ROWS, int8_engine
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
 
 WIDTH = 32
@@ -182,4 +182,29 @@ def test_int8_teacher_runs_the_feature_product_in_int8_where_its_point_mlp_does(
         small = int8.point_features(points[: INT8_MIN_ROWS - 1], bias)
         torch.testing.assert_close(small, want[: INT8_MIN_ROWS - 1], rtol=1e-5, atol=1e-6)
     traced = int8.point_features(points.clone().requires_grad_(True), bias)
+    torch.testing.assert_close(traced.detach(), want, rtol=1e-5, atol=1e-6)
+
+
+def test_bfloat16_teacher_runs_the_feature_product_in_bfloat16_where_its_point_mlp_does(
+    net, student, setting
+) -> None:
+    """A teacher with ``embed_precision="bfloat16"``: the student's ``n → m`` feature product
+    runs bfloat16 after the teacher's bfloat16 point MLP (CPU batches of BF16_MIN_ROWS points
+    or more, no autograd; float32 features within a few per cent), and float32 exactly
+    everywhere else."""
+    _, folded, bias, _ = setting
+    bf16 = FoldedSmallHead(student, FoldedGeodesicNet(net, embed_precision="bfloat16"))
+    points = torch.rand(BF16_MIN_ROWS + 40, 3, generator=torch.Generator().manual_seed(5)) - 0.5
+    with torch.no_grad():
+        want = folded.point_features(points, bias)
+        got = bf16.point_features(points, bias)
+        hidden = bf16.teacher.hidden(points, bias)
+        assert hidden.dtype == torch.bfloat16
+        assert got.dtype == torch.float32 and got.shape == want.shape
+        assert not torch.equal(got, torch.addmm(bf16.g_b, hidden.float(), bf16.g_wt))
+        assert (got - want).abs().mean() < 0.02 * want.abs().mean()
+        assert (got - want).abs().max() < 0.05 * want.abs().max()
+        small = bf16.point_features(points[: BF16_MIN_ROWS - 1], bias)
+        torch.testing.assert_close(small, want[: BF16_MIN_ROWS - 1], rtol=1e-5, atol=1e-6)
+    traced = bf16.point_features(points.clone().requires_grad_(True), bias)
     torch.testing.assert_close(traced.detach(), want, rtol=1e-5, atol=1e-6)
