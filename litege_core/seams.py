@@ -1,4 +1,4 @@
-"""A triangle mesh's edges, its boundary and its seams.
+"""A triangle mesh's edges, its boundary, its seams, its winding and its vertex normals.
 
 A mesh can store one surface position as several vertices: a triangle soup (every corner its own
 vertex), or an OBJ split along its UV seams. Its faces then do not join across the seams, so
@@ -9,7 +9,7 @@ router, the boundary test of matching) welds them first, by one rule: :func:`sea
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from litege_core.sampling import first_copies
 
@@ -66,3 +66,25 @@ def boundary_edge_fraction(faces: NDArray, vertices: NDArray | None = None) -> f
 
 
 __all__ = ["boundary_edge_fraction", "boundary_vertices", "seam_welds", "unique_edges"]
+
+
+def consistently_wound(faces: NDArray) -> bool:
+    """Whether no two faces walk an edge in the same direction: faces that share an edge
+    agree on which side is out, so their normals summed at a vertex do not cancel. A boundary
+    edge (one face) does not count against it; an edge of three faces or more (non-manifold)
+    does."""
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    _, counts = np.unique(half, axis=0, return_counts=True)
+    return bool((counts == 1).all())
+
+
+def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
+    """``(N, 3)`` area-weighted unit vertex normals (zero for unreferenced vertices)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normals = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(normals, f[:, k], face_n)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)

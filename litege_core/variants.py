@@ -151,6 +151,43 @@ def _remesh(
     return MeshVariant(new_vertices, new_faces, locate_on_mesh(vertices, faces, new_vertices))
 
 
+def decimated_mesh(vertices: NDArray, faces: NDArray, n_vertices: int) -> tuple[NDArray, NDArray]:
+    """The mesh simplified to about ``n_vertices`` by quadric edge collapse (pymeshlab,
+    topology kept): triangles of every size and shape, large where the surface is flat, as a
+    low-poly asset or a simplified scan has them. Vertices move (to each collapse's quadric
+    optimum), so the result is a new surface: its own exact geodesics are its ground truth.
+
+    Returns:
+        ``(V', 3)`` float64 vertices and ``(F', 3)`` int64 faces.
+
+    Raises:
+        ArrayShapeError: fewer than 4 target vertices.
+        MissingDependencyError: pymeshlab is not installed.
+        ComputationError: the simplification failed.
+    """
+    if n_vertices < 4:
+        raise ArrayShapeError(f"n_vertices must be at least 4, got {n_vertices}")
+    try:
+        import pymeshlab
+    except ImportError as exc:
+        raise MissingDependencyError(
+            "decimation needs pymeshlab: pip install 'litege[data]'"
+        ) from exc
+    mesh_set = pymeshlab.MeshSet()
+    mesh_set.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces)))
+    try:  # a closed surface has about twice as many faces as vertices
+        mesh_set.meshing_decimation_quadric_edge_collapse(
+            targetfacenum=2 * int(n_vertices), preservetopology=True, planarquadric=True
+        )
+    except pymeshlab.PyMeshLabException as exc:
+        raise ComputationError(f"decimation failed: {exc}") from exc
+    result = mesh_set.current_mesh()
+    return (
+        np.asarray(result.vertex_matrix(), dtype=np.float64),
+        np.asarray(result.face_matrix(), dtype=np.int64),
+    )
+
+
 def broken_mesh(
     faces: NDArray, fraction_removed: float = 0.4, seed: int | np.random.Generator = 0
 ) -> NDArray:

@@ -2,7 +2,8 @@
 
 Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
     [--dataset data/rigged-cal ...] [--sources 12] [--prune-ratio 1.3,1.6]
-    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--ood-dataset data/primitives-cal]
+    [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--mesh-arcs 0,1]
+    [--ood-dataset data/primitives-cal]
     [--veto-max-z 1,2,3,4,6,8] [--ood-gate-tolerance 0] [--write]
 
 Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's category
@@ -11,7 +12,9 @@ Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's c
 ``docs/jobs.md``, first ``--sources`` rows each). Prints the fitted constants and a table of
 network / pruned graph / fused errors per setting (each density's normal limit is the
 candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
-and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept; then
+and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept; of the
+``--mesh-arcs`` candidates (a mesh's ring graph with plain chords, 0, or chords lengthened to
+their arcs, 1), the one whose bias-corrected mesh rows err least (``choose_mesh_arcs``); then
 the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
 the lowest mean fused error (within 1 %), never below the highest OOD z-score of the other
 calibration shapes. The test split of every ``--ood-dataset`` (shapes of no training family,
@@ -42,10 +45,12 @@ import torch
 from litege_core.evaluation.fusion import (
     CALIBRATION_SETTINGS,
     DEFAULT_K,
+    MESH_ARCS_CANDIDATES,
     MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
     VETO_MAX_Z_CANDIDATES,
+    choose_mesh_arcs,
     choose_normal_limits,
     choose_veto_limit,
     collect_ood_samples,
@@ -126,6 +131,12 @@ def main() -> None:
         "is kept",
     )
     parser.add_argument(
+        "--mesh-arcs",
+        default=",".join(str(int(a)) for a in MESH_ARCS_CANDIDATES),
+        help="comma-separated mesh-graph candidates (0: plain chords; 1: chords lengthened to "
+        "their arcs); the one whose bias-corrected mesh rows err least is kept",
+    )
+    parser.add_argument(
         "--veto-max-z",
         default=",".join(f"{z:g}" for z in VETO_MAX_Z_CANDIDATES),
         help="comma-separated OOD z-scores above which to try the network veto off (empty: "
@@ -171,16 +182,31 @@ def main() -> None:
     ratios = sorted(float(r) for r in args.prune_ratio.split(","))
     limits = sorted(float(c) for c in args.normal_cos.split(","))
     mutuals = sorted(int(m) for m in args.mutual_k.split(","))
+    arcs_tried = sorted({bool(int(a)) for a in args.mesh_arcs.split(",")})
+    mesh_settings = [s for s in settings if s == "mesh"]
+    by_arcs = {  # one variant: the mesh graph does not depend on the cloud graph's
+        arcs: next(
+            iter(
+                collect_samples(
+                    predictor, shapes, mesh_settings, k=args.k, veto_head=veto_head, mesh_arcs=arcs
+                ).values()
+            )
+        )
+        for arcs in arcs_tried
+    }
+    mesh_arcs, arcs_errors = choose_mesh_arcs(by_arcs) if mesh_settings else (False, {})
     by_variant = collect_samples(
         predictor,
         shapes,
-        settings,
+        [s for s in settings if s != "mesh"],
         k=args.k,
         prune_ratios=ratios,
         normal_limits=limits,
         mutual_ks=mutuals,
         veto_head=veto_head,
     )
+    meshes = by_arcs.get(mesh_arcs, [])
+    by_variant = {key: [*meshes, *clouds] for key, clouds in by_variant.items()}
     candidates = []  # (mean fused error, (prune ratio, mutual k), samples, calibration)
     for prune_ratio in ratios:
         for mutual in mutuals:
@@ -196,6 +222,7 @@ def main() -> None:
                 fitted_on=fitted_on,
                 normal_cos=chosen if limits != [1.0] else None,
                 mutual_k=mutual,
+                mesh_arcs=mesh_arcs,
             )
             error = mean_fused_error(samples, calibration)
             candidates.append((error, (prune_ratio, mutual), samples, calibration))
@@ -224,6 +251,7 @@ def main() -> None:
         + "".join(f" --ood-dataset {d}" for d in args.ood_dataset)
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
         + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}"
+        + f" --mesh-arcs {args.mesh_arcs}"
         + f" --veto-max-z {args.veto_max_z} --ood-gate-tolerance {args.ood_gate_tolerance:g}`"
     )
     knots = ", ".join(
@@ -256,9 +284,15 @@ def main() -> None:
         + f"median graph / geodesic: {knots}; "
         f"network weight = sigmoid({a:.3f} + {c_z:.3f}·z + {c_n:.3f}·(log10 N − 3) "
         f"+ {c_r:.3f}·roughness)\n"
-        f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart; median "
-        f"graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
+        f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart"
+        + (", lengthened to their arcs" if calibration.mesh_arcs else "")
+        + f"; median graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
     )
+    if len(arcs_errors) > 1:
+        tried = ", ".join(
+            f"{'arcs' if arcs else 'chords'}: {error:.3f}" for arcs, error in arcs_errors.items()
+        )
+        print(f"- mesh graph candidates (mean bias-corrected error of the meshes): {tried}\n")
     if len(candidates) > 1:
         tried = ", ".join(
             f"{ratio} / {mutual}: {error:.3f}" for error, (ratio, mutual), _, _ in candidates

@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import dijkstra
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
 from litege_core.sampling import OUTLIER_NEIGHBOURS, first_copies
-from litege_core.seams import seam_welds
+from litege_core.seams import consistently_wound, seam_welds, vertex_normals
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -318,7 +318,9 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
-def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_array:
+def mesh_ring_graph(
+    points: NDArray, faces: NDArray, rings: int = 2, *, arcs: bool = False
+) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
     Its Dijkstra follows the mesh's connectivity, so parts that touch in space without sharing
@@ -331,14 +333,22 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
     across them. Coincident vertices inside a closed surface stay apart: they are where two
     parts touch.
 
+    With ``arcs``, a chord that is not a mesh edge is lengthened to the arc it spans
+    (:func:`arc_factors`: the circle whose tangents at its ends are perpendicular to the vertex
+    normals there), so it no longer cuts through a curved part: on a coarse mesh, where two
+    rings span a good part of a leg, plain chords make every path short. Only on a consistently
+    wound mesh (:func:`~litege_core.seams.consistently_wound`: its vertex normals do not
+    cancel); on another, the chords stay as they are.
+
     Args:
         points: ``(N, 3)`` float64 vertices.
         faces: ``(F, 3)`` int triangles into ``points``.
         rings: largest number of mesh edges between two joined vertices (≥ 1).
+        arcs: lengthen the chords that are not edges to their arcs.
 
     Returns:
-        ``(N, N)`` upper-triangular CSR of chord lengths, one entry per joined pair (explicit
-        zeros: coincident vertices), as :func:`edge_graph` builds it.
+        ``(N, N)`` upper-triangular CSR of chord (or arc) lengths, one entry per joined pair
+        (explicit zeros: coincident vertices), as :func:`edge_graph` builds it.
     """
     n = points.shape[0]
     faces = np.asarray(faces, dtype=np.int64)
@@ -359,7 +369,29 @@ def mesh_ring_graph(points: NDArray, faces: NDArray, rings: int = 2) -> sp.csr_a
     upper.sort_indices()
     rows = np.repeat(np.arange(n), np.diff(upper.indptr))
     lengths = np.linalg.norm(points[rows] - points[upper.indices], axis=1)  # zeros stay entries
+    if arcs and rings > 1 and consistently_wound(faces):
+        edges = sp.triu(step, k=1, format="csr")
+        edges.sort_indices()
+        edge_keys = np.repeat(np.arange(n), np.diff(edges.indptr)) * n + edges.indices
+        keys = rows * n + upper.indices  # both sorted: row-major, columns sorted per row
+        found = np.minimum(np.searchsorted(edge_keys, keys), max(edge_keys.size - 1, 0))
+        chords = edge_keys[found] != keys if edge_keys.size else np.ones(keys.size, bool)
+        normals = vertex_normals(points, faces)
+        lengths[chords] *= arc_factors(normals[rows[chords]], normals[upper.indices[chords]])
     return sp.csr_array((lengths, upper.indices.copy(), upper.indptr.copy()), shape=(n, n))
+
+
+def arc_factors(normals_a: NDArray, normals_b: NDArray) -> NDArray:
+    """Arc length over chord length of circle arcs between two points, from their unit normals
+    ``(M, 3)``: ``(θ/2) / sin(θ/2)`` with ``θ`` the angle between the normals (1 for
+    parallel normals, π/2 for opposite ones, as across a thin part; 1 where either normal is
+    zero: an unreferenced vertex)."""
+    cos = np.clip(np.einsum("ij,ij->i", normals_a, normals_b), -1.0, 1.0)
+    half = 0.5 * np.arccos(cos)
+    known = (np.abs(normals_a).sum(1) > 0) & (np.abs(normals_b).sum(1) > 0) & (half > 1e-8)
+    factors = np.ones(cos.shape[0])
+    factors[known] = half[known] / np.sin(half[known])
+    return factors
 
 
 class KnnGraphEngine(GeodesicEngine):
@@ -404,6 +436,7 @@ class KnnGraphEngine(GeodesicEngine):
 __all__ = [
     "DEFAULT_K",
     "KnnGraphEngine",
+    "arc_factors",
     "dijkstra_path",
     "dijkstra_rows",
     "dijkstra_tree",

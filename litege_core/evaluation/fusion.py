@@ -55,6 +55,9 @@ PRUNE_RATIO_CANDIDATES = (1.1, 1.2, 1.3, 1.6)
 fused error on the calibration shapes is kept. A lower threshold cuts more shortcuts between
 parts that touch (the network under-estimates them too), a too low one cuts true surface edges
 of sparse clouds where the veto head over-estimates."""
+MESH_ARCS_CANDIDATES = (False, True)
+"""Mesh graphs ``scripts/calibrate_fusion.py`` tries: plain chords, or chords lengthened to their
+arcs (:func:`choose_mesh_arcs`)."""
 MUTUAL_K_CANDIDATES = (0, 24)
 """Cloud graphs ``scripts/calibrate_fusion.py`` tries: 0, the symmetric k-NN graph, or the
 mutual k-NN graph of that many neighbours (:func:`~litege_core.engines.graph.mutual_knn_graph`);
@@ -100,6 +103,7 @@ def probe_calibration(
     veto_head: str = "full",
     normal_cos: float = 1.0,
     mutual_k: int = 0,
+    mesh_arcs: bool = False,
 ) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
@@ -114,6 +118,7 @@ def probe_calibration(
         veto_head=veto_head,
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
         mutual_k=mutual_k,
+        mesh_arcs=mesh_arcs,
     )
 
 
@@ -134,6 +139,7 @@ def collect_samples(
     mutual_ks: Sequence[int] = (0,),
     veto_head: str = "full",
     seed: int = 0,
+    mesh_arcs: bool = False,
 ) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
     them (``make_input(shape, setting, seed + i)``), for each veto threshold, normal limit and
@@ -148,6 +154,7 @@ def collect_samples(
             that many neighbours).
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
+        mesh_arcs: a mesh's graph lengthens its chords to their arcs (:func:`choose_mesh_arcs`).
 
     Returns:
         ``{(prune_ratio, normal_cos, mutual_k): samples}``, the samples in the same order
@@ -156,10 +163,10 @@ def collect_samples(
     hash_ = predictor.bundle.content_hash
     probes = {
         (ratio, limit, mutual): (
-            probe_calibration(hash_, k, ratio, veto_head, limit, mutual),
+            probe_calibration(hash_, k, ratio, veto_head, limit, mutual, mesh_arcs),
             # the same graph with the veto off (an OOD limit below every z)
             replace(
-                probe_calibration(hash_, k, 1.0, veto_head, limit, mutual),
+                probe_calibration(hash_, k, 1.0, veto_head, limit, mutual, mesh_arcs),
                 veto_max_z=NEVER_VETO_Z,
             ),
         )
@@ -261,6 +268,26 @@ def _median_ratio(members: Sequence[FusionSample]) -> float:
     return float(np.median(ratios))
 
 
+def choose_mesh_arcs(
+    by_arcs: dict[bool, Sequence[FusionSample]],
+) -> tuple[bool, dict[bool, float]]:
+    """Whether a mesh's graph lengthens its chords to their arcs: the candidate whose mesh
+    rows, divided by their median bias (as the fitted calibration applies it), have the lowest
+    mean per-shape error (plain chords on a tie), and each candidate's error.
+
+    ``by_arcs``: ``{mesh_arcs: mesh samples}`` (:func:`collect_samples` of the ``"mesh"``
+    setting with each value).
+    """
+    errors = {}
+    for arcs, members in by_arcs.items():
+        bias = _median_ratio(members)
+        rows = [_graph_or_network(s) / bias for s in members]
+        errors[arcs] = float(
+            np.mean([_error(r, s.truth) for r, s in zip(rows, members, strict=True)])
+        )
+    return min(errors, key=lambda arcs: (errors[arcs], arcs)), errors
+
+
 def choose_normal_limits(
     by_limit: dict[float, Sequence[FusionSample]],
 ) -> tuple[dict[str, float], list[FusionSample]]:
@@ -341,12 +368,14 @@ def fit_fusion(
     fitted_on: dict[str, Any] | None = None,
     normal_cos: dict[str, float] | None = None,
     mutual_k: int = 0,
+    mesh_arcs: bool = False,
 ) -> FusionCalibration:
     """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
     mesh samples the mesh bias is 1.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
     built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
-    the neighbour rule they were built with."""
+    the neighbour rule they were built with; ``mesh_arcs``: the mesh graph they were built
+    with (:func:`choose_mesh_arcs`)."""
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
     knots: dict[str, tuple[float, float, float]] = {}
@@ -370,6 +399,7 @@ def fit_fusion(
         veto_head=veto_head,
         normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
         mutual_k=mutual_k,
+        mesh_arcs=mesh_arcs,
     )
 
     if clouds:
@@ -543,11 +573,13 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 
 __all__ = [
     "CALIBRATION_SETTINGS",
+    "MESH_ARCS_CANDIDATES",
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
     "VETO_MAX_Z_CANDIDATES",
     "FusionSample",
     "GraphVariant",
+    "choose_mesh_arcs",
     "choose_normal_limits",
     "choose_veto_limit",
     "collect_ood_samples",

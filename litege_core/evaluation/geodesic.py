@@ -42,6 +42,7 @@ from litege_core.variants import (
     add_noise,
     add_outliers,
     cut_by_planes,
+    decimated_mesh,
     repeated_points,
     small_rotation,
 )
@@ -231,7 +232,8 @@ def generated_eval_shapes(
 
 SETTING_FORMS = (
     "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %), outliers_P "
-    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %), twins_S (std S ≥ 0) or uneven_A (A ≥ 0)"
+    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %), twins_S (std S ≥ 0), uneven_A (A ≥ 0) or "
+    "decimated_N (N ≥ 4 vertices)"
 )
 UNEVEN_CANDIDATES = 4
 """An ``uneven_A`` cloud is drawn from this many × its count of area-weighted samples."""
@@ -242,7 +244,7 @@ def parse_setting(setting: str) -> tuple[str, float]:
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
     ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``,
     ``"repeats_100"`` → ``("repeats", 100)``, ``"twins_0.001"`` → ``("twins", 0.001)``,
-    ``"uneven_3"`` → ``("uneven", 3)``.
+    ``"uneven_3"`` → ``("uneven", 3)``, ``"decimated_1000"`` → ``("decimated", 1000)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -252,9 +254,11 @@ def parse_setting(setting: str) -> tuple[str, float]:
     kind, _, value = str(setting).partition("_")
     if setting == "mesh":
         return "mesh", 0.0
-    if kind in ("cloud", "cut", "outliers", "repeats") and is_count(value):
+    if kind in ("cloud", "cut", "outliers", "repeats", "decimated") and is_count(value):
         number = int(value)
         if (kind == "cloud" and number >= 1) or (kind == "cut" and number < 100):
+            return kind, float(number)
+        if kind == "decimated" and number >= 4:
             return kind, float(number)
         if kind == "outliers" or (kind == "repeats" and number <= 100):
             return kind, float(number)
@@ -269,6 +273,11 @@ def parse_setting(setting: str) -> tuple[str, float]:
         f"unknown evaluation setting {setting!r}: expected {SETTING_FORMS} "
         f"(default {','.join(SETTINGS)})"
     )
+
+
+def is_mesh_setting(setting: str) -> bool:
+    """Whether the inputs of ``setting`` are meshes (``mesh``, ``decimated_N``), not clouds."""
+    return parse_setting(setting)[0] in ("mesh", "decimated")
 
 
 def parse_settings(text: str | None) -> list[str]:
@@ -301,7 +310,11 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     or sampled unevenly (``"uneven_3"``: the density grows as
     ``exp(3 t)`` along the mesh's x axis, ``t`` from 0 to 1, so one end is e³ ≈ 20 times denser
     than the other, as a scan taken from one side; drawn from :data:`UNEVEN_CANDIDATES` × as
-    many area-weighted samples).
+    many area-weighted samples), or the mesh simplified to about N vertices
+    (``"decimated_1000"``: quadric edge collapse, :func:`~litege_core.variants.decimated_mesh`,
+    as a low-poly asset; a new surface, so its ground truth is its own exact geodesics from as
+    many farthest-point sources, rescaled to unit area: not cached, seconds per shape at a few
+    thousand vertices).
 
     Raises:
         InputError: a bad setting (see :func:`parse_setting`), or a cloud of fewer points
@@ -310,6 +323,13 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     kind, value = parse_setting(setting)
     if kind == "mesh":
         return EvalInput(Shape.from_arrays(shape.vertices, shape.faces), shape.sources, shape.gt)
+    if kind == "decimated":
+        vertices, faces = decimated_mesh(shape.vertices, shape.faces, int(value))
+        vertices, _ = unit_area(vertices, faces)
+        decimated = Shape.from_arrays(vertices, faces)
+        sources = farthest_point_sampling(vertices, min(shape.sources.size, vertices.shape[0]))
+        exact = compute_distances(decimated, sources, method="exact").distances
+        return EvalInput(decimated, sources, exact)
     n_points = int(value) if kind == "cloud" else 2000
     n_sources = shape.sources.size
     if n_points < n_sources:
@@ -453,7 +473,7 @@ def methods_for(setting: str, predictor, frames: Sequence[str] = ()) -> dict[str
     methods = {"LiteGE": litege_method(predictor)}
     for frame in frames:
         methods[f"LiteGE (frame: {frame})"] = litege_method(predictor, frame)
-    if setting == "mesh":
+    if is_mesh_setting(setting):
         methods["heat (mesh)"] = baseline_method("heat")
     else:
         methods["point-cloud heat"] = baseline_method("pointcloud_heat")
@@ -579,7 +599,8 @@ def comparison_methods(
             for name, predictor in predictors.items()
         }
         if baselines:
-            found[HEAT] = baseline_method("heat" if setting == "mesh" else "pointcloud_heat")
+            heat = "heat" if is_mesh_setting(setting) else "pointcloud_heat"
+            found[HEAT] = baseline_method(heat)
             found[KNN] = baseline_method("knn_graph", k=KNN_NEIGHBOURS)
         return found
 

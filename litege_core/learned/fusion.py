@@ -8,11 +8,14 @@ estimate takes the better of the two per shape, with weights fitted on data we g
 
     G_graph  = for a mesh input, Dijkstra on chords between vertices at most ``MESH_RINGS``
                mesh edges apart (the mesh's connectivity: no shortcut between parts that
-               touch); for a point cloud, on the symmetric k-NN graph of the points
-               (canonical frame) after cutting every edge whose predicted geodesic exceeds
-               ``prune_ratio`` × its chord (the network vetoes shortcuts between touching
-               parts; the veto is the bundle's small head where the calibration says so: it
-               costs one head evaluation per edge, ~8 N for N points) and, where the
+               touch), where the calibration says so (``mesh_arcs``) lengthened to the arcs
+               they span (from the vertex normals: a chord across two rings of a coarse mesh
+               cuts through a curved part); for a point cloud, on the symmetric k-NN graph
+               of the points (canonical frame) after cutting every edge whose predicted
+               geodesic exceeds ``prune_ratio`` × its chord (the network vetoes shortcuts
+               between touching parts; the veto is the bundle's small head where the
+               calibration says so: it costs one head evaluation per edge, ~8 N for N
+               points) and, where the
                calibration has normal limits, every edge whose chord runs along the surface
                normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
                between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
@@ -76,13 +79,14 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 7
+FUSION_FORMAT = 8
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
 added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
-``veto_max_z`` (older files read as ``None``: the veto on every cloud)."""
-READABLE_FORMATS = (3, 4, 5, 6, FUSION_FORMAT)
+``veto_max_z`` (older files read as ``None``: the veto on every cloud), format 8
+``mesh_arcs`` (older files read as ``False``: plain chords)."""
+READABLE_FORMATS = (3, 4, 5, 6, 7, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -121,6 +125,8 @@ class FusionCalibration:
             else the mutual k-NN graph of this many neighbours.
         veto_max_z: the network veto runs on clouds whose OOD z-score is at most this
             (:meth:`vetoes`); ``None``: on every cloud.
+        mesh_arcs: a mesh's ring graph lengthens its chords to the arcs they span
+            (:func:`~litege_core.engines.graph.mesh_ring_graph`); ``False``: plain chords.
     """
 
     k: int
@@ -135,6 +141,7 @@ class FusionCalibration:
     normal_cos: tuple[float, ...] = ()
     mutual_k: int = 0
     veto_max_z: float | None = None
+    mesh_arcs: bool = False
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -223,9 +230,17 @@ class FusionCalibration:
                 normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
                 mutual_k=int(data.get("mutual_k", 0)),
                 veto_max_z=None if data.get("veto_max_z") is None else float(data["veto_max_z"]),
+                mesh_arcs=_flag(data.get("mesh_arcs", False)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
+
+
+def _flag(value: Any) -> bool:
+    """A JSON boolean (anything else is a damaged file)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"expected true or false, got {value!r}")
+    return value
 
 
 def save_fusion(directory: str | os.PathLike, calibration: FusionCalibration) -> Path:
@@ -305,9 +320,10 @@ def shape_graph(
     """The graph the fusion reads on one shape, its surface roughness and its node count, kept
     in ``kept``.
 
-    A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch),
-    roughness 0. A cloud: its k-NN graph, normal-pruned where the calibration has normal
-    limits, as a :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
+    A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch; arcs
+    where the calibration's ``mesh_arcs`` says so), roughness 0. A cloud: its k-NN graph,
+    normal-pruned where the calibration has normal limits, as a
+    :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
     :func:`graph_rows` runs on the edges that paths use (the rows equal those of
     :func:`pruned_knn_graph`), or as it is where the calibration keeps the veto off at this
     OOD ``z_score`` (:meth:`FusionCalibration.vetoes`); its roughness from the same 16-NN
@@ -317,7 +333,7 @@ def shape_graph(
         points: ``(N, 3)`` float64 canonical points.
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
-        kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph``,
+        kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph.ARCS``,
             ``fusion.surface``, ``fusion.nodes``
             (:func:`~litege_core.engines.graph.graph_nodes`) and
             :func:`cloud_graph_key`.
@@ -325,11 +341,13 @@ def shape_graph(
         z_score: the shape's OOD z-score.
     """
     if faces is not None:
-        graph = kept.get("fusion.mesh_graph")
+        arcs = calibration.mesh_arcs
+        graph = kept.get(f"fusion.mesh_graph.{arcs}")
         if graph is None:
             from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
 
-            graph = kept["fusion.mesh_graph"] = mesh_ring_graph(points, faces, MESH_RINGS)
+            graph = mesh_ring_graph(points, faces, MESH_RINGS, arcs=arcs)
+            kept[f"fusion.mesh_graph.{arcs}"] = graph
         return ShapeGraph(graph, 0.0, points.shape[0])
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     vetoed = calibration.vetoes(z_score)

@@ -29,8 +29,8 @@ from litege_core.render.raster import (
     polyline_masks,
     rasterize_mesh,
     rasterize_points,
-    vertex_normals,
 )
+from litege_core.seams import vertex_normals
 
 BACKGROUND = (1.0, 1.0, 1.0)
 NEUTRAL = (0.78, 0.74, 0.68)

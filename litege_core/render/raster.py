@@ -342,18 +342,6 @@ def rasterize_points(camera: Camera, points: ArrayLike, radius_px: float) -> Fra
     )
 
 
-def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
-    """``(N, 3)`` area-weighted unit vertex normals (zero for unreferenced vertices)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    normals = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(normals, f[:, k], face_n)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-
-
 def lambert(
     normals: NDArray, camera: Camera, *, ambient: float = 0.32, two_sided: bool = True
 ) -> NDArray:

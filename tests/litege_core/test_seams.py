@@ -3,7 +3,14 @@
 import numpy as np
 import trimesh
 
-from litege_core.seams import boundary_edge_fraction, boundary_vertices, seam_welds, unique_edges
+from litege_core.seams import (
+    boundary_edge_fraction,
+    boundary_vertices,
+    consistently_wound,
+    seam_welds,
+    unique_edges,
+    vertex_normals,
+)
 
 
 def _sphere() -> tuple[np.ndarray, np.ndarray]:
@@ -60,3 +67,22 @@ def test_an_open_mesh_keeps_its_boundary():
     assert 0.0 < boundary_edge_fraction(open_faces, vertices) < 0.2
     rim = boundary_vertices(open_faces, vertices.shape[0])
     assert 0 < rim.sum() < vertices.shape[0] // 4
+
+
+def test_vertex_normals_point_outwards():
+    vertices, faces = _sphere()
+    normals = vertex_normals(vertices, faces)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", normals, vertices), 1.0, atol=0.03)
+    unused = np.concatenate([vertices, [[5.0, 5.0, 5.0]]])
+    assert not vertex_normals(unused, faces)[-1].any()  # an unreferenced vertex: zero
+
+
+def test_consistent_winding_is_told_from_a_flipped_face():
+    _, faces = _sphere()
+    assert consistently_wound(faces)
+    assert consistently_wound(faces[::-1, ::-1])  # every face flipped: still consistent
+    assert consistently_wound(faces[: len(faces) // 2])  # an open mesh: boundaries count not
+    flipped = faces.copy()
+    flipped[7] = flipped[7, ::-1]
+    assert not consistently_wound(flipped)
+    assert not consistently_wound(np.concatenate([faces, faces[:1]]))  # a face twice

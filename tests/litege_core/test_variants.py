@@ -10,6 +10,7 @@ from litege_core.variants import (
     anisotropic_remesh,
     broken_mesh,
     cut_by_planes,
+    decimated_mesh,
     isotropic_remesh,
     locate_on_mesh,
     point_cloud,
@@ -136,3 +137,15 @@ def test_repeated_points_are_a_seeded_draw_without_repeats():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ArrayShapeError):
             repeated_points(10, bad)
+
+
+def test_decimation_keeps_a_closed_surface_and_refuses_too_few_vertices(blob):
+    pytest.importorskip("pymeshlab")
+    from litege_core.seams import boundary_edge_fraction
+
+    shape = blob(2, subdivisions=3)
+    vertices, faces = decimated_mesh(shape.vertices, shape.faces, 200)
+    assert 160 <= vertices.shape[0] <= 240 and faces.shape == (2 * vertices.shape[0] - 4, 3)
+    assert boundary_edge_fraction(faces) == 0.0  # still closed, genus 0
+    with pytest.raises(ArrayShapeError):
+        decimated_mesh(shape.vertices, shape.faces, 3)

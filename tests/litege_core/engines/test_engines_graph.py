@@ -8,10 +8,12 @@ from litege_core.engines import EdgeDijkstraEngine, KnnGraphEngine, compute_dist
 from litege_core.engines import graph as graph_module
 from litege_core.engines.graph import (
     CLUMPY_SHARE,
+    arc_factors,
     edge_graph,
     graph_nodes,
     knn_graph,
     knn_neighbours,
+    mesh_ring_graph,
     mutual_knn_graph,
     mutual_knn_graph_reference,
     run_minima,
@@ -210,3 +212,54 @@ def test_a_cloud_with_moved_twins_gets_the_clouds_knn_distances(sphere_cloud):
     np.testing.assert_allclose(rows[:, :400], once, rtol=1e-12)
     joins = np.linalg.norm(shift, axis=1)
     np.testing.assert_allclose(rows[:, 400:], once + joins, rtol=1e-12, atol=1e-15)
+
+
+def test_arc_factors_follow_the_circle_through_both_ends():
+    up, side = np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(arc_factors(up, up), 1.0)
+    np.testing.assert_allclose(arc_factors(up, side), (np.pi / 4) / np.sin(np.pi / 4))
+    np.testing.assert_allclose(arc_factors(up, -up), np.pi / 2)  # across a thin part
+    np.testing.assert_allclose(arc_factors(up, np.zeros((1, 3))), 1.0)  # no normal: a chord
+
+
+def _slow_arc_graph(points: np.ndarray, faces: np.ndarray, plain: sp.csr_array) -> np.ndarray:
+    """The reference: each chord of ``plain`` that is not a mesh edge times its arc factor,
+    the vertex normals summed face by face."""
+    normals = np.zeros_like(points)
+    edges = set()
+    for a, b, c in faces.tolist():
+        normal = np.cross(points[b] - points[a], points[c] - points[a])
+        for vertex in (a, b, c):
+            normals[vertex] += normal
+        edges |= {(min(a, b), max(a, b)), (min(b, c), max(b, c)), (min(a, c), max(a, c))}
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    dense = plain.toarray()
+    for i, j in zip(*np.nonzero(dense), strict=True):
+        if (i, j) not in edges:
+            angle = np.arccos(np.clip(normals[i] @ normals[j], -1.0, 1.0))
+            dense[i, j] *= (angle / 2) / np.sin(angle / 2)
+    return dense
+
+
+def test_ring_graph_arcs_lengthen_the_chords_of_a_wound_mesh_only():
+    """With ``arcs``, the chords that are not edges span their arcs (a slow reference), the
+    edges keep their lengths, and the distance across a sphere comes nearer the great circle's;
+    a mesh with one face wound the other way keeps its plain chords."""
+    import trimesh
+    from scipy.sparse.csgraph import dijkstra
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    points, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
+    plain, arcs = mesh_ring_graph(points, faces, 2), mesh_ring_graph(points, faces, 2, arcs=True)
+    np.testing.assert_array_equal(arcs.indices, plain.indices)
+    np.testing.assert_allclose(arcs.toarray(), _slow_arc_graph(points, faces, plain), rtol=1e-12)
+    assert (arcs.data > plain.data * (1 + 1e-6)).any()
+    far = int(np.argmin(points @ points[0]))  # the antipode of vertex 0, π away on the sphere
+    along = [dijkstra(g, directed=False, indices=0)[far] for g in (plain, arcs)]
+    assert abs(along[1] - np.pi) < 0.5 * abs(along[0] - np.pi)
+    flipped = faces.copy()
+    flipped[3] = flipped[3, ::-1]
+    np.testing.assert_array_equal(
+        mesh_ring_graph(points, flipped, 2, arcs=True).toarray(),
+        mesh_ring_graph(points, flipped, 2).toarray(),
+    )

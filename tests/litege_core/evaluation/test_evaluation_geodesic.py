@@ -8,6 +8,7 @@ from litege_core.evaluation.geodesic import (
     EvalShape,
     evaluate,
     evaluate_methods,
+    is_mesh_setting,
     make_input,
     parse_setting,
     parse_settings,
@@ -119,6 +120,9 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
     assert parse_setting("uneven_3") == ("uneven", 3.0)
     assert parse_setting("repeats_100") == ("repeats", 100)
     assert parse_setting("twins_0.001") == ("twins", 0.001)
+    assert parse_setting("decimated_1000") == ("decimated", 1000)
+    assert is_mesh_setting("decimated_1000") and is_mesh_setting("mesh")
+    assert not is_mesh_setting("cloud_300")
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
         "mesh",
         "cut_5",
@@ -138,6 +142,8 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         "repeats_101",
         "twins_-1",
         "repeats_x",
+        "decimated_3",
+        "decimated_x",
     ):
         with pytest.raises(InputError, match="cloud_N"):
             parse_setting(bad)
@@ -386,3 +392,18 @@ def test_dataset_eval_shapes_reads_either_kind_of_dataset_at_unit_area(tmp_path,
         np.testing.assert_allclose(shape.gt, expected, rtol=1e-4, atol=1e-6)
     if kind == "collection":  # each shape its own triangulation
         assert len({s.faces.shape for s in shapes}) == 2
+
+
+def test_a_decimated_mesh_is_scored_against_its_own_exact_geodesics(eval_shape):
+    """``decimated_N``: the mesh simplified to about N vertices, at unit area, with exact rows
+    from as many farthest-point sources of its own (a new surface, so not the original's)."""
+    pytest.importorskip("pymeshlab")
+    item = make_input(eval_shape, "decimated_300", seed=0)
+    vertices, faces = item.shape.vertices, item.shape.faces
+    assert faces is not None and 240 <= vertices.shape[0] <= 360
+    assert item.shape.area == pytest.approx(1.0)
+    np.testing.assert_array_equal(item.source_index, farthest_point_sampling(vertices, 6))
+    exact = compute_distances(item.shape, item.source_index, method="exact").distances
+    np.testing.assert_allclose(item.gt, exact)
+    # the same surface, simplified: its farthest pair stays about as far apart
+    assert item.gt.max() == pytest.approx(eval_shape.gt.max(), rel=0.05)

@@ -192,6 +192,13 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json({**older, "format_version": 6}).veto_max_z is None
     limited = dataclasses.replace(calibration, veto_max_z=4.5)
     assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
+    # a format-7 file (no mesh_arcs) reads as plain chords; mesh_arcs round-trips, as a boolean
+    del older["mesh_arcs"]
+    assert FusionCalibration.from_json({**older, "format_version": 7}).mesh_arcs is False
+    arcs = dataclasses.replace(calibration, mesh_arcs=True)
+    assert FusionCalibration.from_json(json.loads(json.dumps(arcs.to_json()))) == arcs
+    with pytest.raises(ArtifactError):
+        FusionCalibration.from_json({**arcs.to_json(), "mesh_arcs": 1})
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -629,7 +636,7 @@ def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
     sources = np.array([0, 17, 200])
     before = state.nbytes
     rows = predictor.distances(state, sources)
-    ring = state._lazy["fusion.mesh_graph"]
+    ring = state._lazy[f"fusion.mesh_graph.{calibration.mesh_arcs}"]
     graph_bytes = ring.data.nbytes + ring.indices.nbytes + ring.indptr.nbytes
     assert state.nbytes >= before + graph_bytes  # the mesh's ring graph counts for the cache
     counted = state.nbytes
@@ -645,6 +652,26 @@ def test_a_mesh_fuses_with_dijkstra_on_its_ring_graph(bundle_dir, blob) -> None:
     # the cloud of the same vertices fuses with its kNN graph instead: other distances
     cloud_rows = predictor.distances(predictor.register(_cloud(shape)), sources)
     assert np.abs(cloud_rows - rows).max() > 1e-3 * rows.max()
+
+
+def test_a_mesh_fuses_with_the_arcs_its_calibration_chooses(bundle_dir, blob) -> None:
+    """``mesh_arcs``: the mesh is answered by Dijkstra on its ring graph with the chords
+    lengthened to their arcs; a predictor with plain chords sharing the state keeps its own
+    graph (other answers)."""
+    predictor, calibration = _graph_only_predictor(bundle_dir)
+    arcs = Predictor(predictor.bundle, fusion=dataclasses.replace(calibration, mesh_arcs=True))
+    shape = blob(3)
+    state = arcs.register(shape)
+    sources = np.array([0, 17, 200])
+    plain_rows = predictor.distances(state, sources)
+    rows = arcs.distances(state, sources)
+    points, faces = state.canonical_points, np.asarray(shape.faces)
+    graph = mesh_ring_graph(points, faces, MESH_RINGS, arcs=True)
+    expected = dijkstra(graph, directed=False, indices=sources)
+    expected /= calibration.mesh_bias * state.transform.scale
+    np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
+    assert (rows >= plain_rows - 1e-6).all() and (rows > plain_rows * (1 + 1e-4)).any()
+    np.testing.assert_allclose(predictor.distances(state, sources), plain_rows)
 
 
 def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypatch) -> None:
@@ -916,7 +943,7 @@ def test_agreement_is_the_network_against_its_own_graph(bundle_dir, blob, tmp_pa
     graph = fused.distances(state, sources).astype(np.float64)  # a mesh: its graph alone
     assert score == pytest.approx(np.abs(net - graph).mean() / graph.mean(), rel=1e-4)
     assert score > 0.0
-    assert "fusion.mesh_graph" in state._lazy  # kept for the fused queries
+    assert f"fusion.mesh_graph.{calibration.mesh_arcs}" in state._lazy  # kept for the fused queries
 
 
 def test_choose_model_weighs_the_agreement_beside_the_z_score() -> None:

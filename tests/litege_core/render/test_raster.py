@@ -19,7 +19,6 @@ from litege_core.render.raster import (
     fit_camera,
     rasterize_mesh,
     rasterize_points,
-    vertex_normals,
     view_axes,
 )
 
@@ -82,12 +81,6 @@ def test_point_splats_cover_and_shade(sphere):
     assert 0.3 < frags.mask.mean() < 0.8
     normals = frags.normals[frags.mask]
     assert np.all(np.linalg.norm(normals, axis=1) > 0.5)
-
-
-def test_vertex_normals_point_outwards(sphere):
-    vertices, faces = sphere
-    normals = vertex_normals(vertices, faces)
-    np.testing.assert_allclose(np.einsum("ij,ij->i", normals, vertices), 1.0, atol=0.02)
 
 
 def test_render_surface_scalar_field_goes_dark_to_bright(sphere):
