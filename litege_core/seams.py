@@ -74,8 +74,10 @@ def consistently_wound(faces: NDArray) -> bool:
     edge (one face) does not count against it; an edge of three faces or more (non-manifold)
     does."""
     half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    _, counts = np.unique(half, axis=0, return_counts=True)
-    return bool((counts == 1).all())
+    if half.shape[0] < 2:
+        return True
+    keys = np.sort(half[:, 0] * (int(half.max()) + 1) + half[:, 1])  # one int per directed edge
+    return bool((np.diff(keys) != 0).all())
 
 
 def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
@@ -83,8 +85,9 @@ def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    normals = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(normals, f[:, k], face_n)
+    corners = f.reshape(-1)
+    normals = np.stack(
+        [np.bincount(corners, np.repeat(face_n[:, i], 3), v.shape[0]) for i in range(3)], axis=1
+    )
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)

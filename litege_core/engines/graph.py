@@ -361,21 +361,20 @@ def mesh_ring_graph(
     ones = np.ones(len(half))  # repeated pairs add up: only membership matters
     step = sp.coo_array((ones, (half[:, 0], half[:, 1])), shape=(n, n)).tocsr()
     step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included
+    step.data[:] = 1.0  # membership only
     reach = step
     for _ in range(rings - 1):
         reach = reach @ step
         reach.data[:] = 1.0  # membership only: keeps the counts from growing
+    arcs = arcs and rings > 1 and consistently_wound(faces)
+    if arcs:
+        reach = reach + step  # an edge counts 2, a longer chord 1
     upper = sp.triu(reach, k=1, format="csr")
     upper.sort_indices()
     rows = np.repeat(np.arange(n), np.diff(upper.indptr))
     lengths = np.linalg.norm(points[rows] - points[upper.indices], axis=1)  # zeros stay entries
-    if arcs and rings > 1 and consistently_wound(faces):
-        edges = sp.triu(step, k=1, format="csr")
-        edges.sort_indices()
-        edge_keys = np.repeat(np.arange(n), np.diff(edges.indptr)) * n + edges.indices
-        keys = rows * n + upper.indices  # both sorted: row-major, columns sorted per row
-        found = np.minimum(np.searchsorted(edge_keys, keys), max(edge_keys.size - 1, 0))
-        chords = edge_keys[found] != keys if edge_keys.size else np.ones(keys.size, bool)
+    if arcs:
+        chords = upper.data < 1.5
         normals = vertex_normals(points, faces)
         lengths[chords] *= arc_factors(normals[rows[chords]], normals[upper.indices[chords]])
     return sp.csr_array((lengths, upper.indices.copy(), upper.indptr.copy()), shape=(n, n))
@@ -386,12 +385,13 @@ def arc_factors(normals_a: NDArray, normals_b: NDArray) -> NDArray:
     ``(M, 3)``: ``(θ/2) / sin(θ/2)`` with ``θ`` the angle between the normals (1 for
     parallel normals, π/2 for opposite ones, as across a thin part; 1 where either normal is
     zero: an unreferenced vertex)."""
-    cos = np.clip(np.einsum("ij,ij->i", normals_a, normals_b), -1.0, 1.0)
-    half = 0.5 * np.arccos(cos)
-    known = (np.abs(normals_a).sum(1) > 0) & (np.abs(normals_b).sum(1) > 0) & (half > 1e-8)
-    factors = np.ones(cos.shape[0])
-    factors[known] = half[known] / np.sin(half[known])
-    return factors
+    cos = np.einsum("ij,ij->i", normals_a, normals_b)
+    half_sine = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))  # sin(θ/2)
+    known = np.einsum("ij,ij->i", normals_a, normals_a) * np.einsum(
+        "ij,ij->i", normals_b, normals_b
+    )
+    bent = (half_sine > 1e-8) & (known > 0)
+    return np.where(bent, np.arcsin(half_sine) / np.where(bent, half_sine, 1.0), 1.0)
 
 
 class KnnGraphEngine(GeodesicEngine):

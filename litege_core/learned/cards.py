@@ -272,7 +272,14 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
             '(`fusion="auto"` of `Predictor(bundle)`, `NumpyPredictor`, `litege geodesic` and the '
             'service); `fusion="none"` / `--fusion none` / `LITEGE_GEODESIC_FUSION=none` answer '
             "with the network alone. A mesh is answered by a Dijkstra over chords between "
-            f"vertices at most {MESH_RINGS} edges apart (the network only between parts it "
+            f"vertices at most {MESH_RINGS} edges apart"
+            + (
+                ", each that is not an edge lengthened to the arc it spans, as the vertex "
+                "normals give it"
+                if data.get("mesh_arcs")
+                else ""
+            )
+            + " (the network only between parts it "
             "cannot join); on a point cloud the network's distances are blended with a "
             + (
                 f"Dijkstra over its mutual {data['mutual_k']}-nearest-neighbour graph (a chord "
