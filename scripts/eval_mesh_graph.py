@@ -4,7 +4,8 @@
 Usage::
 
     python scripts/eval_mesh_graph.py [--set tosca --set faust ...] [--dataset data/folder-cal ...]
-        [--rings 1,2,3] [--knn 16] [--sources 12] [--cache out/exact-cache]
+        [--rings 1,2,3] [--arcs] [--knn 16] [--sources 12] [--setting mesh]
+        [--cache out/exact-cache]
 
 Each graph's rows are divided by its median ratio to the truth over the shapes of a group (the
 fusion's bias correction; the calibrated bias comes from our generated shapes, this is the
@@ -12,6 +13,11 @@ best a constant can do), then scored as mean error with ground truth mean 100 pe
 the mean, the worst shape and the bias. ``--knn K`` adds the plain K-nearest-neighbour graph of
 the vertices (what a cloud of the same points gets: touching parts join). Real sets are the
 research-only dev sets; datasets are the test split of collection datasets we generate.
+``--arcs`` adds, for each ``R`` above 1, the same graph with its chords that are not edges
+lengthened to their arcs (``mesh_ring_graph(..., normals=arc_normals(...))``);
+``--setting decimated_N`` scores the meshes simplified to about N vertices against their own
+exact geodesics (:func:`~litege_core.evaluation.geodesic.make_input`) instead of the meshes as
+they are.
 """
 
 from __future__ import annotations
@@ -24,11 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from litege_core.engines.graph import dijkstra_rows, knn_graph, mesh_ring_graph
+from litege_core.engines.graph import arc_normals, dijkstra_rows, knn_graph, mesh_ring_graph
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
     EvalShape,
     collection_eval_shapes,
+    is_mesh_setting,
+    make_input,
     real_eval_shapes,
     real_shape_paths,
 )
@@ -56,11 +64,24 @@ def scored(rows: list[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float, flo
     return float(np.mean(errors)), float(np.max(errors)), bias
 
 
+def _as_eval_shape(shape: EvalShape, setting: str, index: int) -> EvalShape:
+    """``shape`` as ``setting`` makes it (seed ``index``, as ``evaluate_methods`` does), with
+    its own sources and exact rows."""
+    item = make_input(shape, setting, index)
+    faces = item.shape.faces
+    assert faces is not None  # a mesh setting
+    return EvalShape(
+        shape.name, shape.group, item.shape.vertices, faces, item.source_index, item.gt
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", action="append", default=[], choices=sorted(REAL_SETS))
     parser.add_argument("--dataset", action="append", default=[], help="collection dataset")
     parser.add_argument("--rings", default="1,2,3")
+    parser.add_argument("--arcs", action="store_true", help="add the arc-lengthened graphs")
+    parser.add_argument("--setting", default="mesh", help="mesh or decimated_N")
     parser.add_argument("--knn", type=int, default=16, help="0: no kNN row")
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--eval-root", default="../shared/eval-data")
@@ -80,22 +101,37 @@ def main() -> None:
             dataclasses.replace(s, sources=s.sources[: args.sources], gt=s.gt[: args.sources])
             for s in collection_eval_shapes(dataset, "test", group=name)
         ]
-    variants = [(f"{r}-ring chords", int(r)) for r in args.rings.split(",")]
+    if not is_mesh_setting(args.setting):
+        raise SystemExit(f"--setting must be mesh or decimated_N, got {args.setting!r}")
+    if args.setting != "mesh":
+        groups = {
+            group: [_as_eval_shape(s, args.setting, i) for i, s in enumerate(shapes)]
+            for group, shapes in groups.items()
+        }
+    rings = [int(r) for r in args.rings.split(",")]
+    variants: list[tuple[str, int | None, bool]] = [(f"{r}-ring chords", r, False) for r in rings]
+    if args.arcs:
+        variants += [(f"{r}-ring arcs", r, True) for r in rings if r > 1]
     if args.knn:
-        variants.append((f"{args.knn}-NN graph of the vertices", None))
+        variants.append((f"{args.knn}-NN graph of the vertices", None, False))
     lines = [
-        "| shapes | n | " + " | ".join(name for name, _ in variants) + " |",
+        "| shapes | n | " + " | ".join(name for name, _, _ in variants) + " |",
         "|---|---:|" + "---:|" * len(variants),
     ]
     for group, shapes in groups.items():
         cells = []
-        for _, rings in variants:
+        for _, ring_count, arcs in variants:
             rows = [
                 shape_rows(
                     s,
                     knn_graph(s.vertices, args.knn)
-                    if rings is None
-                    else mesh_ring_graph(s.vertices, s.faces, rings),
+                    if ring_count is None
+                    else mesh_ring_graph(
+                        s.vertices,
+                        s.faces,
+                        ring_count,
+                        normals=arc_normals(s.vertices, s.faces) if arcs else None,
+                    ),
                 )
                 for s in shapes
             ]
@@ -105,7 +141,8 @@ def main() -> None:
     command = "python scripts/eval_mesh_graph.py " + " ".join(
         [f"--set {s}" for s in args.set]
         + [f"--dataset {d}" for d in args.dataset]
-        + [f"--rings {args.rings} --knn {args.knn} --sources {args.sources}"]
+        + [f"--rings {args.rings}" + (" --arcs" if args.arcs else "")]
+        + [f"--knn {args.knn} --sources {args.sources} --setting {args.setting}"]
     )
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine {cpu_name()}; exact rows from "

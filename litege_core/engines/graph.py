@@ -318,8 +318,17 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
     return edge_graph(n, pairs, distances[pairs[:, 0], pairs[:, 1]])
 
 
+def arc_normals(points: NDArray, faces: NDArray) -> NDArray | None:
+    """``(N, 3)`` vertex normals of a mesh with its seams welded, for the arcs of
+    :func:`mesh_ring_graph`; ``None`` where its faces are not consistently wound
+    (:func:`~litege_core.seams.consistently_wound`: summed normals may cancel). A seam copy's
+    normal is zero (its arcs are chords)."""
+    faces = seam_welds(points, faces)[np.asarray(faces, dtype=np.int64)]
+    return vertex_normals(points, faces) if consistently_wound(faces) else None
+
+
 def mesh_ring_graph(
-    points: NDArray, faces: NDArray, rings: int = 2, *, arcs: bool = False
+    points: NDArray, faces: NDArray, rings: int = 2, *, normals: NDArray | None = None
 ) -> sp.csr_array:
     """Chords between the vertices of a triangle mesh that are at most ``rings`` edges apart.
 
@@ -333,18 +342,17 @@ def mesh_ring_graph(
     across them. Coincident vertices inside a closed surface stay apart: they are where two
     parts touch.
 
-    With ``arcs``, a chord that is not a mesh edge is lengthened to the arc it spans
-    (:func:`arc_factors`: the circle whose tangents at its ends are perpendicular to the vertex
-    normals there), so it no longer cuts through a curved part: on a coarse mesh, where two
-    rings span a good part of a leg, plain chords make every path short. Only on a consistently
-    wound mesh (:func:`~litege_core.seams.consistently_wound`: its vertex normals do not
-    cancel); on another, the chords stay as they are.
+    With ``normals`` (:func:`arc_normals`), a chord that is not a mesh edge is lengthened to the
+    arc it spans (:func:`arc_factors`: the circle whose tangents at its ends are perpendicular
+    to the normals there), so it no longer cuts through a curved part: on a coarse mesh, where
+    two rings span a good part of a leg, plain chords make every path short.
 
     Args:
         points: ``(N, 3)`` float64 vertices.
         faces: ``(F, 3)`` int triangles into ``points``.
         rings: largest number of mesh edges between two joined vertices (≥ 1).
-        arcs: lengthen the chords that are not edges to their arcs.
+        normals: ``(N, 3)`` vertex normals to lengthen the chords that are not edges to their
+            arcs with, or ``None``: plain chords.
 
     Returns:
         ``(N, N)`` upper-triangular CSR of chord (or arc) lengths, one entry per joined pair
@@ -366,7 +374,7 @@ def mesh_ring_graph(
     for _ in range(rings - 1):
         reach = reach @ step
         reach.data[:] = 1.0  # membership only: keeps the counts from growing
-    arcs = arcs and rings > 1 and consistently_wound(faces)
+    arcs = normals is not None and rings > 1
     if arcs:
         reach = reach + step  # an edge counts 2, a longer chord 1
     upper = sp.triu(reach, k=1, format="csr")
@@ -374,8 +382,8 @@ def mesh_ring_graph(
     rows = np.repeat(np.arange(n), np.diff(upper.indptr))
     lengths = np.linalg.norm(points[rows] - points[upper.indices], axis=1)  # zeros stay entries
     if arcs:
+        assert normals is not None  # arcs says so
         chords = upper.data < 1.5
-        normals = vertex_normals(points, faces)
         lengths[chords] *= arc_factors(normals[rows[chords]], normals[upper.indices[chords]])
     return sp.csr_array((lengths, upper.indices.copy(), upper.indptr.copy()), shape=(n, n))
 
@@ -437,6 +445,7 @@ __all__ = [
     "DEFAULT_K",
     "KnnGraphEngine",
     "arc_factors",
+    "arc_normals",
     "dijkstra_path",
     "dijkstra_rows",
     "dijkstra_tree",

@@ -307,6 +307,9 @@ class ShapeGraph(NamedTuple):
     n_nodes: int
     """Distinct nodes: the mesh's vertices, or the cloud's points without its copies and twins
     (:func:`~litege_core.engines.graph.graph_nodes`): the ``N`` of the gate and the bias."""
+    normals: NDArray | None = None
+    """``(N, 3)`` vertex normals a mesh graph's arcs were measured with (free query points join
+    it by arcs too), or ``None``: plain chords."""
 
 
 def shape_graph(
@@ -334,6 +337,7 @@ def shape_graph(
         faces: ``(F, 3)`` of a mesh, or ``None``.
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph.ARCS``,
+            ``fusion.mesh_normals`` (:func:`~litege_core.engines.graph.arc_normals`),
             ``fusion.surface``, ``fusion.nodes``
             (:func:`~litege_core.engines.graph.graph_nodes`) and
             :func:`cloud_graph_key`.
@@ -341,14 +345,16 @@ def shape_graph(
         z_score: the shape's OOD z-score.
     """
     if faces is not None:
-        arcs = calibration.mesh_arcs
-        graph = kept.get(f"fusion.mesh_graph.{arcs}")
-        if graph is None:
-            from litege_core.engines.graph import mesh_ring_graph  # scipy: on first use
+        key, arcs = f"fusion.mesh_graph.{calibration.mesh_arcs}", calibration.mesh_arcs
+        if key not in kept:
+            from litege_core.engines.graph import arc_normals, mesh_ring_graph  # scipy: on use
 
-            graph = mesh_ring_graph(points, faces, MESH_RINGS, arcs=arcs)
-            kept[f"fusion.mesh_graph.{arcs}"] = graph
-        return ShapeGraph(graph, 0.0, points.shape[0])
+            if arcs and "fusion.mesh_normals" not in kept:
+                kept["fusion.mesh_normals"] = arc_normals(points, faces)
+            normals = kept["fusion.mesh_normals"] if arcs else None
+            kept[key] = mesh_ring_graph(points, faces, MESH_RINGS, normals=normals)
+        normals = kept["fusion.mesh_normals"] if arcs else None
+        return ShapeGraph(kept[key], 0.0, points.shape[0], normals)
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     vetoed = calibration.vetoes(z_score)
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
@@ -414,7 +420,9 @@ def fused_distances(
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
     KD-tree of ``points``, ``fusion.tree``, when free points join)."""
-    graph, roughness, n_nodes = shape_graph(points, faces, calibration, kept, veto_key, ood_score)
+    graph, roughness, n_nodes, normals = shape_graph(
+        points, faces, calibration, kept, veto_key, ood_score
+    )
     tree = None
     if src[0] is None or dst[0] is None:  # free points join through a KD-tree
         tree = kept.get("fusion.tree")
@@ -422,7 +430,7 @@ def fused_distances(
             from scipy.spatial import cKDTree
 
             tree = kept["fusion.tree"] = cKDTree(points)
-    rows = graph_rows(graph, points, src, dst, calibration.k, tree, edge_geodesics)
+    rows = graph_rows(graph, points, src, dst, calibration.k, tree, edge_geodesics, normals)
     mesh = faces is not None
     if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
         return rows / calibration.graph_bias(points.shape[0], mesh=True)
@@ -537,6 +545,7 @@ def graph_rows(
     k: int,
     tree: Any = None,
     edge_geodesics: EdgeGeodesics | None = None,
+    normals: NDArray | None = None,
 ) -> NDArray:
     """``(S, T)`` graph distances between query points (``inf`` where no path joins them).
 
@@ -544,7 +553,10 @@ def graph_rows(
     canonical coordinates for points that are not nodes. Such a free point joins the graph
     through chords to its ``k`` nearest points, and only as an end of its own paths: no path
     passes through another query point, so a row does not depend on what else a request asks
-    (a request split into blocks gets the same answers). Dijkstra runs from the smaller side.
+    (a request split into blocks gets the same answers). With a mesh graph's arc ``normals``
+    (:class:`ShapeGraph`), those chords are arcs too, measured with the normal of the free
+    point's nearest vertex: a point on a vertex is answered as that vertex. Dijkstra runs from
+    the smaller side.
     ``tree``: a ``scipy.spatial.cKDTree`` of ``points`` if the caller keeps one (built here
     otherwise). The cached ``graph`` is never changed.
 
@@ -553,7 +565,7 @@ def graph_rows(
     cut edge (its module docstring): the rows of the fully vetoed graph, exactly.
     """
     if not isinstance(graph, LazyVetoGraph):
-        return _graph_rows(graph, points, src, dst, k, tree, paths=False)[0]
+        return _graph_rows(graph, points, src, dst, k, tree, paths=False, normals=normals)[0]
     if edge_geodesics is None:
         raise InputError("a lazily vetoed graph needs the veto's edge geodesics")
     n = points.shape[0]
@@ -580,6 +592,7 @@ def _graph_rows(
     k: int,
     tree: Any,
     paths: bool,
+    normals: NDArray | None = None,
 ) -> tuple[NDArray, tuple[NDArray, NDArray] | None]:
     """:func:`graph_rows` on a plain graph; with ``paths``, also what its shortest paths
     are read from: the ``(U, M)`` Dijkstra predecessors and the ``(F,)`` far node ids
@@ -591,7 +604,7 @@ def _graph_rows(
     near, far = (dst, src) if flip else (src, dst)
     directed = not (near[0] is not None and far[0] is not None)
     if directed:  # free points: the directed graph of _with_free_points
-        graph, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree)
+        graph, near_ids, far_ids = _with_free_points(graph, points, near, far, k, tree, normals)
     else:  # nodes only: the graph as it is
         near_ids, far_ids = (np.asarray(q[0], dtype=np.int64) for q in (near, far))
     unique, order = np.unique(near_ids, return_inverse=True)
@@ -612,9 +625,11 @@ def _with_free_points(
     far: tuple[NDArray | None, NDArray],
     k: int,
     tree: Any,
+    normals: NDArray | None = None,
 ) -> tuple[sp.csr_array, NDArray, NDArray]:
     """The directed graph of :func:`graph_rows` with free query points, and the node ids of the
-    ``near`` and ``far`` queries in it.
+    ``near`` and ``far`` queries in it (chords lengthened to arcs with ``normals``, each free
+    point taking its nearest point's).
 
     ``graph`` (upper-triangular ``(n, n)`` CSR, as :func:`~litege_core.engines.graph.edge_graph`
     builds it) becomes both directions of every edge; each free ``near`` point a new node with
@@ -640,6 +655,11 @@ def _with_free_points(
         chords, nearest = tree.query(canonical, k=neighbours)
         chords = chords.reshape(len(canonical), neighbours).reshape(-1)
         nearest = nearest.reshape(len(canonical), neighbours).reshape(-1)
+        if normals is not None:
+            from litege_core.engines.graph import arc_factors
+
+            own = np.repeat(nearest.reshape(len(canonical), neighbours)[:, 0], neighbours)
+            chords = chords * arc_factors(normals[own], normals[nearest])
         nodes = n + n_free + np.arange(len(canonical))
         n_free += len(canonical)
         free = np.repeat(nodes, neighbours)

@@ -249,8 +249,10 @@ class ResolvedPoints:
 
 def _fusion_nbytes(value: Any) -> int:
     """Bytes of one thing the graph fusion keeps with a state: a sparse graph, a cloud's
-    lazily vetoed graph, the ``(roughness, normals)`` pair, the veto's feature rows or a k-d
-    tree (its points and index)."""
+    lazily vetoed graph, the ``(roughness, normals)`` pair, a mesh's vertex normals, the veto's
+    feature rows or a k-d tree (its points and index)."""
+    if isinstance(value, np.ndarray):  # a mesh's vertex normals
+        return int(value.nbytes)
     if hasattr(value, "indptr"):  # a CSR graph
         return int(value.data.nbytes + value.indices.nbytes + value.indptr.nbytes)
     if isinstance(value, tuple):  # (roughness, normals) or (veto features, each point's row)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from litege_core.engines.graph import knn_graph, mesh_ring_graph
+from litege_core.engines.graph import arc_normals, knn_graph, mesh_ring_graph
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import Predictor, load_bundle
 from litege_core.learned.fusion import (
@@ -666,12 +666,19 @@ def test_a_mesh_fuses_with_the_arcs_its_calibration_chooses(bundle_dir, blob) ->
     plain_rows = predictor.distances(state, sources)
     rows = arcs.distances(state, sources)
     points, faces = state.canonical_points, np.asarray(shape.faces)
-    graph = mesh_ring_graph(points, faces, MESH_RINGS, arcs=True)
+    graph = mesh_ring_graph(points, faces, MESH_RINGS, normals=arc_normals(points, faces))
     expected = dijkstra(graph, directed=False, indices=sources)
     expected /= calibration.mesh_bias * state.transform.scale
     np.testing.assert_allclose(rows, expected, rtol=1e-5, atol=1e-5)
     assert (rows >= plain_rows - 1e-6).all() and (rows > plain_rows * (1 + 1e-4)).any()
     np.testing.assert_allclose(predictor.distances(state, sources), plain_rows)
+    # points given by their positions, on vertices, are answered as those vertices
+    on_vertices = np.asarray(shape.vertices)[sources]
+    np.testing.assert_allclose(arcs.distances(state, on_vertices), rows, rtol=1e-5, atol=1e-6)
+    targets = np.array([5, 90, 400])
+    by_index = arcs.distances(state, sources, targets)
+    by_point = arcs.distances(state, sources, np.asarray(shape.vertices)[targets])
+    np.testing.assert_allclose(by_point, by_index, rtol=1e-5, atol=1e-6)
 
 
 def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypatch) -> None:
