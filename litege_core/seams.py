@@ -80,6 +80,72 @@ def consistently_wound(faces: NDArray) -> bool:
     return bool((np.diff(keys) != 0).all())
 
 
+def oriented_faces(faces: NDArray) -> NDArray | None:
+    """``faces`` with some turned over (corners reversed) so that every edge exactly two of
+    them share is walked once each way: their normals agree on which side is out, as in a
+    consistently wound mesh (:func:`consistently_wound`, up to its non-manifold edges). Each
+    connected part keeps the winding of its first face; an edge of one face (a boundary) or of
+    three or more (non-manifold) constrains nothing. ``None`` where no choice of turns agrees
+    everywhere (a Möbius strip).
+
+    Args:
+        faces: ``(F, 3)`` int64 triangles.
+
+    Returns:
+        ``(F, 3)`` int64 triangles (a copy), or ``None``.
+    """
+    from scipy.sparse import coo_array
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    faces = np.asarray(faces, dtype=np.int64)
+    count = faces.shape[0]
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    if count == 0:
+        return faces.copy()
+    owner = np.tile(np.arange(count), 3)
+    low, high = half.min(axis=1), half.max(axis=1)
+    forward = half[:, 0] < half[:, 1]  # the face walks its edge from the lower vertex
+    key = low * (int(high.max()) + 1) + high
+    order = np.argsort(key, kind="stable")
+    sorted_keys = key[order]
+    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+    runs = np.diff(np.r_[starts, sorted_keys.size])
+    first, second = order[starts[runs == 2]], order[starts[runs == 2] + 1]
+    a, b = owner[first], owner[second]
+    same_way = forward[first] == forward[second]  # one of the two faces must turn over
+    # a breadth-first tree over the faces (a virtual root joins each part's first face)
+    shared = coo_array((np.ones(a.size), (a, b)), shape=(count, count))
+    _, labels = connected_components(shared, directed=False)
+    roots = np.unique(labels, return_index=True)[1]
+    tree = coo_array(
+        (
+            np.ones(a.size + roots.size),
+            (np.r_[a, np.full(roots.size, count)], np.r_[b, roots]),
+        ),
+        shape=(count + 1, count + 1),
+    )
+    _, predecessors = breadth_first_order(tree, count, directed=False, return_predecessors=True)
+    parent = predecessors[:count].astype(np.int64)
+    root = parent == count
+    parent[root] = np.flatnonzero(root)
+    # turn-over parity of each face relative to its parent, then to its part's first face
+    pair_keys = np.minimum(a, b) * count + np.maximum(a, b)
+    pair_order = np.argsort(pair_keys, kind="stable")
+    child = np.arange(count)
+    wanted = np.minimum(parent, child) * count + np.maximum(parent, child)
+    slot = np.searchsorted(pair_keys[pair_order], wanted)
+    slot = pair_order[np.minimum(slot, pair_order.size - 1)] if pair_order.size else slot
+    turn = np.where(root, False, same_way[slot] if same_way.size else False)
+    while not np.array_equal(parent, parent[parent]):  # pointer jumping: log2(depth) rounds
+        turn, parent = turn ^ turn[parent], parent[parent]
+    turn = turn ^ turn[parent]
+    if np.any(same_way != (turn[a] != turn[b])):  # some shared edge still walked one way
+        return None
+    oriented = faces.copy()
+    oriented[turn] = oriented[turn][:, ::-1]
+    return oriented
+
+
 def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
     """``(N, 3)`` area-weighted unit vertex normals (zero for unreferenced vertices)."""
     v = np.asarray(vertices, dtype=np.float64)

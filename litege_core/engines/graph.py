@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import dijkstra
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
 from litege_core.sampling import OUTLIER_NEIGHBOURS, first_copies
-from litege_core.seams import consistently_wound, seam_welds, vertex_normals
+from litege_core.seams import consistently_wound, oriented_faces, seam_welds, vertex_normals
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -320,11 +320,18 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
 
 def arc_normals(points: NDArray, faces: NDArray) -> NDArray | None:
     """``(N, 3)`` vertex normals of a mesh with its seams welded, for the arcs of
-    :func:`mesh_ring_graph`; ``None`` where its faces are not consistently wound
-    (:func:`~litege_core.seams.consistently_wound`: summed normals may cancel). A seam copy's
+    :func:`mesh_ring_graph`. Faces wound against their neighbours (a mesh with flipped
+    triangles, or non-manifold edges) are turned over first
+    (:func:`~litege_core.seams.oriented_faces`), so that summed normals do not cancel;
+    ``None`` where no turning does (a non-orientable surface: plain chords). A seam copy's
     normal is zero (its arcs are chords)."""
     faces = seam_welds(points, faces)[np.asarray(faces, dtype=np.int64)]
-    return vertex_normals(points, faces) if consistently_wound(faces) else None
+    if not consistently_wound(faces):
+        oriented = oriented_faces(faces)
+        if oriented is None:
+            return None
+        faces = oriented
+    return vertex_normals(points, faces)
 
 
 def mesh_ring_graph(

@@ -7,6 +7,7 @@ from litege_core.seams import (
     boundary_edge_fraction,
     boundary_vertices,
     consistently_wound,
+    oriented_faces,
     seam_welds,
     unique_edges,
     vertex_normals,
@@ -86,3 +87,69 @@ def test_consistent_winding_is_told_from_a_flipped_face():
     flipped[7] = flipped[7, ::-1]
     assert not consistently_wound(flipped)
     assert not consistently_wound(np.concatenate([faces, faces[:1]]))  # a face twice
+
+
+def _slow_orientation(faces: np.ndarray) -> np.ndarray | None:
+    """The reference: turn faces over one at a time, walking outwards from each part's first
+    face across the edges exactly two faces share; ``None`` on a conflict."""
+    sharing: dict[tuple[int, int], list[int]] = {}
+    for index, face in enumerate(faces.tolist()):
+        for edge in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
+            sharing.setdefault((min(edge), max(edge)), []).append(index)
+    neighbours: dict[int, list[int]] = {i: [] for i in range(len(faces))}
+    for pair in sharing.values():
+        if len(pair) == 2:
+            neighbours[pair[0]].append(pair[1])
+            neighbours[pair[1]].append(pair[0])
+    oriented: list[list[int] | None] = [None] * len(faces)
+
+    def walks(face: list[int]) -> set[tuple[int, int]]:
+        return {(face[0], face[1]), (face[1], face[2]), (face[2], face[0])}
+
+    for start in range(len(faces)):
+        if oriented[start] is not None:
+            continue
+        oriented[start] = faces[start].tolist()
+        queue = [start]
+        while queue:
+            current = queue.pop(0)
+            for other in neighbours[current]:
+                face = faces[other].tolist()
+                mine = walks(oriented[current])  # type: ignore[arg-type]
+                wanted = face if not (walks(face) & mine) else face[::-1]
+                if oriented[other] is None:
+                    oriented[other] = wanted
+                    queue.append(other)
+                elif walks(oriented[other]) & mine:  # type: ignore[arg-type]
+                    return None
+    return np.asarray(oriented)
+
+
+def _moebius_strip(segments: int = 12) -> np.ndarray:
+    faces = []
+    for i in range(segments):
+        a0, a1 = 2 * i, 2 * i + 1
+        b0, b1 = (2 * i + 2, 2 * i + 3) if i + 1 < segments else (1, 0)  # the half twist
+        faces += [[a0, b0, a1], [a1, b0, b1]]
+    return np.asarray(faces, dtype=np.int64)
+
+
+def test_faces_wound_against_their_neighbours_are_turned_over():
+    _, faces = _sphere()
+    turned = np.random.default_rng(3).random(len(faces)) < 0.3
+    turned[0] = False  # the part keeps its first face's winding
+    mixed = faces.copy()
+    mixed[turned] = mixed[turned][:, ::-1]
+    assert not consistently_wound(mixed)
+    oriented = oriented_faces(mixed)
+    assert oriented is not None and consistently_wound(oriented)
+    np.testing.assert_array_equal(oriented, faces)
+    np.testing.assert_array_equal(oriented, _slow_orientation(mixed))
+    # two parts, each its own first face; a non-manifold fin constrains nothing
+    two = np.concatenate([mixed, mixed[::-1] + faces.max() + 1])
+    fin = np.array([[faces[5, 0], faces[5, 1], two.max() + 1]])
+    oriented = oriented_faces(np.concatenate([two, fin]))
+    assert oriented is not None
+    np.testing.assert_array_equal(oriented, _slow_orientation(np.concatenate([two, fin])))
+    assert oriented_faces(_moebius_strip()) is None
+    assert _slow_orientation(_moebius_strip()) is None
