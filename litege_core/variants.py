@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from litege_core.errors import ArrayShapeError, ComputationError, MissingDependencyError
+from litege_core.errors import ArrayShapeError
 from litege_core.sampling import sample_surface
 from litege_core.validate import triangle_areas
 
@@ -88,24 +88,15 @@ def _edge_length_for(area: float, n_vertices: int) -> float:
 
 
 def _pymeshlab_remesh(vertices: NDArray, faces: NDArray, edge_length: float) -> tuple:
-    try:
-        import pymeshlab
-    except ImportError as exc:
-        raise MissingDependencyError(
-            "remeshing needs pymeshlab: pip install 'litege[data]'"
-        ) from exc
-    mesh_set = pymeshlab.MeshSet()
-    mesh_set.add_mesh(pymeshlab.Mesh(vertices, faces))
-    try:
-        mesh_set.meshing_isotropic_explicit_remeshing(
+    from litege_core.synth.meshops import run_pymeshlab  # the generators: on first use
+
+    return run_pymeshlab(
+        vertices,
+        faces,
+        "remeshing",
+        lambda mesh_set, pymeshlab: mesh_set.meshing_isotropic_explicit_remeshing(
             iterations=6, targetlen=pymeshlab.PureValue(edge_length), featuredeg=180.0
-        )
-    except pymeshlab.PyMeshLabException as exc:
-        raise ComputationError(f"remeshing failed: {exc}") from exc
-    result = mesh_set.current_mesh()
-    return (
-        np.asarray(result.vertex_matrix(), dtype=np.float64),
-        np.asarray(result.face_matrix(), dtype=np.int64),
+        ),
     )
 
 
@@ -167,24 +158,15 @@ def decimated_mesh(vertices: NDArray, faces: NDArray, n_vertices: int) -> tuple[
     """
     if n_vertices < 4:
         raise ArrayShapeError(f"n_vertices must be at least 4, got {n_vertices}")
-    try:
-        import pymeshlab
-    except ImportError as exc:
-        raise MissingDependencyError(
-            "decimation needs pymeshlab: pip install 'litege[data]'"
-        ) from exc
-    mesh_set = pymeshlab.MeshSet()
-    mesh_set.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces)))
-    try:  # a closed surface has about twice as many faces as vertices
-        mesh_set.meshing_decimation_quadric_edge_collapse(
+    from litege_core.synth.meshops import run_pymeshlab  # the generators: on first use
+
+    return run_pymeshlab(  # a closed surface has about twice as many faces as vertices
+        vertices,
+        faces,
+        "decimation",
+        lambda mesh_set, _: mesh_set.meshing_decimation_quadric_edge_collapse(
             targetfacenum=2 * int(n_vertices), preservetopology=True, planarquadric=True
-        )
-    except pymeshlab.PyMeshLabException as exc:
-        raise ComputationError(f"decimation failed: {exc}") from exc
-    result = mesh_set.current_mesh()
-    return (
-        np.asarray(result.vertex_matrix(), dtype=np.float64),
-        np.asarray(result.face_matrix(), dtype=np.int64),
+        ),
     )
 
 

@@ -8,7 +8,8 @@ ones take a :class:`numpy.random.Generator`.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -197,15 +198,42 @@ def largest_component_count(faces: NDArray, n_vertices: int) -> tuple[NDArray, i
     return labels, int(np.unique(labels[used]).size)
 
 
-def _pymeshlab():
+def _pymeshlab(action: str = "remeshing"):
     """The pymeshlab module, or MissingDependencyError naming the extra that installs it."""
     try:
         import pymeshlab
     except ImportError as exc:
         raise MissingDependencyError(
-            "remeshing needs pymeshlab: pip install 'litege[data]'"
+            f"{action} needs pymeshlab: pip install 'litege[data]'"
         ) from exc
     return pymeshlab
+
+
+def run_pymeshlab(
+    vertices: NDArray, faces: NDArray, action: str, apply: Callable[[Any, Any], None]
+) -> tuple[NDArray, NDArray]:
+    """One pymeshlab job on a mesh: ``apply(mesh_set, pymeshlab)`` runs its filters on a
+    ``MeshSet`` holding ``(vertices, faces)``.
+
+    Returns:
+        The resulting mesh: ``(V', 3)`` float64 vertices and ``(F', 3)`` int64 faces.
+
+    Raises:
+        MissingDependencyError: pymeshlab is not installed.
+        ComputationError: a filter failed (``action`` names the job).
+    """
+    pymeshlab = _pymeshlab(action)
+    mesh_set = pymeshlab.MeshSet()
+    mesh_set.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32)))
+    try:
+        apply(mesh_set, pymeshlab)
+    except pymeshlab.PyMeshLabException as exc:
+        raise ComputationError(f"{action} failed: {exc}") from exc
+    result = mesh_set.current_mesh()
+    return (
+        np.asarray(result.vertex_matrix(), dtype=np.float64),
+        np.asarray(result.face_matrix(), dtype=np.int64),
+    )
 
 
 def edge_length_for(area: float, n_vertices: int) -> float:
@@ -233,15 +261,13 @@ def remesh(
     Returns:
         ``(vertices (V', 3) float64, faces (F', 3) int64)``, unreferenced vertices removed.
     """
-    pymeshlab = _pymeshlab()
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int32)
     edge = edge_length_for(triangle_area_total(vertices, faces), target_vertices)
     best = None
     for _ in range(max(rounds, 1)):
-        mesh_set = pymeshlab.MeshSet()
-        mesh_set.add_mesh(pymeshlab.Mesh(vertices, faces))
-        try:
+
+        def apply(mesh_set: Any, pymeshlab: Any, edge: float = edge) -> None:
             mesh_set.meshing_isotropic_explicit_remeshing(
                 iterations=iterations,
                 targetlen=pymeshlab.PureValue(edge),
@@ -249,13 +275,8 @@ def remesh(
                 checksurfdist=False,
             )
             mesh_set.meshing_remove_unreferenced_vertices()
-        except pymeshlab.PyMeshLabException as exc:
-            raise ComputationError(f"remeshing failed: {exc}") from exc
-        result = mesh_set.current_mesh()
-        out = (
-            np.asarray(result.vertex_matrix(), dtype=np.float64),
-            np.asarray(result.face_matrix(), dtype=np.int64),
-        )
+
+        out = run_pymeshlab(vertices, faces, "remeshing", apply)
         ratio = out[0].shape[0] / target_vertices
         if best is None or abs(ratio - 1.0) < abs(best[0].shape[0] / target_vertices - 1.0):
             best = out
@@ -406,20 +427,13 @@ def subdivide_loop(
     vertices: NDArray, faces: NDArray, iterations: int = 1
 ) -> tuple[NDArray, NDArray]:
     """Loop subdivision (pymeshlab): smooths faceted low-poly surfaces before remeshing."""
-    pymeshlab = _pymeshlab()
-
-    mesh_set = pymeshlab.MeshSet()
-    mesh_set.add_mesh(pymeshlab.Mesh(np.asarray(vertices, float), np.asarray(faces, np.int32)))
-    try:
-        mesh_set.meshing_surface_subdivision_loop(
+    return run_pymeshlab(
+        vertices,
+        faces,
+        "subdivision",
+        lambda mesh_set, pymeshlab: mesh_set.meshing_surface_subdivision_loop(
             iterations=iterations, threshold=pymeshlab.PercentageValue(0.0)
-        )
-    except pymeshlab.PyMeshLabException as exc:
-        raise ComputationError(f"subdivision failed: {exc}") from exc
-    result = mesh_set.current_mesh()
-    return (
-        np.asarray(result.vertex_matrix(), dtype=np.float64),
-        np.asarray(result.face_matrix(), dtype=np.int64),
+        ),
     )
 
 
@@ -489,6 +503,7 @@ __all__ = [
     "min_angles",
     "remesh",
     "repair_manifold",
+    "run_pymeshlab",
     "smooth_stretch",
     "split_pinched_vertices",
     "subdivide_loop",
