@@ -384,15 +384,17 @@ def mesh_ring_graph(
     arcs = normals is not None and rings > 1
     if arcs:
         reach = reach + step  # an edge counts 2, a longer chord 1
-    upper = sp.triu(reach, k=1, format="csr")
-    upper.sort_indices()
-    rows = np.repeat(np.arange(n), np.diff(upper.indptr))
-    lengths = np.linalg.norm(points[rows] - points[upper.indices], axis=1)  # zeros stay entries
+    reach.sort_indices()
+    rows = np.repeat(np.arange(n), np.diff(reach.indptr))
+    above = reach.indices > rows  # the upper triangle, each row's columns still sorted
+    rows, cols, marks = rows[above], reach.indices[above].astype(np.int64), reach.data[above]
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
+    lengths = np.linalg.norm(points[rows] - points[cols], axis=1)  # zeros stay entries
     if arcs:
         assert normals is not None  # arcs says so
-        chords = upper.data < 1.5
-        lengths[chords] *= arc_factors(normals[rows[chords]], normals[upper.indices[chords]])
-    return sp.csr_array((lengths, upper.indices.copy(), upper.indptr.copy()), shape=(n, n))
+        chords = marks < 1.5
+        lengths[chords] *= arc_factors(normals[rows[chords]], normals[cols[chords]])
+    return sp.csr_array((lengths, cols, indptr), shape=(n, n))
 
 
 def arc_factors(normals_a: NDArray, normals_b: NDArray) -> NDArray:

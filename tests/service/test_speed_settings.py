@@ -97,37 +97,21 @@ def test_a_default_service_runs_each_shipped_models_speed_configuration(
     assert (ready["head"], ready["lattice"]) == ("small", "stride2")
 
 
-@pytest.mark.skipif(int8_engine() is None, reason="this torch build has no quantized engine")
-def test_an_int8_point_mlp_service_answers_as_the_library_does(live_service_factory, dog) -> None:
-    service = live_service_factory(geodesic_precision="int8", geodesic_fusion="none")
-    library = Predictor(
-        load_shipped(TEST_MODEL),
-        torch.device("cpu"),
-        precision="int8",
-        embed_precision="int8",
-        fusion="none",
-    )
-    with LiteGEClient(service.base_url) as client:
-        ready = client.ready()["models"][TEST_MODEL]
-        shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
-        field = client.geodesic(shape_id, [0])
-    service.stop()
-    assert (ready["precision"], ready["embed_precision"]) == ("int8", "int8")
-    expected = library.distances(library.register(dog), [0])
-    np.testing.assert_allclose(field, expected, rtol=1e-5, atol=1e-6)
-
-
-def test_an_auto_precision_service_runs_bfloat16_where_the_cpu_does(
-    live_service_factory, dog
+@pytest.mark.parametrize("precision", ["int8", "auto"])
+def test_a_reduced_precision_service_answers_as_the_library_does(
+    live_service_factory, dog, precision
 ) -> None:
-    """``LITEGE_GEODESIC_PRECISION=auto``: both products in bfloat16 where the CPU multiplies
-    it natively (AMX / AVX512-BF16), float32 elsewhere; the answers are the library's."""
-    service = live_service_factory(geodesic_precision="auto", geodesic_fusion="none")
+    """``LITEGE_GEODESIC_PRECISION=int8`` (the point MLP and the small head in dynamic int8)
+    or ``auto`` (both in bfloat16 where the CPU multiplies it natively, AMX / AVX512-BF16,
+    float32 elsewhere): the answers are the library's in the same arithmetic."""
+    if precision == "int8" and int8_engine() is None:
+        pytest.skip("this torch build has no quantized engine")
+    service = live_service_factory(geodesic_precision=precision, geodesic_fusion="none")
     library = Predictor(
         load_shipped(TEST_MODEL),
         torch.device("cpu"),
-        precision="auto",
-        embed_precision="auto",
+        precision=precision,
+        embed_precision=precision,
         fusion="none",
     )
     with LiteGEClient(service.base_url) as client:
@@ -135,7 +119,8 @@ def test_an_auto_precision_service_runs_bfloat16_where_the_cpu_does(
         shape_id = client.register_arrays(dog.vertices, dog.faces)["shape_id"]
         field = client.geodesic(shape_id, [0])
     service.stop()
-    expected_arithmetic = "bfloat16" if fast_bfloat16("cpu") else "float32"
-    assert (ready["precision"], ready["embed_precision"]) == (expected_arithmetic,) * 2
+    native = "bfloat16" if fast_bfloat16("cpu") else "float32"
+    arithmetic = {"int8": "int8", "auto": native}[precision]
+    assert (ready["precision"], ready["embed_precision"]) == (arithmetic, arithmetic)
     expected = library.distances(library.register(dog), [0])
     np.testing.assert_allclose(field, expected, rtol=1e-5, atol=1e-6)
