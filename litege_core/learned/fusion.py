@@ -15,17 +15,17 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                geodesic exceeds ``prune_ratio`` × its chord (the network vetoes shortcuts
                between touching parts; the veto is the bundle's small head where the
                calibration says so: it costs one head evaluation per edge, ~8 N for N
-               points) and, where the
-               calibration has normal limits, every edge whose chord runs along the surface
-               normal at either end, ``|n · ĉ| > c(N)`` (a chord across a thin part or a gap
-               between parts; ``n`` from the points' k-NN covariance, ``c(N)`` interpolated
-               in log10 N from calibration knots: looser on sparse clouds, whose chords bend
-               with the surface); where the calibration says so (``mutual_k``), the graph is
-               the *mutual* k-NN graph of that many neighbours instead (fewer chords across
-               thin parts: :func:`~litege_core.engines.graph.mutual_knn_graph`); no network
-               veto on a cloud whose OOD z-score exceeds ``veto_max_z`` (where the calibration
-               has one: the network's edge predictions on a shape it does not know cut true
-               surface edges, e.g. a torus at 300 points: 3.4 → 12.2)
+               points) and, where the calibration has normal limits, every edge whose chord
+               runs along the surface normal at either end, ``|n · ĉ| > c(N)`` (a chord
+               across a thin part or a gap between parts; ``n`` from the points' k-NN
+               covariance, ``c(N)`` interpolated in log10 N from calibration knots: looser on
+               sparse clouds, whose chords bend with the surface); where the calibration
+               says so (``mutual_k``), the graph is the *mutual* k-NN graph of that many
+               neighbours instead (fewer chords across thin parts:
+               :func:`~litege_core.engines.graph.mutual_knn_graph`); no network veto on a
+               cloud whose OOD z-score exceeds ``veto_max_z`` (where the calibration has one:
+               the network's edge predictions on a shape it does not know cut true surface
+               edges, e.g. a torus at 300 points: 3.4 → 12.2)
     b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
                b(N) at N cloud points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
