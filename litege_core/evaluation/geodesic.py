@@ -232,8 +232,8 @@ def generated_eval_shapes(
 
 SETTING_FORMS = (
     "mesh, cloud_N (N ≥ 1 points), noise_S (std S ≥ 0), cut_P (0 ≤ P < 100 %), outliers_P "
-    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %), twins_S (std S ≥ 0), uneven_A (A ≥ 0) or "
-    "decimated_N (N ≥ 4 vertices)"
+    "(P ≥ 0 %), repeats_P (0 ≤ P ≤ 100 %), twins_S (std S ≥ 0), uneven_A (A ≥ 0), "
+    "decimated_N (N ≥ 4 vertices) or meshnoise_S (std S ≥ 0)"
 )
 UNEVEN_CANDIDATES = 4
 """An ``uneven_A`` cloud is drawn from this many × its count of area-weighted samples."""
@@ -244,7 +244,8 @@ def parse_setting(setting: str) -> tuple[str, float]:
     ``("mesh", 0)``, ``"cloud_300"`` → ``("cloud", 300)``, ``"noise_0.01"`` →
     ``("noise", 0.01)``, ``"cut_10"`` → ``("cut", 10)``, ``"outliers_5"`` → ``("outliers", 5)``,
     ``"repeats_100"`` → ``("repeats", 100)``, ``"twins_0.001"`` → ``("twins", 0.001)``,
-    ``"uneven_3"`` → ``("uneven", 3)``, ``"decimated_1000"`` → ``("decimated", 1000)``.
+    ``"uneven_3"`` → ``("uneven", 3)``, ``"decimated_1000"`` → ``("decimated", 1000)``,
+    ``"meshnoise_0.002"`` → ``("meshnoise", 0.002)``.
 
     Raises:
         InputError: any other name; the message lists the valid forms.
@@ -262,7 +263,7 @@ def parse_setting(setting: str) -> tuple[str, float]:
             return kind, float(number)
         if kind == "outliers" or (kind == "repeats" and number <= 100):
             return kind, float(number)
-    elif kind in ("noise", "uneven", "twins"):
+    elif kind in ("noise", "uneven", "twins", "meshnoise"):
         try:
             amount = float(value)
         except ValueError:
@@ -276,8 +277,9 @@ def parse_setting(setting: str) -> tuple[str, float]:
 
 
 def is_mesh_setting(setting: str) -> bool:
-    """Whether the inputs of ``setting`` are meshes (``mesh``, ``decimated_N``), not clouds."""
-    return parse_setting(setting)[0] in ("mesh", "decimated")
+    """Whether the inputs of ``setting`` are meshes (``mesh``, ``decimated_N``,
+    ``meshnoise_S``), not clouds."""
+    return parse_setting(setting)[0] in ("mesh", "decimated", "meshnoise")
 
 
 def parse_settings(text: str | None) -> list[str]:
@@ -314,7 +316,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     (``"decimated_1000"``: quadric edge collapse, :func:`~litege_core.variants.decimated_mesh`,
     as a low-poly asset; a new surface, so its ground truth is its own exact geodesics from as
     many farthest-point sources, rescaled to unit area: not cached, seconds per shape at a few
-    thousand vertices).
+    thousand vertices), or the mesh with Gaussian noise of that std added to its vertices
+    (``"meshnoise_0.002"``, unit-area units: a raw scan's mesh; its ground truth stays the
+    clean surface's, vertex by vertex).
 
     Raises:
         InputError: a bad setting (see :func:`parse_setting`), or a cloud of fewer points
@@ -323,6 +327,9 @@ def make_input(shape: EvalShape, setting: str, seed: int) -> EvalInput:
     kind, value = parse_setting(setting)
     if kind == "mesh":
         return EvalInput(Shape.from_arrays(shape.vertices, shape.faces), shape.sources, shape.gt)
+    if kind == "meshnoise":  # the same vertices, moved; scored against the clean surface
+        noisy = Shape.from_arrays(add_noise(shape.vertices, value, seed), shape.faces)
+        return EvalInput(noisy, shape.sources, shape.gt)
     if kind == "decimated":
         vertices, faces = decimated_mesh(shape.vertices, shape.faces, int(value))
         vertices, _ = unit_area(vertices, faces)

@@ -121,6 +121,8 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
     assert parse_setting("repeats_100") == ("repeats", 100)
     assert parse_setting("twins_0.001") == ("twins", 0.001)
     assert parse_setting("decimated_1000") == ("decimated", 1000)
+    assert parse_setting("meshnoise_0.002") == ("meshnoise", 0.002)
+    assert is_mesh_setting("meshnoise_0.002")
     assert is_mesh_setting("decimated_1000") and is_mesh_setting("mesh")
     assert not is_mesh_setting("cloud_300")
     assert parse_settings(None) == list(SETTINGS) and parse_settings("mesh, cut_5") == [
@@ -144,6 +146,7 @@ def test_setting_names_are_parsed_in_one_place(eval_shape):
         "repeats_x",
         "decimated_3",
         "decimated_x",
+        "meshnoise_-1",
     ):
         with pytest.raises(InputError, match="cloud_N"):
             parse_setting(bad)
@@ -407,3 +410,14 @@ def test_a_decimated_mesh_is_scored_against_its_own_exact_geodesics(eval_shape):
     np.testing.assert_allclose(item.gt, exact)
     # the same surface, simplified: its farthest pair stays about as far apart
     assert item.gt.max() == pytest.approx(eval_shape.gt.max(), rel=0.05)
+
+
+def test_a_noisy_mesh_keeps_its_faces_and_the_clean_ground_truth(eval_shape):
+    item = make_input(eval_shape, "meshnoise_0.002", seed=1)
+    np.testing.assert_array_equal(item.shape.faces, eval_shape.faces)
+    moved = np.linalg.norm(item.shape.vertices - eval_shape.vertices, axis=1)
+    assert 0.001 < np.median(moved) < 0.006  # std 0.002 per axis
+    np.testing.assert_array_equal(item.source_index, eval_shape.sources)
+    np.testing.assert_array_equal(item.gt, eval_shape.gt)
+    again = make_input(eval_shape, "meshnoise_0.002", seed=1)
+    np.testing.assert_array_equal(again.shape.vertices, item.shape.vertices)  # seeded
