@@ -14,6 +14,13 @@ from numpy.typing import ArrayLike, NDArray
 from litege_core.sampling import first_copies
 
 
+def half_edges(faces: NDArray) -> NDArray:
+    """``(3F, 2)`` int64 directed edges of a triangle list: every face's three, as it walks
+    them (all first edges, then all second, then all third)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+
+
 def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
     """Undirected edges of a triangle list and how many faces use each.
 
@@ -24,8 +31,7 @@ def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
         ``edges (E, 2)`` int64 with ``edges[:, 0] < edges[:, 1]``, sorted lexicographically,
         and ``counts (E,)`` int64, the number of faces incident to each edge.
     """
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    half = np.sort(half, axis=1)
+    half = np.sort(half_edges(faces), axis=1)
     edges, counts = np.unique(half, axis=0, return_counts=True)
     return edges.astype(np.int64), counts.astype(np.int64)
 
@@ -65,15 +71,12 @@ def boundary_edge_fraction(faces: NDArray, vertices: NDArray | None = None) -> f
     return float((counts == 1).sum() / max(counts.size, 1))
 
 
-__all__ = ["boundary_edge_fraction", "boundary_vertices", "seam_welds", "unique_edges"]
-
-
 def consistently_wound(faces: NDArray) -> bool:
     """Whether no two faces walk an edge in the same direction: faces that share an edge
     agree on which side is out, so their normals summed at a vertex do not cancel. A boundary
     edge (one face) does not count against it; an edge of three faces or more (non-manifold)
     does."""
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    half = half_edges(faces)
     if half.shape[0] < 2:
         return True
     keys = np.sort(half[:, 0] * (int(half.max()) + 1) + half[:, 1])  # one int per directed edge
@@ -99,7 +102,7 @@ def oriented_faces(faces: NDArray) -> NDArray | None:
 
     faces = np.asarray(faces, dtype=np.int64)
     count = faces.shape[0]
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    half = half_edges(faces)
     if count == 0:
         return faces.copy()
     owner = np.tile(np.arange(count), 3)
@@ -157,3 +160,15 @@ def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray:
     )
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+__all__ = [
+    "boundary_edge_fraction",
+    "boundary_vertices",
+    "consistently_wound",
+    "half_edges",
+    "oriented_faces",
+    "seam_welds",
+    "unique_edges",
+    "vertex_normals",
+]

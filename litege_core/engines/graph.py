@@ -20,7 +20,13 @@ from scipy.sparse.csgraph import dijkstra
 from litege_core.engines.base import GeodesicEngine, ParamValue
 from litege_core.errors import InputError
 from litege_core.sampling import OUTLIER_NEIGHBOURS, first_copies
-from litege_core.seams import consistently_wound, oriented_faces, seam_welds, vertex_normals
+from litege_core.seams import (
+    consistently_wound,
+    half_edges,
+    oriented_faces,
+    seam_welds,
+    vertex_normals,
+)
 from litege_core.shape import Shape
 
 DEFAULT_K = 8
@@ -370,9 +376,7 @@ def mesh_ring_graph(
     first = seam_welds(points, faces)
     copies = np.flatnonzero(first != np.arange(n))
     faces = first[faces]  # welded: a position's first copy
-    half = np.concatenate(
-        [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]], np.stack([first[copies], copies], 1)]
-    )
+    half = np.concatenate([half_edges(faces), np.stack([first[copies], copies], 1)])
     ones = np.ones(len(half))  # repeated pairs add up: only membership matters
     step = sp.coo_array((ones, (half[:, 0], half[:, 1])), shape=(n, n)).tocsr()
     step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included

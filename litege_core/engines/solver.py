@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Self
 
 import numpy as np
@@ -610,7 +611,6 @@ class ClassicalSolver:
         self._projector: MeshProjector | CloudProjector | None = None
         self._last: tuple[bytes, _Domain, NDArray] | None = None
         self._last_projection: tuple[bytes, NDArray, NDArray] | None = None
-        self._welds: tuple[NDArray | None] | None = None  # (seam welds or None), once known
 
     # ------------------------------------------------------------------ properties
 
@@ -707,23 +707,20 @@ class ClassicalSolver:
         """Node ids of each query on the domain that answers them all (``None``: all); a mesh's
         seam copy is answered as its first copy (:func:`~litege_core.seams.seam_welds`)."""
         domain, nodes = self._resolve_nodes(queries)
-        welds = self._seam_welds()
+        welds = self._seam_welds
         if welds is not None:  # the shape's vertices are the domain's first nodes
             n = welds.size
             nodes = [np.where(q < n, welds[np.minimum(q, n - 1)], q) for q in nodes]
         return domain, nodes
 
+    @cached_property
     def _seam_welds(self) -> NDArray | None:
         """A mesh's :func:`~litege_core.seams.seam_welds` where it has seam copies, else
         ``None`` (computed once; cheap where no position repeats: no topology is built)."""
-        if self._welds is None:
-            welds = None
-            if self._shape.faces is not None:
-                welds = seam_welds(np.asarray(self._shape.vertices), self._shape.faces)
-                if np.array_equal(welds, np.arange(welds.size)):
-                    welds = None
-            self._welds = (welds,)
-        return self._welds[0]
+        if self._shape.faces is None:
+            return None
+        welds = seam_welds(np.asarray(self._shape.vertices), self._shape.faces)
+        return None if np.array_equal(welds, np.arange(welds.size)) else welds
 
     def _resolve_nodes(self, queries: list[PointQuery]) -> tuple[_Domain, list[NDArray]]:
         """:meth:`_resolve` before the welding."""

@@ -17,6 +17,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 from litege_core.errors import ComputationError, DegenerateShapeError, MissingDependencyError
+from litege_core.seams import half_edges
 
 
 class Welded(NamedTuple):
@@ -130,7 +131,7 @@ def min_angles(vertices: NDArray, faces: NDArray) -> NDArray:
 def manifold_report(vertices: NDArray, faces: NDArray) -> ManifoldReport:
     """Check the topology of ``faces`` (``(F, 3)``) on ``vertices (V, 3)``."""
     faces = np.asarray(faces, dtype=np.int64)
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    half = half_edges(faces)
     undirected = np.sort(half, axis=1)
     _, edge_count = np.unique(undirected, axis=0, return_counts=True)
     _, directed_count = np.unique(half, axis=0, return_counts=True)
@@ -156,7 +157,7 @@ def _corner_groups(faces: NDArray) -> NDArray | None:
     edge has more than two faces."""
     faces = np.asarray(faces, dtype=np.int64)
     n_faces = faces.shape[0]
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    half = half_edges(faces)
     _, edge_index, counts = np.unique(
         np.sort(half, axis=1), axis=0, return_inverse=True, return_counts=True
     )

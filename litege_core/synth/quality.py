@@ -9,27 +9,22 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-
-def edges_with_counts(faces: NDArray) -> tuple[NDArray, NDArray]:
-    """Unique undirected edges ``(E, 2)`` and the number of faces on each ``(E,)``."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    return np.unique(e, axis=0, return_counts=True)
+from litege_core.seams import consistently_wound, unique_edges
 
 
 def euler_characteristic(faces: NDArray) -> int:
     """V − E + F over the vertices referenced by ``faces``."""
-    edges, _ = edges_with_counts(faces)
+    edges, _ = unique_edges(faces)
     return int(len(np.unique(faces)) - len(edges) + len(faces))
 
 
 def is_closed_manifold(faces: NDArray) -> bool:
     """Every edge has exactly two faces, used once in each direction, and every vertex's
     faces form a single fan (no pinched vertices)."""
-    _, counts = edges_with_counts(faces)
+    _, counts = unique_edges(faces)
     if np.any(counts != 2):
         return False
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    if len(np.unique(directed, axis=0)) != len(directed):
+    if not consistently_wound(faces):
         return False  # inconsistent orientation
     # Pinched vertices: the link of each vertex must be one cycle. In a closed oriented
     # mesh, follow next-edges around each vertex and compare the cycle length with its degree.
@@ -83,7 +78,7 @@ def mesh_report(vertices: NDArray, faces: NDArray) -> dict[str, float | int | bo
     """Counts, topology and triangle-quality statistics (angles in degrees)."""
     angles = triangle_angles(vertices, faces)
     aspect = aspect_ratios(vertices, faces)
-    edges, _ = edges_with_counts(faces)
+    edges, _ = unique_edges(faces)
     lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     return {
         "vertices": len(vertices),
@@ -117,7 +112,7 @@ def self_intersections(vertices: NDArray, faces: NDArray) -> NDArray:
     p = vertices[faces]
     centroid = p.mean(axis=1)
     radius = np.linalg.norm(p - centroid[:, None], axis=2).max(axis=1)
-    edges, _ = edges_with_counts(faces)
+    edges, _ = unique_edges(faces)
     a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
     mid = 0.5 * (a + b)
     half = 0.5 * np.linalg.norm(b - a, axis=1)
@@ -162,7 +157,6 @@ def _segment_hits_triangle(a: NDArray, b: NDArray, tri: NDArray, eps: float = 1e
 
 __all__ = [
     "aspect_ratios",
-    "edges_with_counts",
     "euler_characteristic",
     "is_closed_manifold",
     "mesh_report",

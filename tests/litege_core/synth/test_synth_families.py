@@ -5,6 +5,7 @@ import pytest
 
 from litege_core import synth
 from litege_core.errors import InputError
+from litege_core.seams import unique_edges
 from litege_core.synth import quality, shape_space
 
 
@@ -74,7 +75,7 @@ def test_relative_family_traits() -> None:
 
 
 def _edge_log_ratio(a: np.ndarray, b: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    edges, _ = quality.edges_with_counts(faces)
+    edges, _ = unique_edges(faces)
     ua, ub = quality.unit_area(a, faces), quality.unit_area(b, faces)
     la = np.linalg.norm(ua[edges[:, 0]] - ua[edges[:, 1]], axis=1)
     lb = np.linalg.norm(ub[edges[:, 0]] - ub[edges[:, 1]], axis=1)
