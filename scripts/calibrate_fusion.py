@@ -14,7 +14,9 @@ network / pruned graph / fused errors per setting (each density's normal limit i
 candidate whose graph errs least there; ``--normal-cos 1`` fits none; of the ``--prune-ratio``
 and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused error is kept; of the
 ``--mesh-arcs`` candidates (a mesh's ring graph with plain chords, 0, or chords lengthened to
-their arcs, 1), the one whose bias-corrected mesh rows err least (``choose_mesh_arcs``); then
+their arcs, 1), the one whose bias-corrected clean-mesh rows err least (``choose_mesh_arcs``;
+the noisy meshes of the ``meshnoise_S`` settings give that graph's bias its noise knots,
+``mesh_noise_knots``); then
 the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
 the lowest mean fused error (within 1 %), never below the highest OOD z-score of the other
 calibration shapes. The test split of every ``--ood-dataset`` (shapes of no training family,
@@ -61,7 +63,11 @@ from litege_core.evaluation.fusion import (
     fusion_table,
     mean_fused_error,
 )
-from litege_core.evaluation.geodesic import dataset_eval_shapes, generated_eval_shapes
+from litege_core.evaluation.geodesic import (
+    dataset_eval_shapes,
+    generated_eval_shapes,
+    is_mesh_setting,
+)
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_model
 from litege_core.learned.cards import write_sidecar_section
@@ -183,7 +189,7 @@ def main() -> None:
     limits = sorted(float(c) for c in args.normal_cos.split(","))
     mutuals = sorted(int(m) for m in args.mutual_k.split(","))
     arcs_tried = sorted({bool(int(a)) for a in args.mesh_arcs.split(",")})
-    mesh_settings = [s for s in settings if s == "mesh"]
+    mesh_settings = [s for s in settings if is_mesh_setting(s)]
     by_arcs = {  # one variant: the mesh graph does not depend on the cloud graph's
         arcs: next(
             iter(
@@ -194,11 +200,14 @@ def main() -> None:
         )
         for arcs in arcs_tried
     }
-    mesh_arcs, arcs_errors = choose_mesh_arcs(by_arcs) if mesh_settings else (False, {})
+    clean_meshes = {  # the graph is chosen on clean meshes; noise moves its bias only
+        arcs: [s for s in samples if s.setting == "mesh"] for arcs, samples in by_arcs.items()
+    }
+    mesh_arcs, arcs_errors = choose_mesh_arcs(clean_meshes) if "mesh" in settings else (False, {})
     by_variant = collect_samples(
         predictor,
         shapes,
-        [s for s in settings if s != "mesh"],
+        [s for s in settings if not is_mesh_setting(s)],
         k=args.k,
         prune_ratios=ratios,
         normal_limits=limits,
@@ -286,7 +295,19 @@ def main() -> None:
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart"
         + (", lengthened to their arcs" if calibration.mesh_arcs else "")
-        + f"; median graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)\n"
+        + f"; median graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)"
+        + (
+            "; with vertex noise ν: "
+            + ", ".join(
+                f"ν {x:.3f}: {b:.4f}"
+                for x, b in zip(
+                    calibration.mesh_noise_knots, calibration.mesh_noise_bias, strict=True
+                )
+            )
+            if calibration.mesh_noise_knots
+            else ""
+        )
+        + "\n"
     )
     if len(arcs_errors) > 1:
         tried = ", ".join(

@@ -16,8 +16,10 @@ research-only dev sets; datasets are the test split of collection datasets we ge
 ``--arcs`` adds, for each ``R`` above 1, the same graph with its chords that are not edges
 lengthened to their arcs (``mesh_ring_graph(..., normals=arc_normals(...))``);
 ``--setting decimated_N`` scores the meshes simplified to about N vertices against their own
-exact geodesics (:func:`~litege_core.evaluation.geodesic.make_input`) instead of the meshes as
-they are.
+exact geodesics (:func:`~litege_core.evaluation.geodesic.make_input`), ``--setting
+meshnoise_S`` the meshes with vertex noise against the clean surface's, instead of the meshes
+as they are. The ``ν`` column is the group's median vertex noise
+(:func:`~litege_core.learned.fusion.mesh_noise`, what a fusion's mesh bias reads).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from litege_core.evaluation.geodesic import (
     real_shape_paths,
 )
 from litege_core.evaluation.speed import cpu_name
+from litege_core.learned.fusion import mesh_noise
 from litege_core.metrics import geodesic_error
 
 
@@ -81,7 +84,7 @@ def main() -> None:
     parser.add_argument("--dataset", action="append", default=[], help="collection dataset")
     parser.add_argument("--rings", default="1,2,3")
     parser.add_argument("--arcs", action="store_true", help="add the arc-lengthened graphs")
-    parser.add_argument("--setting", default="mesh", help="mesh or decimated_N")
+    parser.add_argument("--setting", default="mesh", help="mesh, decimated_N or meshnoise_S")
     parser.add_argument("--knn", type=int, default=16, help="0: no kNN row")
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--eval-root", default="../shared/eval-data")
@@ -102,7 +105,9 @@ def main() -> None:
             for s in collection_eval_shapes(dataset, "test", group=name)
         ]
     if not is_mesh_setting(args.setting):
-        raise SystemExit(f"--setting must be mesh or decimated_N, got {args.setting!r}")
+        raise SystemExit(
+            f"--setting must be mesh, decimated_N or meshnoise_S, got {args.setting!r}"
+        )
     if args.setting != "mesh":
         groups = {
             group: [_as_eval_shape(s, args.setting, i) for i, s in enumerate(shapes)]
@@ -115,8 +120,8 @@ def main() -> None:
     if args.knn:
         variants.append((f"{args.knn}-NN graph of the vertices", None, False))
     lines = [
-        "| shapes | n | " + " | ".join(name for name, _, _ in variants) + " |",
-        "|---|---:|" + "---:|" * len(variants),
+        "| shapes | n | ν | " + " | ".join(name for name, _, _ in variants) + " |",
+        "|---|---:|---:|" + "---:|" * len(variants),
     ]
     for group, shapes in groups.items():
         cells = []
@@ -137,7 +142,8 @@ def main() -> None:
             ]
             mean, worst, bias = scored(rows)
             cells.append(f"{mean:.2f} (worst {worst:.2f}, bias {bias:.3f})")
-        lines.append(f"| {group} | {len(shapes)} | " + " | ".join(cells) + " |")
+        noise = float(np.median([mesh_noise(s.vertices, s.faces) for s in shapes]))
+        lines.append(f"| {group} | {len(shapes)} | {noise:.3f} | " + " | ".join(cells) + " |")
     command = "python scripts/eval_mesh_graph.py " + " ".join(
         [f"--set {s}" for s in args.set]
         + [f"--dataset {d}" for d in args.dataset]

@@ -69,7 +69,12 @@ def graph_row(samples: list[FusionSample], calibration: FusionCalibration) -> tu
     absolute, signed = [], []
     for sample in samples:
         graph = corrected_graph(
-            sample.network, sample.graph, calibration, sample.n_points, sample.mesh
+            sample.network,
+            sample.graph,
+            calibration,
+            sample.n_points,
+            sample.mesh,
+            sample.roughness,
         )
         residual = graph - sample.truth
         scale = float(sample.truth.mean()) / 100.0

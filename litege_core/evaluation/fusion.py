@@ -4,8 +4,9 @@ The calibration shapes are ones we generate (held-out procedural shapes, rigged 
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
-the same median over the mesh inputs, whose graph follows the mesh's connectivity, and which
-the graph answers alone), and the four cloud gate constants minimise the mean per-shape error
+the same median over the clean meshes, whose graph follows the mesh's connectivity, and which
+the graph answers alone; its noise knots: the same median and the median vertex noise of each
+noisy-mesh setting), and the four cloud gate constants minimise the mean per-shape error
 of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
 is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
 density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count. The
@@ -27,7 +28,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import EvalShape, make_input
-from litege_core.learned.fusion import MESH_RINGS, FusionCalibration, fuse, surface_roughness
+from litege_core.learned.fusion import (
+    MESH_RINGS,
+    FusionCalibration,
+    fuse,
+    mesh_noise,
+    surface_roughness,
+)
 from litege_core.metrics import geodesic_error
 
 CALIBRATION_SETTINGS = (
@@ -40,9 +47,13 @@ CALIBRATION_SETTINGS = (
     "noise_0.005",
     "noise_0.01",
     "noise_0.02",
+    "meshnoise_0.002",
+    "meshnoise_0.004",
+    "meshnoise_0.008",
 )
-"""Inputs the calibration covers: the mesh, clean clouds from dense to sparse and 2000-point
-clouds with three noise levels (unit-area units)."""
+"""Inputs the calibration covers: the mesh, clean clouds from dense to sparse, 2000-point
+clouds with three noise levels and the mesh with three levels of vertex noise (unit-area
+units; ~0.1–0.5 of the calibration meshes' edge length)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
@@ -80,7 +91,9 @@ large one: the bound is a constraint)."""
 @dataclass(frozen=True)
 class FusionSample:
     """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit), with the
-    gate's inputs (mesh or cloud, OOD z-score, point count, surface roughness)."""
+    gate's inputs (mesh or cloud, OOD z-score, point count, surface roughness: a cloud's
+    :func:`~litege_core.learned.fusion.surface_roughness`, a mesh's
+    :func:`~litege_core.learned.fusion.mesh_noise`)."""
 
     shape: str
     group: str
@@ -227,8 +240,12 @@ def _collect(
             item = make_input(shape, setting, seed + i)
             state = predictor.register(item.shape, seed=seed)
             network = predictor.distances(state, item.source_index).astype(np.float64)
-            roughness = surface_roughness(state.canonical_points)
             mesh = state.faces is not None
+            roughness = (
+                mesh_noise(state.canonical_points, state.faces)
+                if mesh
+                else surface_roughness(state.canonical_points)
+            )
             unvetoed_rows.clear()
             for key, (vetoed_reader, unvetoed_reader) in readers.items():
                 graph = vetoed_reader.distances(state, item.source_index).astype(np.float64)
@@ -276,7 +293,8 @@ def choose_mesh_arcs(
     mean per-shape error (plain chords on a tie), and each candidate's error.
 
     ``by_arcs``: ``{mesh_arcs: mesh samples}`` (:func:`collect_samples` of the ``"mesh"``
-    setting with each value).
+    setting with each value: clean meshes, the inputs a mesh graph is chosen for; vertex
+    noise only moves its bias, :func:`mesh_noise_knots`).
     """
     errors = {}
     for arcs, members in by_arcs.items():
@@ -286,6 +304,30 @@ def choose_mesh_arcs(
             np.mean([_error(r, s.truth) for r, s in zip(rows, members, strict=True)])
         )
     return min(errors, key=lambda arcs: (errors[arcs], arcs)), errors
+
+
+def mesh_noise_knots(
+    meshes: Sequence[FusionSample],
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The noise knots of a mesh graph's bias: per mesh setting (the clean ``"mesh"`` and the
+    noisy ``"meshnoise_S"``), the median vertex noise of its samples
+    (:func:`~litege_core.learned.fusion.mesh_noise`) and their median bias, in increasing
+    noise (of settings with the same median noise, the lowest bias); empty where fewer than
+    two knots remain (a constant bias)."""
+    by_setting: dict[str, list[FusionSample]] = {}
+    for sample in meshes:
+        by_setting.setdefault(sample.setting, []).append(sample)
+    points = sorted(
+        (float(np.median([s.roughness for s in members])), _median_ratio(members))
+        for members in by_setting.values()
+    )
+    knots: list[tuple[float, float]] = []
+    for noise, bias in points:
+        if not knots or noise > knots[-1][0]:
+            knots.append((noise, bias))
+    if len(knots) < 2:
+        return (), ()
+    return tuple(x for x, _ in knots), tuple(b for _, b in knots)
 
 
 def choose_normal_limits(
@@ -378,6 +420,8 @@ def fit_fusion(
     with (:func:`choose_mesh_arcs`)."""
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
+    clean = [s for s in meshes if s.setting == "mesh"] or meshes
+    noise_knots, noise_bias = mesh_noise_knots(meshes)
     knots: dict[str, tuple[float, float, float]] = {}
     for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
         members = [s for s in clouds if s.setting == setting]
@@ -393,13 +437,15 @@ def fit_fusion(
         tuple(x for x, _, _ in ordered),
         tuple(b for _, b, _ in ordered),
         (0.0, 0.0, 0.0, 0.0),
-        mesh_bias=_median_ratio(meshes) if meshes else 1.0,
+        mesh_bias=_median_ratio(clean) if clean else 1.0,
         bundle_hash=bundle_hash,
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
         normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
         mutual_k=mutual_k,
         mesh_arcs=mesh_arcs,
+        mesh_noise_knots=noise_knots,
+        mesh_noise_bias=noise_bias,
     )
 
     if clouds:
@@ -521,7 +567,8 @@ def choose_veto_limit(
     for limit in [None, *sorted((c for c in candidates if c >= floor), reverse=True)]:
         limited = replace(calibration, veto_max_z=limit)
         read = with_veto_limit(samples, limited)
-        fits[limit] = (mean_fused_error(read, limited), limited, read)
+        clouds = [s for s in read if not s.mesh]  # the veto does not touch a mesh
+        fits[limit] = (mean_fused_error(clouds, limited), limited, read)
     lowest = min(error for error, _, _ in fits.values())
     best = next(z for z, (e, _, _) in fits.items() if e <= lowest * (1.0 + VETO_LIMIT_TOLERANCE))
     _, chosen, read = fits[best]
@@ -560,7 +607,7 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
     """Markdown of :func:`fusion_summary`."""
     lines = [
         f"| shapes | setting | n | network | graph (mesh: {MESH_RINGS}-ring; cloud: pruned kNN, "
-        f"k = {k}) | fused | roughness | network weight |",
+        f"k = {k}) | fused | roughness (mesh: vertex noise) | network weight |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     lines += [
@@ -589,6 +636,7 @@ __all__ = [
     "fusion_summary",
     "fusion_table",
     "mean_fused_error",
+    "mesh_noise_knots",
     "probe_calibration",
     "sample_error",
     "with_veto_limit",

@@ -279,6 +279,12 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 if data.get("mesh_arcs")
                 else ""
             )
+            + (
+                ", its median over-estimate taken off as the mesh's vertex noise sets it (a raw "
+                "scan's noisy vertices lengthen every path)"
+                if data.get("mesh_noise_knots")
+                else ""
+            )
             + " (the network only between parts it "
             "cannot join); on a point cloud the network's distances are blended with a "
             + (

@@ -26,8 +26,11 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                cloud whose OOD z-score exceeds ``veto_max_z`` (where the calibration has one:
                the network's edge predictions on a shape it does not know cut true surface
                edges, e.g. a torus at 300 points: 3.4 → 12.2)
-    b        = the graph's median over-estimate (zig-zag paths): ``mesh_bias`` on a mesh;
-               b(N) at N cloud points, interpolated in log10 N from calibration knots
+    b        = the graph's median over-estimate (zig-zag paths): on a mesh ``mesh_bias``,
+               or where the calibration has noise knots b(ν) at the mesh's vertex noise ν
+               (:func:`mesh_noise`: a raw scan's noisy vertices lengthen every path),
+               interpolated from them (extrapolated beyond the noisiest); b(N) at N cloud
+               points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
                sigmoid(a + c_z · z + c_n · (log10 N − 3) + c_r · r)
                (z: the shape's OOD z-score; r: its surface roughness, see
@@ -79,14 +82,15 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 8
+FUSION_FORMAT = 9
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
 added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
 ``veto_max_z`` (older files read as ``None``: the veto on every cloud), format 8
-``mesh_arcs`` (older files read as ``False``: plain chords)."""
-READABLE_FORMATS = (3, 4, 5, 6, 7, FUSION_FORMAT)
+``mesh_arcs`` (older files read as ``False``: plain chords), format 9 ``mesh_noise_knots`` and
+``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise)."""
+READABLE_FORMATS = (3, 4, 5, 6, 7, 8, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -127,6 +131,9 @@ class FusionCalibration:
             (:meth:`vetoes`); ``None``: on every cloud.
         mesh_arcs: a mesh's ring graph lengthens its chords to the arcs they span
             (:func:`~litege_core.engines.graph.mesh_ring_graph`); ``False``: plain chords.
+        mesh_noise_knots: increasing knots of a mesh's vertex noise (:func:`mesh_noise`), or
+            empty: ``mesh_bias`` whatever the noise.
+        mesh_noise_bias: the mesh graph's median distance / true distance at each noise knot.
     """
 
     k: int
@@ -142,6 +149,8 @@ class FusionCalibration:
     mutual_k: int = 0
     veto_max_z: float | None = None
     mesh_arcs: bool = False
+    mesh_noise_knots: tuple[float, ...] = ()
+    mesh_noise_bias: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -165,6 +174,11 @@ class FusionCalibration:
             raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
         if not (isinstance(self.mutual_k, int) and self.mutual_k >= 0):
             raise ArtifactError(f"fusion mutual_k must be an integer >= 0, got {self.mutual_k!r}")
+        noise, noise_bias = np.asarray(self.mesh_noise_knots), np.asarray(self.mesh_noise_bias)
+        if noise.shape != noise_bias.shape or np.any(np.diff(noise) <= 0):
+            raise ArtifactError("fusion mesh noise knots must be increasing, one bias per knot")
+        if not (np.all(np.isfinite(noise)) and np.all(np.isfinite(noise_bias) & (noise_bias > 0))):
+            raise ArtifactError("fusion mesh noise knots and biases must be finite, biases > 0")
         if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
             raise ArtifactError(
                 f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
@@ -175,12 +189,20 @@ class FusionCalibration:
         without ``veto_max_z``, else where ``z_score <= veto_max_z`` (never for a ``nan``)."""
         return self.veto_max_z is None or float(z_score) <= self.veto_max_z
 
-    def graph_bias(self, n_points: int, mesh: bool = False) -> float:
-        """The graph's over-estimate factor: ``mesh_bias`` on a mesh, else at ``n_points``
-        cloud points (clamped to the knots)."""
-        if mesh:
+    def graph_bias(self, n_points: int, mesh: bool = False, noise: float = 0.0) -> float:
+        """The graph's over-estimate factor: on a mesh of vertex ``noise``
+        (:func:`mesh_noise`) interpolated in the noise knots (the first knot's below them,
+        the last segment extended beyond them; ``mesh_bias`` without knots), else at
+        ``n_points`` cloud points (clamped to the knots)."""
+        if not mesh:
+            return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
+        knots, bias = self.mesh_noise_knots, self.mesh_noise_bias
+        if not knots:
             return self.mesh_bias
-        return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
+        if len(knots) > 1 and noise > knots[-1]:
+            slope = (bias[-1] - bias[-2]) / (knots[-1] - knots[-2])
+            return float(max(bias[-1] + slope * (noise - knots[-1]), bias[-1]))
+        return float(np.interp(noise, knots, bias))
 
     @property
     def reach(self) -> int:
@@ -231,6 +253,8 @@ class FusionCalibration:
                 mutual_k=int(data.get("mutual_k", 0)),
                 veto_max_z=None if data.get("veto_max_z") is None else float(data["veto_max_z"]),
                 mesh_arcs=_flag(data.get("mesh_arcs", False)),
+                mesh_noise_knots=tuple(float(v) for v in data.get("mesh_noise_knots", ())),
+                mesh_noise_bias=tuple(float(v) for v in data.get("mesh_noise_bias", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -303,7 +327,9 @@ class ShapeGraph(NamedTuple):
     graph: sp.csr_array | LazyVetoGraph
     """``(N, N)`` over every point (a cloud's copies and twins join their node)."""
     roughness: float
-    """Surface roughness (:func:`surface_roughness`; 0 on a mesh)."""
+    """How rough the surface is: a cloud's :func:`surface_roughness` (an input of the gate), a
+    mesh's vertex noise (:func:`mesh_noise`, the input of its bias; 0 where the calibration
+    has no noise knots)."""
     n_nodes: int
     """Distinct nodes: the mesh's vertices, or the cloud's points without its copies and twins
     (:func:`~litege_core.engines.graph.graph_nodes`): the ``N`` of the gate and the bias."""
@@ -324,7 +350,8 @@ def shape_graph(
     in ``kept``.
 
     A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch; arcs
-    where the calibration's ``mesh_arcs`` says so), roughness 0. A cloud: its k-NN graph,
+    where the calibration's ``mesh_arcs`` says so), its vertex noise where the calibration
+    has noise knots (else 0). A cloud: its k-NN graph,
     normal-pruned where the calibration has normal limits, as a
     :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
     :func:`graph_rows` runs on the edges that paths use (the rows equal those of
@@ -338,6 +365,7 @@ def shape_graph(
         calibration: the fusion's constants.
         kept: the shape's memo (a state's ``_lazy``): keys ``fusion.mesh_graph.ARCS``,
             ``fusion.mesh_normals`` (:func:`~litege_core.engines.graph.arc_normals`),
+            ``fusion.mesh_noise`` (:func:`mesh_noise`),
             ``fusion.surface``, ``fusion.nodes``
             (:func:`~litege_core.engines.graph.graph_nodes`) and
             :func:`cloud_graph_key`.
@@ -354,7 +382,12 @@ def shape_graph(
             normals = kept["fusion.mesh_normals"] if arcs else None
             kept[key] = mesh_ring_graph(points, faces, MESH_RINGS, normals=normals)
         normals = kept["fusion.mesh_normals"] if arcs else None
-        return ShapeGraph(kept[key], 0.0, points.shape[0], normals)
+        noise = 0.0
+        if calibration.mesh_noise_knots:
+            if "fusion.mesh_noise" not in kept:
+                kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
+            noise = kept["fusion.mesh_noise"]
+        return ShapeGraph(kept[key], noise, points.shape[0], normals)
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     vetoed = calibration.vetoes(z_score)
     key = cloud_graph_key(calibration, veto_key, points.shape[0], vetoed)
@@ -433,7 +466,7 @@ def fused_distances(
     rows = graph_rows(graph, points, src, dst, calibration.k, tree, edge_geodesics, normals)
     mesh = faces is not None
     if mesh and np.isfinite(rows).all():  # the network's weight on a mesh is 0
-        return rows / calibration.graph_bias(points.shape[0], mesh=True)
+        return rows / calibration.graph_bias(points.shape[0], mesh=True, noise=roughness)
     return fuse(network(), rows, calibration, ood_score, n_nodes, roughness, mesh)
 
 
@@ -771,6 +804,47 @@ def surface_roughness(
     return float(np.median(local_surface(points, k, nearest)[0]))
 
 
+def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
+    """How noisy a mesh's vertices are, as a fraction of its edge length: the part of each
+    vertex's normal displacement from its neighbours' mean (umbrella Laplacian ``h_i``) that
+    its neighbours do not share, ``sqrt(median_i(h_i² − h_i · mean_{j∼i} h_j)) / median
+    edge length``.
+
+    Curvature bends neighbouring vertices alike (a coarse but clean mesh scores ~0.02–0.06),
+    vertex noise does not (σ of a fifth of the edge length scores ~0.18); scale-free.
+    ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``, seams welded here
+    (:func:`~litege_core.seams.seam_welds`); ``normals``: ``(N, 3)``
+    :func:`~litege_core.engines.graph.arc_normals` if already known (else computed; a
+    non-orientable mesh uses its unoriented vertex normals). 0 for a mesh without edges.
+    """
+    from litege_core.engines.graph import arc_normals
+    from litege_core.seams import seam_welds, unique_edges, vertex_normals
+
+    faces = seam_welds(points, faces)[np.asarray(faces, dtype=np.int64)]
+    if normals is None:
+        normals = arc_normals(points, faces)
+        if normals is None:
+            normals = vertex_normals(points, faces)
+    edges = unique_edges(faces)[0]
+    a, b = edges[:, 0], edges[:, 1]
+    a, b = a[a != b], b[a != b]
+    n = points.shape[0]
+    degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+    joined = degree > 0
+    length = np.linalg.norm(points[a] - points[b], axis=1)
+    if not joined.any() or not np.median(length) > 0:
+        return 0.0
+    per = np.maximum(degree, 1)
+    mean = np.stack(
+        [np.bincount(a, points[b, i], n) + np.bincount(b, points[a, i], n) for i in range(3)],
+        axis=1,
+    )
+    height = np.einsum("ij,ij->i", mean / per[:, None] - points, normals)
+    shared = (np.bincount(a, height[b], n) + np.bincount(b, height[a], n)) / per
+    unshared = (height * (height - shared))[joined]
+    return float(np.sqrt(max(float(np.median(unshared)), 0.0)) / np.median(length))
+
+
 def fuse(
     network: NDArray,
     graph: NDArray,
@@ -782,18 +856,26 @@ def fuse(
 ) -> NDArray:
     """``w · network + (1 − w) · graph / b`` (same units; ``mesh``: the graph is the mesh's
     ring graph); the network alone where the graph is ``inf``. ``network``, ``graph``: ``(S, T)``;
-    returns float64 ``(S, T)``."""
+    ``roughness``: as :class:`ShapeGraph`'s; returns float64 ``(S, T)``."""
     weight = calibration.network_weight(z_score, n, roughness, mesh)
     network = np.asarray(network, np.float64)
-    return weight * network + (1.0 - weight) * corrected_graph(network, graph, calibration, n, mesh)
+    corrected = corrected_graph(network, graph, calibration, n, mesh, roughness)
+    return weight * network + (1.0 - weight) * corrected
 
 
 def corrected_graph(
-    network: NDArray, graph: NDArray, calibration: FusionCalibration, n: int, mesh: bool = False
+    network: NDArray,
+    graph: NDArray,
+    calibration: FusionCalibration,
+    n: int,
+    mesh: bool = False,
+    roughness: float = 0.0,
 ) -> NDArray:
     """``graph / b`` as :func:`fuse` blends it: the network's value where the graph is ``inf``.
-    ``network``, ``graph``: ``(S, T)`` (same units); returns float64 ``(S, T)``."""
-    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh)
+    ``network``, ``graph``: ``(S, T)`` (same units); ``roughness``: a mesh's vertex noise
+    (:func:`mesh_noise`; a cloud's bias ignores it); returns float64 ``(S, T)``."""
+    noise = roughness if mesh else 0.0
+    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh, noise)
     return np.where(np.isfinite(corrected), corrected, np.asarray(network, np.float64))
 
 
@@ -811,6 +893,7 @@ __all__ = [
     "graph_rows",
     "load_fusion",
     "local_surface",
+    "mesh_noise",
     "normal_cosines",
     "pruned_knn_graph",
     "resolve_fusion",

@@ -76,7 +76,7 @@ def shape_agreement(
 
     sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
     network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
-    graph = shape_graph(points, faces, calibration, kept, veto_key, z_score).graph
+    graph, roughness, _, _ = shape_graph(points, faces, calibration, kept, veto_key, z_score)
     every = np.arange(points.shape[0])
     rows = graph_rows(
         graph,
@@ -87,7 +87,8 @@ def shape_agreement(
         None,
         edge_geodesics,
     )
-    bias = calibration.graph_bias(points.shape[0], faces is not None)
+    mesh = faces is not None
+    bias = calibration.graph_bias(points.shape[0], mesh, roughness if mesh else 0.0)
     return graph_agreement(network, rows, bias)
 
 

@@ -37,6 +37,11 @@ def test_unique_edges_match_the_face_by_face_count():
         _slow_unique_edges(faces)
     )
     assert (edges[:, 0] < edges[:, 1]).all()
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    assert (order == np.arange(len(edges))).all()  # sorted lexicographically
+    assert edges.dtype == counts.dtype == np.int64
+    empty, none = unique_edges(np.zeros((0, 3), dtype=np.int64))
+    assert empty.shape == (0, 2) and none.shape == (0,)
 
 
 def test_a_soup_welds_back_to_its_mesh():

@@ -15,6 +15,7 @@ from litege_core.evaluation.fusion import (
     fit_fusion,
     fusion_summary,
     fusion_table,
+    mesh_noise_knots,
     sample_error,
 )
 
@@ -83,6 +84,34 @@ def test_without_mesh_samples_a_mesh_graph_keeps_its_lengths() -> None:
     calibration = fit_fusion(clouds, "h" * 64, k=8, prune_ratio=1.5)
     assert calibration.mesh_bias == 1.0
     assert calibration.network_weight(0.0, 800, 0.1, mesh=True) == 0.0
+
+
+def test_noisy_meshes_give_the_mesh_bias_its_noise_knots() -> None:
+    """Clean meshes (noise ~0.02) fix ``mesh_bias``; each noisy-mesh setting adds a knot at its
+    median noise with its median bias, so a noisy mesh is answered with its own bias; a
+    setting no noisier than the clean meshes adds none."""
+    rng = np.random.default_rng(1)
+    clean = [s for s in _samples() if s.mesh]
+    samples = [dataclasses.replace(s, roughness=0.02) for s in clean]
+    for setting, noise, bias in (("meshnoise_0.002", 0.1, 1.08), ("meshnoise_0.004", 0.2, 1.15)):
+        for i in range(6):
+            truth = rng.uniform(10.0, 200.0, size=(4, 50))
+            graph = truth * bias * rng.normal(1.0, 0.005, truth.shape)
+            samples.append(
+                FusionSample(f"n{i}", "toy", setting, True, 800, 0.0, noise, truth, graph, truth)
+            )
+    clouds = [s for s in _samples() if not s.mesh]
+    calibration = fit_fusion(samples + clouds, "h" * 64, k=8, prune_ratio=1.5)
+    assert calibration.mesh_bias == pytest.approx(1.06, abs=0.005)  # the clean meshes only
+    assert calibration.mesh_noise_knots == pytest.approx((0.02, 0.1, 0.2))
+    assert calibration.mesh_noise_bias == pytest.approx((1.06, 1.08, 1.15), abs=0.005)
+    noisy = [s for s in samples if s.setting != "mesh"]
+    constant = dataclasses.replace(calibration, mesh_noise_knots=(), mesh_noise_bias=())
+    fused = np.mean([sample_error(s, calibration, "fused") for s in noisy])
+    assert fused < 0.5 * np.mean([sample_error(s, constant, "fused") for s in noisy])
+    assert mesh_noise_knots(clean) == ((), ())  # one setting: a constant bias
+    as_clean = [dataclasses.replace(s, roughness=0.02) for s in samples if s.setting != "mesh"]
+    assert mesh_noise_knots(samples[:6] + as_clean[:6]) == ((), ())  # no noisier than clean
 
 
 def test_unreachable_graph_pairs_count_with_the_network_value() -> None:

@@ -62,6 +62,12 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "veto_max_z": limit}))
         named = "no veto on a cloud whose OOD z-score exceeds 4," in sidecar_section(tmp_path)
         assert named == (limit is not None)
+    # and a mesh bias that follows the vertex noise
+    for knots in ([0.02, 0.1], []):
+        noisy = {**fusion, "mesh_noise_knots": knots, "mesh_noise_bias": [1.01] * len(knots)}
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps(noisy))
+        named = "as the mesh's vertex noise sets it" in sidecar_section(tmp_path)
+        assert named == bool(knots)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")

@@ -69,6 +69,10 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"mutual_k": 1.5},
         {"veto_max_z": float("inf")},
         {"veto_max_z": float("nan")},
+        {"mesh_noise_knots": (0.02, 0.1), "mesh_noise_bias": (1.01,)},
+        {"mesh_noise_knots": (0.1, 0.02), "mesh_noise_bias": (1.01, 1.02)},
+        {"mesh_noise_knots": (0.02, 0.1), "mesh_noise_bias": (1.01, 0.0)},
+        {"mesh_noise_knots": (0.02, float("inf")), "mesh_noise_bias": (1.01, 1.02)},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -130,6 +134,55 @@ def test_roughness_grows_with_noise_and_ignores_scale(monkeypatch) -> None:
     monkeypatch.setattr(fusion, "ROUGHNESS_CHUNK", 1000)
     assert surface_roughness(sphere) == pytest.approx(clean)
     assert surface_roughness(sphere[:3]) == 0.0
+
+
+def test_mesh_bias_follows_the_noise_knots() -> None:
+    """Without knots a mesh's bias is ``mesh_bias`` at any noise; with them it is interpolated,
+    the first knot's below them, the last segment extended (never down) beyond them; a cloud's
+    bias ignores them."""
+    plain = _calibration()
+    assert plain.graph_bias(5000, mesh=True, noise=0.3) == 1.04
+    knotted = _calibration(mesh_noise_knots=(0.02, 0.1, 0.2), mesh_noise_bias=(1.01, 1.02, 1.06))
+    assert knotted.graph_bias(5000, mesh=True, noise=0.0) == pytest.approx(1.01)
+    assert knotted.graph_bias(5000, mesh=True, noise=0.06) == pytest.approx(1.015)
+    assert knotted.graph_bias(5000, mesh=True, noise=0.15) == pytest.approx(1.04)
+    assert knotted.graph_bias(5000, mesh=True, noise=0.3) == pytest.approx(1.10)
+    falling = _calibration(mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.02, 1.01))
+    assert falling.graph_bias(5000, mesh=True, noise=0.5) == pytest.approx(1.01)
+    assert knotted.graph_bias(1000, noise=0.3) == plain.graph_bias(1000) == pytest.approx(1.01)
+
+
+def test_mesh_noise_measures_vertex_noise_not_curvature() -> None:
+    """Scale-free; ~0 on clean coarse meshes, rising with the vertex noise (as a
+    fraction of the edge length), the same with the faces wound either way or split along
+    seams."""
+    import trimesh
+
+    from litege_core.learned.fusion import mesh_noise
+
+    rng = np.random.default_rng(0)
+    fine, coarse = trimesh.creation.icosphere(4), trimesh.creation.icosphere(2)
+    assert mesh_noise(np.asarray(coarse.vertices), np.asarray(coarse.faces)) < 0.01
+    capsule = trimesh.creation.capsule(radius=0.1, height=1.0, count=[8, 8])  # 66 vertices
+    assert mesh_noise(np.asarray(capsule.vertices), np.asarray(capsule.faces)) < 0.05
+    points, faces = np.asarray(fine.vertices), np.asarray(fine.faces)
+    assert mesh_noise(points, faces) < 0.01
+    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
+    levels = [
+        mesh_noise(points + rng.normal(0.0, s * edge, points.shape), faces)
+        for s in (0.05, 0.1, 0.2, 0.4)
+    ]
+    assert levels == sorted(levels) and levels[0] > 0.02
+    noisy = points + rng.normal(0.0, 0.1 * edge, points.shape)
+    value = mesh_noise(noisy, faces)
+    assert 0.05 < value < 0.12
+    assert mesh_noise(10.0 * noisy, faces) == pytest.approx(value)
+    flipped = faces.copy()
+    flipped[::3] = flipped[::3, ::-1]  # wound against their neighbours: turned over first
+    assert mesh_noise(noisy, flipped) == pytest.approx(value)
+    soup = noisy[faces].reshape(-1, 3)  # every face its own vertices: welded at the seams
+    assert mesh_noise(soup, np.arange(len(soup)).reshape(-1, 3)) == pytest.approx(value)
+    assert mesh_noise(points[:3], np.array([[0, 0, 0]])) == 0.0  # no edge
 
 
 def test_closed_form_eigenpairs_equal_the_eigh_reference() -> None:
@@ -199,6 +252,13 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json(json.loads(json.dumps(arcs.to_json()))) == arcs
     with pytest.raises(ArtifactError):
         FusionCalibration.from_json({**arcs.to_json(), "mesh_arcs": 1})
+    # a format-8 file (no noise knots) reads as one mesh bias; the knots round-trip
+    del older["mesh_noise_knots"], older["mesh_noise_bias"]
+    assert FusionCalibration.from_json({**older, "format_version": 8}) == calibration
+    noisy = dataclasses.replace(
+        calibration, mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.01, 1.03)
+    )
+    assert FusionCalibration.from_json(json.loads(json.dumps(noisy.to_json()))) == noisy
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -679,6 +739,36 @@ def test_a_mesh_fuses_with_the_arcs_its_calibration_chooses(bundle_dir, blob) ->
     by_index = arcs.distances(state, sources, targets)
     by_point = arcs.distances(state, sources, np.asarray(shape.vertices)[targets])
     np.testing.assert_allclose(by_point, by_index, rtol=1e-5, atol=1e-6)
+
+
+def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
+    """With noise knots a mesh's rows are divided by the bias at its vertex noise (measured
+    once per shape, on its canonical vertices); the clean mesh keeps the first knot's."""
+    from litege_core.learned.fusion import mesh_noise
+
+    predictor, calibration = _graph_only_predictor(bundle_dir)
+    knotted = dataclasses.replace(
+        calibration, mesh_noise_knots=(0.0, 0.2), mesh_noise_bias=(1.0, 1.5)
+    )
+    noisy_predictor = Predictor(predictor.bundle, fusion=knotted)
+    shape = blob(3)
+    points, faces = np.asarray(shape.vertices), np.asarray(shape.faces)
+    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
+    noisy = Shape.from_arrays(
+        points + np.random.default_rng(2).normal(0.0, 0.1 * edge, points.shape), faces
+    )
+    sources = np.array([0, 17, 200])
+    biases = []
+    for mesh in (shape, noisy):
+        state = noisy_predictor.register(mesh)
+        rows = noisy_predictor.distances(state, sources)
+        noise = mesh_noise(state.canonical_points, faces)
+        assert state._lazy["fusion.mesh_noise"] == noise
+        plain = predictor.distances(predictor.register(mesh), sources)
+        bias = knotted.graph_bias(len(points), mesh=True, noise=noise)
+        np.testing.assert_allclose(rows, plain * calibration.mesh_bias / bias, rtol=1e-6)
+        biases.append(bias)
+    assert biases[0] < 1.05 < 1.1 < biases[1] < 1.5  # the noisy mesh's well above the clean
 
 
 def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypatch) -> None:
