@@ -61,6 +61,7 @@ from litege_core.evaluation.fusion import (
     fit_gate_with_ood,
     fusion_summary,
     fusion_table,
+    is_clean_mesh,
     mean_fused_error,
 )
 from litege_core.evaluation.geodesic import (
@@ -201,9 +202,10 @@ def main() -> None:
         for arcs in arcs_tried
     }
     clean_meshes = {  # the graph is chosen on clean meshes; noise moves its bias only
-        arcs: [s for s in samples if s.setting == "mesh"] for arcs, samples in by_arcs.items()
+        arcs: [s for s in samples if is_clean_mesh(s)] for arcs, samples in by_arcs.items()
     }
-    mesh_arcs, arcs_errors = choose_mesh_arcs(clean_meshes) if "mesh" in settings else (False, {})
+    chosen = any(clean_meshes.values())
+    mesh_arcs, arcs_errors = choose_mesh_arcs(clean_meshes) if chosen else (False, {})
     by_variant = collect_samples(
         predictor,
         shapes,
@@ -328,8 +330,8 @@ def main() -> None:
         )
         print(
             f"- veto OOD limit candidates at or above {floor:.2f}, the highest z-score of the "
-            "calibration shapes of the model's kind (mean fused error over all calibration "
-            f"inputs): {tried}\n"
+            "calibration shapes of the model's kind (mean fused error over the calibration "
+            f"clouds): {tried}\n"
         )
     if calibration.gate != kind_gate:
         kind = dataclasses.replace(calibration, gate=kind_gate)

@@ -4,9 +4,9 @@ The calibration shapes are ones we generate (held-out procedural shapes, rigged 
 bodies): never the real dev set. For each (shape, setting) the network's rows and the pruned
 graph's rows are computed once (:func:`collect_samples`); the graph's bias knots are the
 per-setting medians (clean clouds) of the shapes' median graph / truth ratios (the mesh bias:
-the same median over the clean meshes, whose graph follows the mesh's connectivity, and which
-the graph answers alone; its noise knots: the same median and the median vertex noise of each
-noisy-mesh setting), and the four cloud gate constants minimise the mean per-shape error
+the same median over the clean meshes of both resolutions, whose graph follows the mesh's
+connectivity, and which the graph answers alone; its noise knots: :func:`mesh_noise_knots`),
+and the four cloud gate constants minimise the mean per-shape error
 of the fused rows (Nelder–Mead, from ``w = 1/2``). The normal limit of each clean-cloud knot
 is the candidate whose bias-corrected graph has the lowest mean per-shape error at that
 density (:func:`choose_normal_limits`); noisy clouds take the limit of their point count. The
@@ -39,6 +39,7 @@ from litege_core.metrics import geodesic_error
 
 CALIBRATION_SETTINGS = (
     "mesh",
+    "decimated_1000",
     "cloud_5000",
     "cloud_2000",
     "cloud_1000",
@@ -51,9 +52,9 @@ CALIBRATION_SETTINGS = (
     "meshnoise_0.004",
     "meshnoise_0.008",
 )
-"""Inputs the calibration covers: the mesh, clean clouds from dense to sparse, 2000-point
-clouds with three noise levels and the mesh with three levels of vertex noise (unit-area
-units; ~0.1–0.5 of the calibration meshes' edge length)."""
+"""Inputs the calibration covers: the mesh and the mesh simplified to 1000 vertices, clean
+clouds from dense to sparse, 2000-point clouds with three noise levels and the mesh with three
+levels of vertex noise (unit-area units; ~0.1–0.5 of the calibration meshes' edge length)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
@@ -306,23 +307,41 @@ def choose_mesh_arcs(
     return min(errors, key=lambda arcs: (errors[arcs], arcs)), errors
 
 
+CLEAN_MESH_NOISE_QUANTILE = 0.9
+"""The clean meshes' knot sits at this quantile of their vertex noise: a mesh as smooth as most
+clean calibration meshes keeps their bias (clean meshes' noise comes from their curvature and
+triangulation, not from noise, and does not move their bias)."""
+
+
+def is_clean_mesh(sample: FusionSample) -> bool:
+    """Whether ``sample`` is a clean mesh: a mesh input of any resolution (``mesh``,
+    ``decimated_N``), not one with vertex noise (``meshnoise_S``)."""
+    return sample.mesh and not sample.setting.startswith("meshnoise")
+
+
 def mesh_noise_knots(
     meshes: Sequence[FusionSample],
 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The noise knots of a mesh graph's bias: per mesh setting (the clean ``"mesh"`` and the
-    noisy ``"meshnoise_S"``), the median vertex noise of its samples
-    (:func:`~litege_core.learned.fusion.mesh_noise`) and their median bias, in increasing
-    noise (of settings with the same median noise, the lowest bias); empty where fewer than
-    two knots remain (a constant bias)."""
+    """The noise knots of a mesh graph's bias: the clean meshes' (:func:`is_clean_mesh`) at
+    the :data:`CLEAN_MESH_NOISE_QUANTILE` of their vertex noise
+    (:func:`~litege_core.learned.fusion.mesh_noise`) with their median bias, then per noisy
+    setting (``meshnoise_S``) the median noise of its samples with their median bias, in
+    increasing noise (a noisy setting no noisier than the knot before it is left out); empty
+    where fewer than two knots remain (a constant bias)."""
+    clean = [s for s in meshes if is_clean_mesh(s)]
     by_setting: dict[str, list[FusionSample]] = {}
     for sample in meshes:
-        by_setting.setdefault(sample.setting, []).append(sample)
-    points = sorted(
+        if not is_clean_mesh(sample):
+            by_setting.setdefault(sample.setting, []).append(sample)
+    noisy = sorted(
         (float(np.median([s.roughness for s in members])), _median_ratio(members))
         for members in by_setting.values()
     )
     knots: list[tuple[float, float]] = []
-    for noise, bias in points:
+    if clean:
+        noise = float(np.quantile([s.roughness for s in clean], CLEAN_MESH_NOISE_QUANTILE))
+        knots.append((noise, _median_ratio(clean)))
+    for noise, bias in noisy:
         if not knots or noise > knots[-1][0]:
             knots.append((noise, bias))
     if len(knots) < 2:
@@ -420,7 +439,7 @@ def fit_fusion(
     with (:func:`choose_mesh_arcs`)."""
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
-    clean = [s for s in meshes if s.setting == "mesh"] or meshes
+    clean = [s for s in meshes if is_clean_mesh(s)] or meshes
     noise_knots, noise_bias = mesh_noise_knots(meshes)
     knots: dict[str, tuple[float, float, float]] = {}
     for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
@@ -620,6 +639,7 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 
 __all__ = [
     "CALIBRATION_SETTINGS",
+    "CLEAN_MESH_NOISE_QUANTILE",
     "MESH_ARCS_CANDIDATES",
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
@@ -635,6 +655,7 @@ __all__ = [
     "fit_gate",
     "fusion_summary",
     "fusion_table",
+    "is_clean_mesh",
     "mean_fused_error",
     "mesh_noise_knots",
     "probe_calibration",

@@ -15,6 +15,7 @@ from litege_core.evaluation.fusion import (
     fit_fusion,
     fusion_summary,
     fusion_table,
+    is_clean_mesh,
     mesh_noise_knots,
     sample_error,
 )
@@ -110,6 +111,11 @@ def test_noisy_meshes_give_the_mesh_bias_its_noise_knots() -> None:
     fused = np.mean([sample_error(s, calibration, "fused") for s in noisy])
     assert fused < 0.5 * np.mean([sample_error(s, constant, "fused") for s in noisy])
     assert mesh_noise_knots(clean) == ((), ())  # one setting: a constant bias
+    # coarser clean meshes (any resolution) join the clean knot, at the clean meshes' 90 %
+    coarse = [dataclasses.replace(s, setting="decimated_1000", roughness=0.04) for s in clean]
+    knots, biases = mesh_noise_knots(samples[:6] + coarse + samples[6:])
+    assert knots == pytest.approx((0.04, 0.1, 0.2)) and biases[0] == pytest.approx(1.06, abs=0.005)
+    assert is_clean_mesh(coarse[0]) and not is_clean_mesh(samples[-1])
     as_clean = [dataclasses.replace(s, roughness=0.02) for s in samples if s.setting != "mesh"]
     assert mesh_noise_knots(samples[:6] + as_clean[:6]) == ((), ())  # no noisier than clean
 
