@@ -280,8 +280,8 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else ""
             )
             + (
-                ", its median over-estimate taken off as the mesh's vertex noise sets it (a raw "
-                "scan's noisy vertices lengthen every path)"
+                ", its distances divided by the graph's median over-estimate at the mesh's "
+                "vertex noise, which lengthens every path"
                 if data.get("mesh_noise_knots")
                 else ""
             )

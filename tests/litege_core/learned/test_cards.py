@@ -66,7 +66,7 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
     for knots in ([0.02, 0.1], []):
         noisy = {**fusion, "mesh_noise_knots": knots, "mesh_noise_bias": [1.01] * len(knots)}
         (tmp_path / FUSION_CONFIG).write_text(json.dumps(noisy))
-        named = "as the mesh's vertex noise sets it" in sidecar_section(tmp_path)
+        named = "over-estimate at the mesh's vertex noise" in sidecar_section(tmp_path)
         assert named == bool(knots)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
