@@ -16,7 +16,8 @@ and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused erro
 ``--mesh-arcs`` candidates (a mesh's ring graph with plain chords, 0, or chords lengthened to
 their arcs, 1), the one whose bias-corrected clean-mesh rows err least (``choose_mesh_arcs``;
 the noisy meshes of the ``meshnoise_S`` settings give that graph's bias its noise knots,
-``mesh_noise_knots``); then
+``mesh_noise_knots``, and, answered also as the clouds of their vertices by the fitted fusion,
+the noise above which a mesh is answered so, ``choose_mesh_cloud_noise``: the last step); then
 the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
 the lowest mean fused error (within 1 %), never below the highest OOD z-score of the other
 calibration shapes. The test split of every ``--ood-dataset`` (shapes of no training family,
@@ -53,6 +54,7 @@ from litege_core.evaluation.fusion import (
     PRUNE_RATIO_CANDIDATES,
     VETO_MAX_Z_CANDIDATES,
     choose_mesh_arcs,
+    choose_mesh_cloud_noise,
     choose_normal_limits,
     choose_veto_limit,
     collect_ood_samples,
@@ -63,6 +65,7 @@ from litege_core.evaluation.fusion import (
     fusion_table,
     is_clean_mesh,
     mean_fused_error,
+    with_cloud_rows,
 )
 from litege_core.evaluation.geodesic import (
     dataset_eval_shapes,
@@ -249,6 +252,12 @@ def main() -> None:
             samples[:n_kind], samples[n_kind:], calibration, args.ood_gate_tolerance
         )
         calibration = dataclasses.replace(calibration, gate=gate)
+    cloud_errors: dict = {}
+    if any(s.mesh and not is_clean_mesh(s) for s in samples[:n_kind]):
+        kind = with_cloud_rows(predictor, shapes, samples[:n_kind], calibration)
+        limit, cloud_errors = choose_mesh_cloud_noise(kind, calibration)
+        calibration = dataclasses.replace(calibration, mesh_cloud_noise=limit)
+        samples = kind + samples[n_kind:]
     summary = fusion_summary(samples, calibration)
     counts = ", ".join(f"{g}: {n}" for g, n in fitted_on["shapes"].items())
     print(f"### Graph fusion calibration: `{bundle.name}`\n")
@@ -299,6 +308,12 @@ def main() -> None:
         + (", lengthened to their arcs" if calibration.mesh_arcs else "")
         + f"; median graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)"
         + (
+            f"; a mesh of vertex noise above {calibration.mesh_cloud_noise:.3f} is answered as "
+            "the cloud of its vertices"
+            if calibration.mesh_cloud_noise is not None
+            else ""
+        )
+        + (
             "; with vertex noise ν: "
             + ", ".join(
                 f"ν {x:.3f}: {b:.4f}"
@@ -311,6 +326,15 @@ def main() -> None:
         )
         + "\n"
     )
+    if cloud_errors:
+        tried = ", ".join(
+            f"{'none' if v is None else f'{v:.3f}'}: {error:.3f}"
+            for v, error in cloud_errors.items()
+        )
+        print(
+            "- vertex noise above which a mesh is answered as the cloud of its vertices "
+            f"(mean fused error of the calibration meshes): {tried}\n"
+        )
     if len(arcs_errors) > 1:
         tried = ", ".join(
             f"{'arcs' if arcs else 'chords'}: {error:.3f}" for arcs, error in arcs_errors.items()

@@ -19,6 +19,7 @@ the calibration shapes include ones the network does not know (``scripts/build_f
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -51,10 +52,11 @@ CALIBRATION_SETTINGS = (
     "meshnoise_0.002",
     "meshnoise_0.004",
     "meshnoise_0.008",
+    "meshnoise_0.016",
 )
 """Inputs the calibration covers: the mesh and the mesh simplified to 1000 vertices, clean
-clouds from dense to sparse, 2000-point clouds with three noise levels and the mesh with three
-levels of vertex noise (unit-area units; ~0.1–0.5 of the calibration meshes' edge length)."""
+clouds from dense to sparse, 2000-point clouds with three noise levels and the mesh with four
+levels of vertex noise (unit-area units; ~0.1–1 of the calibration meshes' edge length)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
@@ -108,6 +110,9 @@ class FusionSample:
     truth: NDArray
     unvetoed: NDArray | None = None
     """The graph's rows without the network veto (clouds, where collected), else ``None``."""
+    as_cloud: NDArray | None = None
+    """A noisy mesh's rows answered as the cloud of its vertices by a fitted fusion
+    (:func:`with_cloud_rows`), else ``None``."""
 
 
 def probe_calibration(
@@ -349,6 +354,83 @@ def mesh_noise_knots(
     return tuple(x for x, _ in knots), tuple(b for _, b in knots)
 
 
+def with_cloud_rows(
+    predictor,
+    shapes: Sequence[EvalShape],
+    samples: Sequence[FusionSample],
+    calibration: FusionCalibration,
+    seed: int = 0,
+) -> list[FusionSample]:
+    """``samples`` with each noisy mesh's (``meshnoise_S``) rows answered as the cloud of its
+    vertices by ``calibration`` (``FusionSample.as_cloud``), what :func:`choose_mesh_cloud_noise`
+    weighs. The noisy meshes are made again as :func:`collect_samples` made them (each
+    setting's samples in ``shapes``' order, seed ``seed + i``)."""
+    from litege_core.learned import Predictor
+    from litege_core.shape import Shape
+
+    fused = Predictor(
+        predictor.bundle,
+        predictor.device,
+        descriptor_lattice=predictor.descriptor_lattice,
+        head=predictor.head,
+        fusion=replace(calibration, mesh_cloud_noise=None),
+    )
+    out = list(samples)
+    for setting in sorted({s.setting for s in samples if s.mesh and not is_clean_mesh(s)}):
+        index = [k for k, s in enumerate(samples) if s.setting == setting]
+        if len(index) != len(shapes):
+            raise ValueError(f"{setting}: {len(index)} samples for {len(shapes)} shapes")
+        for i, (k, shape) in enumerate(zip(index, shapes, strict=True)):
+            if samples[k].shape != shape.name:
+                raise ValueError(f"{setting}: sample {samples[k].shape} is not {shape.name}")
+            item = make_input(shape, setting, seed + i)
+            state = fused.register(Shape.from_arrays(item.shape.vertices), seed=seed)
+            rows = fused.distances(state, item.source_index).astype(np.float64)
+            out[k] = replace(samples[k], as_cloud=rows)
+    return out
+
+
+def choose_mesh_cloud_noise(
+    samples: Sequence[FusionSample], calibration: FusionCalibration
+) -> tuple[float | None, dict[float | None, float]]:
+    """The vertex noise above which a mesh is answered as the cloud of its vertices: of
+    ``None`` (never) and the midpoints between the noisy settings' median noises, the one whose
+    mean error over the mesh samples is lowest (``None``, then the highest, on a tie), and each
+    one's error. A noisy mesh answered by its ring graph is scored with the bias of noise
+    knots fitted on the other groups' meshes (:func:`mesh_noise_knots`; its own group's where
+    there is no other): how far the bias carries to another kind of mesh at that noise, not how
+    well it fits its own (the graph's over-estimate at a given noise differs from one kind of
+    mesh to another, the more so the noisier, and a bias off by a few percent costs more than
+    the cloud path). The noisy meshes need their cloud rows (:func:`with_cloud_rows`)."""
+    meshes = [s for s in samples if s.mesh]
+    noisy: dict[str, list[FusionSample]] = {}
+    for s in meshes:
+        if s.as_cloud is not None:
+            noisy.setdefault(s.setting, []).append(s)
+    by_graph = replace(calibration, mesh_cloud_noise=None)
+    held_out = {}
+    for group in {s.group for s in meshes}:
+        others = [s for s in meshes if s.group != group]
+        if others:
+            knots, bias = mesh_noise_knots(others)
+            held_out[group] = replace(by_graph, mesh_noise_knots=knots, mesh_noise_bias=bias)
+    graph_errors = [sample_error(s, held_out.get(s.group, by_graph), "fused") for s in meshes]
+    cloud_errors = [math.inf if s.as_cloud is None else _error(s.as_cloud, s.truth) for s in meshes]
+    medians = sorted(float(np.median([s.roughness for s in m])) for m in noisy.values())
+    candidates: list[float | None] = [None]
+    candidates += sorted(((a + b) / 2 for a, b in itertools.pairwise(medians)), reverse=True)
+    errors = {}
+    for limit in candidates:
+        as_cloud = [limit is not None and s.roughness > limit for s in meshes]
+        chosen = [
+            c if cloud else g
+            for g, c, cloud in zip(graph_errors, cloud_errors, as_cloud, strict=True)
+        ]
+        errors[limit] = float(np.mean(chosen))
+    lowest = min(errors.values())
+    return next(limit for limit, error in errors.items() if error <= lowest), errors
+
+
 def choose_normal_limits(
     by_limit: dict[float, Sequence[FusionSample]],
 ) -> tuple[dict[str, float], list[FusionSample]]:
@@ -407,6 +489,8 @@ def sample_error(sample: FusionSample, calibration: FusionCalibration | None, wh
     if what == "graph":
         return _error(graph, sample.truth)
     assert calibration is not None
+    if sample.as_cloud is not None and calibration.answers_as_cloud(sample.roughness):
+        return _error(sample.as_cloud, sample.truth)
     rows = fuse(
         sample.network,
         sample.graph,
@@ -647,6 +731,7 @@ __all__ = [
     "FusionSample",
     "GraphVariant",
     "choose_mesh_arcs",
+    "choose_mesh_cloud_noise",
     "choose_normal_limits",
     "choose_veto_limit",
     "collect_ood_samples",
@@ -660,5 +745,6 @@ __all__ = [
     "mesh_noise_knots",
     "probe_calibration",
     "sample_error",
+    "with_cloud_rows",
     "with_veto_limit",
 ]

@@ -285,6 +285,12 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 if data.get("mesh_noise_knots")
                 else ""
             )
+            + (
+                f" (a mesh whose vertex noise exceeds {data['mesh_cloud_noise']:.2f} of its edge "
+                "length is answered as the cloud of its vertices)"
+                if data.get("mesh_cloud_noise") is not None
+                else ""
+            )
             + " (the network only between parts it "
             "cannot join); on a point cloud the network's distances are blended with a "
             + (

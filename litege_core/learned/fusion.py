@@ -88,8 +88,9 @@ FUSION_FORMAT = 9
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
 added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
 ``veto_max_z`` (older files read as ``None``: the veto on every cloud), format 8
-``mesh_arcs`` (older files read as ``False``: plain chords), format 9 ``mesh_noise_knots`` and
-``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise)."""
+``mesh_arcs`` (older files read as ``False``: plain chords), format 9 ``mesh_noise_knots``,
+``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise) and
+``mesh_cloud_noise`` (older files read as ``None``: every mesh its ring graph)."""
 READABLE_FORMATS = (3, 4, 5, 6, 7, 8, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
@@ -134,6 +135,9 @@ class FusionCalibration:
         mesh_noise_knots: increasing knots of a mesh's vertex noise (:func:`mesh_noise`), or
             empty: ``mesh_bias`` whatever the noise.
         mesh_noise_bias: the mesh graph's median distance / true distance at each noise knot.
+        mesh_cloud_noise: a mesh whose vertex noise exceeds this is answered as the cloud of
+            its vertices (:meth:`answers_as_cloud`: noise beyond the edge length makes every
+            ring-graph path zig-zag); ``None``: every mesh by its ring graph.
     """
 
     k: int
@@ -151,6 +155,7 @@ class FusionCalibration:
     mesh_arcs: bool = False
     mesh_noise_knots: tuple[float, ...] = ()
     mesh_noise_bias: tuple[float, ...] = ()
+    mesh_cloud_noise: float | None = None
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -179,6 +184,9 @@ class FusionCalibration:
             raise ArtifactError("fusion mesh noise knots must be increasing, one bias per knot")
         if not (np.all(np.isfinite(noise)) and np.all(np.isfinite(noise_bias) & (noise_bias > 0))):
             raise ArtifactError("fusion mesh noise knots and biases must be finite, biases > 0")
+        cloud_noise = self.mesh_cloud_noise
+        if cloud_noise is not None and not (math.isfinite(cloud_noise) and cloud_noise > 0):
+            raise ArtifactError(f"fusion mesh_cloud_noise must be positive, got {cloud_noise!r}")
         if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
             raise ArtifactError(
                 f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
@@ -188,6 +196,11 @@ class FusionCalibration:
         """Whether the network vetoes the graph edges of a cloud of this OOD z-score: always
         without ``veto_max_z``, else where ``z_score <= veto_max_z`` (never for a ``nan``)."""
         return self.veto_max_z is None or float(z_score) <= self.veto_max_z
+
+    def answers_as_cloud(self, noise: float) -> bool:
+        """Whether a mesh of this vertex noise (:func:`mesh_noise`) is answered as the cloud of
+        its vertices (above ``mesh_cloud_noise``), not by its ring graph."""
+        return self.mesh_cloud_noise is not None and noise > self.mesh_cloud_noise
 
     def graph_bias(self, n_points: int, mesh: bool = False, noise: float = 0.0) -> float:
         """The graph's over-estimate factor: on a mesh of vertex ``noise``
@@ -255,6 +268,11 @@ class FusionCalibration:
                 mesh_arcs=_flag(data.get("mesh_arcs", False)),
                 mesh_noise_knots=tuple(float(v) for v in data.get("mesh_noise_knots", ())),
                 mesh_noise_bias=tuple(float(v) for v in data.get("mesh_noise_bias", ())),
+                mesh_cloud_noise=(
+                    None
+                    if data.get("mesh_cloud_noise") is None
+                    else float(data["mesh_cloud_noise"])
+                ),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
@@ -382,11 +400,7 @@ def shape_graph(
             normals = kept["fusion.mesh_normals"] if arcs else None
             kept[key] = mesh_ring_graph(points, faces, MESH_RINGS, normals=normals)
         normals = kept["fusion.mesh_normals"] if arcs else None
-        noise = 0.0
-        if calibration.mesh_noise_knots:
-            if "fusion.mesh_noise" not in kept:
-                kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
-            noise = kept["fusion.mesh_noise"]
+        noise = kept_mesh_noise(points, faces, calibration, kept)
         return ShapeGraph(kept[key], noise, points.shape[0], normals)
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
     vetoed = calibration.vetoes(z_score)
@@ -422,6 +436,37 @@ def shape_graph(
     return ShapeGraph(graph, surface[0], int(nodes[1].size))
 
 
+def kept_mesh_noise(
+    points: NDArray, faces: NDArray, calibration: FusionCalibration, kept: dict[str, Any]
+) -> float:
+    """A mesh's vertex noise (:func:`mesh_noise`, kept in ``kept`` as ``fusion.mesh_noise``)
+    where the calibration reads it (noise knots or a cloud limit), else 0."""
+    if not (calibration.mesh_noise_knots or calibration.mesh_cloud_noise is not None):
+        return 0.0
+    if "fusion.mesh_noise" not in kept:
+        normals = None
+        if calibration.mesh_arcs:
+            if "fusion.mesh_normals" not in kept:
+                from litege_core.engines.graph import arc_normals  # scipy: on use
+
+                kept["fusion.mesh_normals"] = arc_normals(points, faces)
+            normals = kept["fusion.mesh_normals"]
+        kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
+    return float(kept["fusion.mesh_noise"])
+
+
+def graph_faces(
+    points: NDArray, faces: NDArray | None, calibration: FusionCalibration, kept: dict[str, Any]
+) -> NDArray | None:
+    """The faces the fusion's graph follows: a mesh's own, or ``None`` (the cloud of its
+    vertices) where its vertex noise is above the calibration's cloud limit
+    (:meth:`FusionCalibration.answers_as_cloud`); ``None`` for a cloud."""
+    if faces is None or calibration.mesh_cloud_noise is None:
+        return faces
+    noise = kept_mesh_noise(points, faces, calibration, kept)
+    return None if calibration.answers_as_cloud(noise) else faces
+
+
 def cloud_graph_key(
     calibration: FusionCalibration, veto_key: str, n_points: int, vetoed: bool
 ) -> str:
@@ -452,7 +497,9 @@ def fused_distances(
 
     ``src``, ``dst``: ``(indices, canonical)`` as :func:`graph_rows`; ``points``, ``faces``,
     ``kept``, ``edge_geodesics``, ``veto_key``: as :func:`shape_graph` (``kept`` also keeps a
-    KD-tree of ``points``, ``fusion.tree``, when free points join)."""
+    KD-tree of ``points``, ``fusion.tree``, when free points join). A mesh noisier than the
+    calibration's cloud limit is answered as the cloud of its vertices (:func:`graph_faces`)."""
+    faces = graph_faces(points, faces, calibration, kept)
     graph, roughness, n_nodes, normals = shape_graph(
         points, faces, calibration, kept, veto_key, ood_score
     )
@@ -804,16 +851,24 @@ def surface_roughness(
     return float(np.median(local_surface(points, k, nearest)[0]))
 
 
+MESH_NOISE_SMOOTHING = 3
+"""Uniform Laplacian steps (half a step each) that take the noise out of the edge length
+:func:`mesh_noise` divides by: noise longer than the edges stretches them too, and a ratio to
+the noisy edge length stops growing at about 0.29 (a 50K-vertex scan with noise of one or of
+three edge lengths would read the same)."""
+
+
 def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
     """How noisy a mesh's vertices are, as a fraction of its edge length: the part of each
     vertex's normal displacement from its neighbours' mean (umbrella Laplacian ``h_i``) that
-    its neighbours do not share, ``sqrt(median_i(h_i² − h_i · mean_{j∼i} h_j)) / median
-    edge length``.
+    its neighbours do not share, ``sqrt(median_i(h_i² − h_i · mean_{j∼i} h_j))``, over the
+    median edge length of the mesh smoothed by :data:`MESH_NOISE_SMOOTHING` Laplacian steps
+    (what the edges would be without the noise).
 
     Curvature bends neighbouring vertices alike (a coarse but clean mesh scores ~0.02–0.06),
-    vertex noise does not (σ of a fifth of the edge length scores ~0.18); scale-free.
-    ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``, seams welded here
-    (:func:`~litege_core.seams.seam_welds`); ``normals``: ``(N, 3)``
+    vertex noise does not (σ of a fifth of the edge length scores ~0.2, of one edge length
+    ~0.65); scale-free. ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``, seams welded
+    here (:func:`~litege_core.seams.seam_welds`); ``normals``: ``(N, 3)``
     :func:`~litege_core.engines.graph.arc_normals` if already known (else computed; a
     non-orientable mesh uses its unoriented vertex normals). 0 for a mesh without edges.
     """
@@ -831,18 +886,24 @@ def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) 
     n = points.shape[0]
     degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
     joined = degree > 0
-    length = np.linalg.norm(points[a] - points[b], axis=1)
-    if not joined.any() or not np.median(length) > 0:
+    if not joined.any():
         return 0.0
     per = np.maximum(degree, 1)
-    mean = np.stack(
-        [np.bincount(a, points[b, i], n) + np.bincount(b, points[a, i], n) for i in range(3)],
-        axis=1,
-    )
-    height = np.einsum("ij,ij->i", mean / per[:, None] - points, normals)
+
+    def neighbour_mean(values: NDArray) -> NDArray:  # (N, 3) → (N, 3): over each 1-ring
+        sums = [np.bincount(a, values[b, i], n) + np.bincount(b, values[a, i], n) for i in range(3)]
+        return np.stack(sums, axis=1) / per[:, None]
+
+    height = np.einsum("ij,ij->i", neighbour_mean(points) - points, normals)
     shared = (np.bincount(a, height[b], n) + np.bincount(b, height[a], n)) / per
     unshared = (height * (height - shared))[joined]
-    return float(np.sqrt(max(float(np.median(unshared)), 0.0)) / np.median(length))
+    smooth = points
+    for _ in range(MESH_NOISE_SMOOTHING):
+        smooth = smooth + 0.5 * (neighbour_mean(smooth) - smooth) * joined[:, None]
+    length = float(np.median(np.linalg.norm(smooth[a] - smooth[b], axis=1)))
+    if not length > 0:
+        return 0.0
+    return float(np.sqrt(max(float(np.median(unshared)), 0.0)) / length)
 
 
 def fuse(
@@ -883,6 +944,7 @@ __all__ = [
     "DEFAULT_FUSION",
     "FUSIONS",
     "FUSION_CONFIG",
+    "MESH_NOISE_SMOOTHING",
     "MESH_RINGS",
     "FusionCalibration",
     "ShapeGraph",
@@ -890,7 +952,9 @@ __all__ = [
     "corrected_graph",
     "fuse",
     "fused_distances",
+    "graph_faces",
     "graph_rows",
+    "kept_mesh_noise",
     "load_fusion",
     "local_surface",
     "mesh_noise",

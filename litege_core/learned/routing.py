@@ -71,11 +71,12 @@ def shape_agreement(
             its fusion, as :func:`~litege_core.learned.fusion.shape_graph` (the graph is kept
             in ``kept``, where the fused queries find it).
     """
-    from litege_core.learned.fusion import graph_rows, shape_graph
+    from litege_core.learned.fusion import graph_faces, graph_rows, shape_graph
     from litege_core.sampling import farthest_point_sampling
 
     sources = farthest_point_sampling(points, min(n_sources, points.shape[0]))
     network = network_rows(sources)  # first: a predictor keeps the feature table the veto reads
+    faces = graph_faces(points, faces, calibration, kept)
     graph, roughness, _, _ = shape_graph(points, faces, calibration, kept, veto_key, z_score)
     every = np.arange(points.shape[0])
     rows = graph_rows(

@@ -11,6 +11,7 @@ import pytest
 
 from litege_core.evaluation.fusion import (
     FusionSample,
+    choose_mesh_cloud_noise,
     choose_normal_limits,
     fit_fusion,
     fusion_summary,
@@ -18,7 +19,9 @@ from litege_core.evaluation.fusion import (
     is_clean_mesh,
     mesh_noise_knots,
     sample_error,
+    with_cloud_rows,
 )
+from litege_core.evaluation.geodesic import make_input
 
 
 def _samples() -> list[FusionSample]:
@@ -394,3 +397,76 @@ def test_ood_samples_read_the_fitted_graph_with_and_without_its_veto(
     assert joined.mean() > 0.5
     assert np.all(cloud.graph[joined] >= cloud.unvetoed[joined] - 1e-9)
     assert np.any(cloud.graph[joined] > cloud.unvetoed[joined] + 1e-6)
+
+
+def test_noisy_meshes_are_read_again_as_clouds_of_their_vertices(
+    blob, toy_bundle_dir_with_ood
+) -> None:
+    """``with_cloud_rows`` answers each noisy mesh's vertices as a cloud with the fitted fusion
+    (the clean mesh keeps none); a sample out of ``shapes``' order is refused."""
+    from litege_core.evaluation.fusion import collect_ood_samples, probe_calibration
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.shape import Shape
+
+    shapes = _blob_shapes(blob)
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    predictor = Predictor(bundle, fusion="none")
+    fitted = dataclasses.replace(
+        probe_calibration(bundle.content_hash, 8, 3.0), bias=(1.2,), gate=(0.0, 0.0, 0.0, 0.0)
+    )
+    samples = collect_ood_samples(predictor, shapes, fitted, ("mesh", "meshnoise_0.004"))
+    read = with_cloud_rows(predictor, shapes, samples, fitted)
+    assert read[0].as_cloud is None and read[1].as_cloud is not None
+    noisy = make_input(shapes[0], "meshnoise_0.004", 0)
+    cloud_predictor = Predictor(bundle, fusion=fitted)
+    state = cloud_predictor.register(Shape.from_arrays(noisy.shape.vertices))
+    np.testing.assert_allclose(
+        read[1].as_cloud, cloud_predictor.distances(state, noisy.source_index), rtol=1e-6
+    )
+    with pytest.raises(ValueError, match="is not"):
+        with_cloud_rows(predictor, shapes, [dataclasses.replace(samples[1], shape="other")], fitted)
+
+
+def test_the_cloud_limit_sends_meshes_the_graph_fails_to_the_cloud_path() -> None:
+    """Two kinds of mesh at three noise levels: at the two lower the ring graph (with noise
+    knots) beats the cloud of the vertices, at the highest its bias differs between the kinds,
+    so knots fitted on the other kind mislead it; the limit lands between the two upper
+    levels, and the fused error follows the better path per level."""
+    rng = np.random.default_rng(3)
+    samples = []
+    for setting, noise, biases, cloud_error in (
+        ("mesh", 0.02, (1.01, 1.01), 0.05),
+        ("meshnoise_0.002", 0.1, (1.02, 1.02), 0.05),
+        ("meshnoise_0.004", 0.2, (1.04, 1.04), 0.05),
+        ("meshnoise_0.016", 0.6, (1.1, 1.5), 0.02),
+    ):
+        for i in range(8):
+            truth = rng.uniform(10.0, 200.0, size=(4, 50))
+            graph = truth * biases[i % 2] * rng.normal(1.0, 0.002, truth.shape)
+            as_cloud = truth * (1.0 + cloud_error) if setting != "mesh" else None
+            samples.append(
+                FusionSample(
+                    f"m{i}",
+                    f"kind {i % 2}",
+                    setting,
+                    True,
+                    800,
+                    0.0,
+                    noise,
+                    truth,
+                    graph,
+                    truth,
+                    as_cloud=as_cloud,
+                )
+            )
+    clouds = [s for s in _samples() if not s.mesh]
+    calibration = fit_fusion(samples + clouds, "h" * 64, k=8, prune_ratio=1.5)
+    limit, errors = choose_mesh_cloud_noise(samples, calibration)
+    assert list(errors) == [None, pytest.approx(0.4), pytest.approx(0.15)]  # None first
+    assert limit == pytest.approx(0.4)
+    assert errors[limit] < min(e for v, e in errors.items() if v != limit)
+    chosen = dataclasses.replace(calibration, mesh_cloud_noise=limit)
+    noisiest = [s for s in samples if s.setting == "meshnoise_0.016"]
+    assert np.mean([sample_error(s, chosen, "fused") for s in noisiest]) == pytest.approx(2.0)
+    lighter = [s for s in samples if s.setting == "meshnoise_0.004"]
+    assert np.mean([sample_error(s, chosen, "fused") for s in lighter]) < 1.0

@@ -68,6 +68,10 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps(noisy))
         named = "over-estimate at the mesh's vertex noise" in sidecar_section(tmp_path)
         assert named == bool(knots)
+    for limit in (0.45, None):
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "mesh_cloud_noise": limit}))
+        named = "noise exceeds 0.45 of its edge length" in sidecar_section(tmp_path)
+        assert named == (limit is not None)
     (tmp_path / FUSION_CONFIG).write_text(json.dumps(fusion))
 
     (tmp_path / SMALL_HEAD_CONFIG).write_text("{}")

@@ -73,6 +73,8 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"mesh_noise_knots": (0.1, 0.02), "mesh_noise_bias": (1.01, 1.02)},
         {"mesh_noise_knots": (0.02, 0.1), "mesh_noise_bias": (1.01, 0.0)},
         {"mesh_noise_knots": (0.02, float("inf")), "mesh_noise_bias": (1.01, 1.02)},
+        {"mesh_cloud_noise": 0.0},
+        {"mesh_cloud_noise": float("nan")},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -259,6 +261,11 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
         calibration, mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.01, 1.03)
     )
     assert FusionCalibration.from_json(json.loads(json.dumps(noisy.to_json()))) == noisy
+    assert FusionCalibration.from_json(noisy.to_json()).mesh_cloud_noise is None
+    limited = dataclasses.replace(noisy, mesh_cloud_noise=0.45)
+    assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
+    assert limited.answers_as_cloud(0.5) and not limited.answers_as_cloud(0.45)
+    assert not noisy.answers_as_cloud(10.0)
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -769,6 +776,37 @@ def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
         np.testing.assert_allclose(rows, plain * calibration.mesh_bias / bias, rtol=1e-6)
         biases.append(bias)
     assert biases[0] < 1.05 < 1.1 < biases[1] < 1.5  # the noisy mesh's well above the clean
+
+
+def test_a_mesh_noisier_than_the_cloud_limit_is_answered_as_its_vertices(bundle_dir, blob) -> None:
+    """Above ``mesh_cloud_noise`` a mesh's fusion reads the cloud graph of its vertices (its
+    ring graph is never built) and blends the network as on a cloud; below, its ring graph."""
+    from litege_core.learned.fusion import graph_faces
+
+    bundle = load_bundle(bundle_dir)
+    calibration = _calibration(bundle.content_hash, mesh_cloud_noise=1e-3)
+    shape = blob(3)
+    points, faces = np.asarray(shape.vertices), np.asarray(shape.faces)
+    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
+    noisy = Shape.from_arrays(
+        points + np.random.default_rng(2).normal(0.0, 0.2 * edge, points.shape), faces
+    )
+    sources = np.array([0, 17, 200])
+    as_cloud = Predictor(bundle, fusion=calibration)
+    state = as_cloud.register(noisy)
+    rows = as_cloud.distances(state, sources)
+    assert not any(key.startswith("fusion.mesh_graph") for key in state._lazy)
+    assert any(key.startswith("fusion.graph.") for key in state._lazy)
+    assert graph_faces(state.canonical_points, faces, calibration, state._lazy) is None
+    by_ring = Predictor(bundle, fusion=dataclasses.replace(calibration, mesh_cloud_noise=None))
+    ring_state = by_ring.register(noisy)
+    ring_rows = by_ring.distances(ring_state, sources)
+    assert any(key.startswith("fusion.mesh_graph") for key in ring_state._lazy)
+    assert np.abs(rows - ring_rows).max() > 1e-3 * ring_rows.max()
+    # a mesh below the limit keeps its ring graph
+    smooth = dataclasses.replace(calibration, mesh_cloud_noise=10.0)
+    assert graph_faces(ring_state.canonical_points, faces, smooth, ring_state._lazy) is faces
+    assert graph_faces(ring_state.canonical_points, None, smooth, ring_state._lazy) is None
 
 
 def test_a_mesh_its_graph_spans_evaluates_no_network(bundle_dir, blob, monkeypatch) -> None:
