@@ -53,12 +53,10 @@ CALIBRATION_SETTINGS = (
     "meshnoise_0.004",
     "meshnoise_0.008",
     "meshnoise_0.016",
-    "meshnoise_0.032",
 )
 """Inputs the calibration covers: the mesh and the mesh simplified to 1000 vertices, clean
-clouds from dense to sparse, 2000-point clouds with three noise levels and the mesh with five
-levels of vertex noise (unit-area units; ~0.1–2 of the calibration meshes' edge length: a
-denser scan is noisier per edge at the same noise)."""
+clouds from dense to sparse, 2000-point clouds with three noise levels and the mesh with four
+levels of vertex noise (unit-area units; ~0.1–1 of the calibration meshes' edge length)."""
 
 DEFAULT_K = 16
 DEFAULT_PRUNE_RATIO = 1.6
