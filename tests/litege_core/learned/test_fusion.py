@@ -748,6 +748,15 @@ def test_a_mesh_fuses_with_the_arcs_its_calibration_chooses(bundle_dir, blob) ->
     np.testing.assert_allclose(by_point, by_index, rtol=1e-5, atol=1e-6)
 
 
+def _noisy_blob(blob, fraction: float) -> tuple[Shape, Shape]:
+    """The toy blob mesh and a copy with vertex noise of ``fraction`` of its edge length."""
+    shape = blob(3)
+    points, faces = np.asarray(shape.vertices), np.asarray(shape.faces)
+    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
+    noise = np.random.default_rng(2).normal(0.0, fraction * edge, points.shape)
+    return shape, Shape.from_arrays(points + noise, faces)
+
+
 def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
     """With noise knots a mesh's rows are divided by the bias at its vertex noise (measured
     once per shape, on its canonical vertices); the clean mesh keeps the first knot's."""
@@ -758,12 +767,8 @@ def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
         calibration, mesh_noise_knots=(0.0, 0.2), mesh_noise_bias=(1.0, 1.5)
     )
     noisy_predictor = Predictor(predictor.bundle, fusion=knotted)
-    shape = blob(3)
+    shape, noisy = _noisy_blob(blob, 0.1)
     points, faces = np.asarray(shape.vertices), np.asarray(shape.faces)
-    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
-    noisy = Shape.from_arrays(
-        points + np.random.default_rng(2).normal(0.0, 0.1 * edge, points.shape), faces
-    )
     sources = np.array([0, 17, 200])
     biases = []
     for mesh in (shape, noisy):
@@ -785,12 +790,8 @@ def test_a_mesh_noisier_than_the_cloud_limit_is_answered_as_its_vertices(bundle_
 
     bundle = load_bundle(bundle_dir)
     calibration = _calibration(bundle.content_hash, mesh_cloud_noise=1e-3)
-    shape = blob(3)
-    points, faces = np.asarray(shape.vertices), np.asarray(shape.faces)
-    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
-    noisy = Shape.from_arrays(
-        points + np.random.default_rng(2).normal(0.0, 0.2 * edge, points.shape), faces
-    )
+    _, noisy = _noisy_blob(blob, 0.2)
+    faces = np.asarray(noisy.faces)
     sources = np.array([0, 17, 200])
     as_cloud = Predictor(bundle, fusion=calibration)
     state = as_cloud.register(noisy)
