@@ -347,7 +347,7 @@ class ShapeGraph(NamedTuple):
     roughness: float
     """How rough the surface is: a cloud's :func:`surface_roughness` (an input of the gate), a
     mesh's vertex noise (:func:`mesh_noise`, the input of its bias; 0 where the calibration
-    has no noise knots)."""
+    reads none: :func:`kept_mesh_noise`)."""
     n_nodes: int
     """Distinct nodes: the mesh's vertices, or the cloud's points without its copies and twins
     (:func:`~litege_core.engines.graph.graph_nodes`): the ``N`` of the gate and the bias."""
@@ -368,8 +368,8 @@ def shape_graph(
     in ``kept``.
 
     A mesh: its ring graph (:data:`MESH_RINGS`; no shortcut between parts that touch; arcs
-    where the calibration's ``mesh_arcs`` says so), its vertex noise where the calibration
-    has noise knots (else 0). A cloud: its k-NN graph,
+    where the calibration's ``mesh_arcs`` says so), its vertex noise
+    (:func:`kept_mesh_noise`). A cloud: its k-NN graph,
     normal-pruned where the calibration has normal limits, as a
     :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
     :func:`graph_rows` runs on the edges that paths use (the rows equal those of
