@@ -392,14 +392,11 @@ def shape_graph(
     """
     if faces is not None:
         key, arcs = f"fusion.mesh_graph.{calibration.mesh_arcs}", calibration.mesh_arcs
+        normals = kept_arc_normals(points, faces, kept) if arcs else None
         if key not in kept:
-            from litege_core.engines.graph import arc_normals, mesh_ring_graph  # scipy: on use
+            from litege_core.engines.graph import mesh_ring_graph  # scipy: on use
 
-            if arcs and "fusion.mesh_normals" not in kept:
-                kept["fusion.mesh_normals"] = arc_normals(points, faces)
-            normals = kept["fusion.mesh_normals"] if arcs else None
             kept[key] = mesh_ring_graph(points, faces, MESH_RINGS, normals=normals)
-        normals = kept["fusion.mesh_normals"] if arcs else None
         noise = kept_mesh_noise(points, faces, calibration, kept)
         return ShapeGraph(kept[key], noise, points.shape[0], normals)
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
@@ -436,6 +433,16 @@ def shape_graph(
     return ShapeGraph(graph, surface[0], int(nodes[1].size))
 
 
+def kept_arc_normals(points: NDArray, faces: NDArray, kept: dict[str, Any]) -> NDArray | None:
+    """A mesh's :func:`~litege_core.engines.graph.arc_normals`, kept in ``kept`` as
+    ``fusion.mesh_normals`` (its arcs and its vertex noise read the same normals)."""
+    if "fusion.mesh_normals" not in kept:
+        from litege_core.engines.graph import arc_normals  # scipy: on use
+
+        kept["fusion.mesh_normals"] = arc_normals(points, faces)
+    return kept["fusion.mesh_normals"]
+
+
 def kept_mesh_noise(
     points: NDArray, faces: NDArray, calibration: FusionCalibration, kept: dict[str, Any]
 ) -> float:
@@ -444,13 +451,7 @@ def kept_mesh_noise(
     if not (calibration.mesh_noise_knots or calibration.mesh_cloud_noise is not None):
         return 0.0
     if "fusion.mesh_noise" not in kept:
-        normals = None
-        if calibration.mesh_arcs:
-            if "fusion.mesh_normals" not in kept:
-                from litege_core.engines.graph import arc_normals  # scipy: on use
-
-                kept["fusion.mesh_normals"] = arc_normals(points, faces)
-            normals = kept["fusion.mesh_normals"]
+        normals = kept_arc_normals(points, faces, kept)
         kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
     return float(kept["fusion.mesh_noise"])
 
@@ -935,8 +936,7 @@ def corrected_graph(
     """``graph / b`` as :func:`fuse` blends it: the network's value where the graph is ``inf``.
     ``network``, ``graph``: ``(S, T)`` (same units); ``roughness``: a mesh's vertex noise
     (:func:`mesh_noise`; a cloud's bias ignores it); returns float64 ``(S, T)``."""
-    noise = roughness if mesh else 0.0
-    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh, noise)
+    corrected = np.asarray(graph, np.float64) / calibration.graph_bias(n, mesh, roughness)
     return np.where(np.isfinite(corrected), corrected, np.asarray(network, np.float64))
 
 
@@ -954,6 +954,7 @@ __all__ = [
     "fused_distances",
     "graph_faces",
     "graph_rows",
+    "kept_arc_normals",
     "kept_mesh_noise",
     "load_fusion",
     "local_surface",

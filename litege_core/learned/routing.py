@@ -88,8 +88,7 @@ def shape_agreement(
         None,
         edge_geodesics,
     )
-    mesh = faces is not None
-    bias = calibration.graph_bias(points.shape[0], mesh, roughness if mesh else 0.0)
+    bias = calibration.graph_bias(points.shape[0], faces is not None, roughness)
     return graph_agreement(network, rows, bias)
 
 
