@@ -3,6 +3,7 @@
 Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
     [--dataset data/rigged-cal ...] [--sources 12] [--prune-ratio 1.3,1.6]
     [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--mesh-arcs 0,1]
+    [--mesh-smooth-noise 0.08]
     [--ood-dataset data/primitives-cal]
     [--veto-max-z 1,2,3,4,6,8] [--ood-gate-tolerance 0] [--write]
 
@@ -17,7 +18,10 @@ and ``--mutual-k`` candidates, the pair whose fit has the lowest mean fused erro
 their arcs, 1), the one whose bias-corrected clean-mesh rows err least (``choose_mesh_arcs``;
 the noisy meshes of the ``meshnoise_S`` settings give that graph's bias its noise knots,
 ``mesh_noise_knots``, and, answered also as the clouds of their vertices by the fitted fusion,
-the noise above which a mesh is answered so, ``choose_mesh_cloud_noise``: the last step); then
+the noise above which a mesh is answered so, ``choose_mesh_cloud_noise``: the last step, only
+with ``--mesh-smooth-noise none``; by default a mesh noisier than that limit is smoothed down
+to it before its graph, and the knots are its noise before smoothing and its smoothed graph's
+bias); then
 the OOD limit of the network veto, of the ``--veto-max-z`` candidates or none, whose fusion has
 the lowest mean fused error (within 1 %), never below the highest OOD z-score of the other
 calibration shapes. The test split of every ``--ood-dataset`` (shapes of no training family,
@@ -48,6 +52,7 @@ import torch
 from litege_core.evaluation.fusion import (
     CALIBRATION_SETTINGS,
     DEFAULT_K,
+    DEFAULT_MESH_SMOOTH_NOISE,
     MESH_ARCS_CANDIDATES,
     MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
@@ -147,6 +152,12 @@ def main() -> None:
         "their arcs); the one whose bias-corrected mesh rows err least is kept",
     )
     parser.add_argument(
+        "--mesh-smooth-noise",
+        default=f"{DEFAULT_MESH_SMOOTH_NOISE:g}",
+        help="vertex noise above which a mesh is smoothed down to it before its graph "
+        "(none: the mesh as it is, and a noise above which it is answered as a cloud is chosen)",
+    )
+    parser.add_argument(
         "--veto-max-z",
         default=",".join(f"{z:g}" for z in VETO_MAX_Z_CANDIDATES),
         help="comma-separated OOD z-scores above which to try the network veto off (empty: "
@@ -193,12 +204,19 @@ def main() -> None:
     limits = sorted(float(c) for c in args.normal_cos.split(","))
     mutuals = sorted(int(m) for m in args.mutual_k.split(","))
     arcs_tried = sorted({bool(int(a)) for a in args.mesh_arcs.split(",")})
+    smooth = None if args.mesh_smooth_noise == "none" else float(args.mesh_smooth_noise)
     mesh_settings = [s for s in settings if is_mesh_setting(s)]
     by_arcs = {  # one variant: the mesh graph does not depend on the cloud graph's
         arcs: next(
             iter(
                 collect_samples(
-                    predictor, shapes, mesh_settings, k=args.k, veto_head=veto_head, mesh_arcs=arcs
+                    predictor,
+                    shapes,
+                    mesh_settings,
+                    k=args.k,
+                    veto_head=veto_head,
+                    mesh_arcs=arcs,
+                    mesh_smooth_noise=smooth,
                 ).values()
             )
         )
@@ -237,6 +255,7 @@ def main() -> None:
                 normal_cos=chosen if limits != [1.0] else None,
                 mutual_k=mutual,
                 mesh_arcs=mesh_arcs,
+                mesh_smooth_noise=smooth,
             )
             error = mean_fused_error(samples, calibration)
             candidates.append((error, (prune_ratio, mutual), samples, calibration))
@@ -253,7 +272,7 @@ def main() -> None:
         )
         calibration = dataclasses.replace(calibration, gate=gate)
     cloud_errors: dict = {}
-    if any(s.mesh and not is_clean_mesh(s) for s in samples[:n_kind]):
+    if smooth is None and any(s.mesh and not is_clean_mesh(s) for s in samples[:n_kind]):
         kind = with_cloud_rows(predictor, shapes, samples[:n_kind], calibration)
         limit, cloud_errors = choose_mesh_cloud_noise(kind, calibration)
         calibration = dataclasses.replace(calibration, mesh_cloud_noise=limit)
@@ -271,7 +290,7 @@ def main() -> None:
         + "".join(f" --ood-dataset {d}" for d in args.ood_dataset)
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
         + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}"
-        + f" --mesh-arcs {args.mesh_arcs}"
+        + f" --mesh-arcs {args.mesh_arcs} --mesh-smooth-noise {args.mesh_smooth_noise}"
         + f" --veto-max-z {args.veto_max_z} --ood-gate-tolerance {args.ood_gate_tolerance:g}`"
     )
     knots = ", ".join(
@@ -306,6 +325,11 @@ def main() -> None:
         f"+ {c_r:.3f}·roughness)\n"
         f"- graph of a mesh: chords between vertices at most {MESH_RINGS} edges apart"
         + (", lengthened to their arcs" if calibration.mesh_arcs else "")
+        + (
+            f", smoothed first where its vertex noise exceeds {calibration.mesh_smooth_noise:g}"
+            if calibration.mesh_smooth_noise is not None
+            else ""
+        )
         + f"; median graph / geodesic {calibration.mesh_bias:.4f} (the graph alone)"
         + (
             f"; a mesh of vertex noise above {calibration.mesh_cloud_noise:.3f} is answered as "

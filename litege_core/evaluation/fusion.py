@@ -72,6 +72,10 @@ of sparse clouds where the veto head over-estimates."""
 MESH_ARCS_CANDIDATES = (False, True)
 """Mesh graphs ``scripts/calibrate_fusion.py`` tries: plain chords, or chords lengthened to their
 arcs (:func:`choose_mesh_arcs`)."""
+DEFAULT_MESH_SMOOTH_NOISE = 0.08
+"""The vertex noise above which ``scripts/calibrate_fusion.py`` has a mesh smoothed down to it
+before its ring graph (:func:`~litege_core.learned.mesh_noise.denoised_mesh`): just above the
+0.02–0.06 of clean meshes at any resolution, so no clean calibration or dev mesh is touched."""
 MUTUAL_K_CANDIDATES = (0, 24)
 """Cloud graphs ``scripts/calibrate_fusion.py`` tries: 0, the symmetric k-NN graph, or the
 mutual k-NN graph of that many neighbours (:func:`~litege_core.engines.graph.mutual_knn_graph`);
@@ -123,6 +127,7 @@ def probe_calibration(
     normal_cos: float = 1.0,
     mutual_k: int = 0,
     mesh_arcs: bool = False,
+    mesh_smooth_noise: float | None = None,
 ) -> FusionCalibration:
     """A calibration whose fused output is the raw pruned graph (weight 0, bias 1): what
     :func:`collect_samples` queries to read the graph through the predictor itself."""
@@ -138,6 +143,7 @@ def probe_calibration(
         normal_cos=(normal_cos,) if normal_cos < 1.0 else (),
         mutual_k=mutual_k,
         mesh_arcs=mesh_arcs,
+        mesh_smooth_noise=mesh_smooth_noise,
     )
 
 
@@ -159,6 +165,7 @@ def collect_samples(
     veto_head: str = "full",
     seed: int = 0,
     mesh_arcs: bool = False,
+    mesh_smooth_noise: float | None = None,
 ) -> dict[GraphVariant, list[FusionSample]]:
     """Network and graph rows of every (shape, setting), inputs as ``evaluate_methods`` makes
     them (``make_input(shape, setting, seed + i)``), for each veto threshold, normal limit and
@@ -174,18 +181,22 @@ def collect_samples(
         veto_head: the head that prunes the graph (see
             :class:`~litege_core.learned.fusion.FusionCalibration`).
         mesh_arcs: a mesh's graph lengthens its chords to their arcs (:func:`choose_mesh_arcs`).
+        mesh_smooth_noise: meshes noisier than this are smoothed down to it before their graph
+            (see :class:`~litege_core.learned.fusion.FusionCalibration`); their samples'
+            roughness stays the noise of the mesh as given, what the bias reads.
 
     Returns:
         ``{(prune_ratio, normal_cos, mutual_k): samples}``, the samples in the same order
         for every variant.
     """
     hash_ = predictor.bundle.content_hash
+    meshes = (mesh_arcs, mesh_smooth_noise)
     probes = {
         (ratio, limit, mutual): (
-            probe_calibration(hash_, k, ratio, veto_head, limit, mutual, mesh_arcs),
+            probe_calibration(hash_, k, ratio, veto_head, limit, mutual, *meshes),
             # the same graph with the veto off (an OOD limit below every z)
             replace(
-                probe_calibration(hash_, k, 1.0, veto_head, limit, mutual, mesh_arcs),
+                probe_calibration(hash_, k, 1.0, veto_head, limit, mutual, *meshes),
                 veto_max_z=NEVER_VETO_Z,
             ),
         )
@@ -514,13 +525,14 @@ def fit_fusion(
     normal_cos: dict[str, float] | None = None,
     mutual_k: int = 0,
     mesh_arcs: bool = False,
+    mesh_smooth_noise: float | None = None,
 ) -> FusionCalibration:
     """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
     mesh samples the mesh bias is 1.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
     built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
-    the neighbour rule they were built with; ``mesh_arcs``: the mesh graph they were built
-    with (:func:`choose_mesh_arcs`)."""
+    the neighbour rule they were built with; ``mesh_arcs``, ``mesh_smooth_noise``: the mesh
+    graph they were built with (:func:`choose_mesh_arcs`, :func:`collect_samples`)."""
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
     clean = [s for s in meshes if is_clean_mesh(s)] or meshes
@@ -549,6 +561,7 @@ def fit_fusion(
         mesh_arcs=mesh_arcs,
         mesh_noise_knots=noise_knots,
         mesh_noise_bias=noise_bias,
+        mesh_smooth_noise=mesh_smooth_noise,
     )
 
     if clouds:
@@ -724,6 +737,7 @@ def fusion_table(summary: Sequence[dict[str, Any]], k: int) -> str:
 __all__ = [
     "CALIBRATION_SETTINGS",
     "CLEAN_MESH_NOISE_QUANTILE",
+    "DEFAULT_MESH_SMOOTH_NOISE",
     "MESH_ARCS_CANDIDATES",
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",

@@ -286,6 +286,13 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else ""
             )
             + (
+                f", on a mesh whose vertex noise exceeds {data['mesh_smooth_noise']:g} of its "
+                "edge length (a raw scan) after smoothing it down to that (Taubin's filter), so "
+                "that paths follow the surface, not the noise"
+                if data.get("mesh_smooth_noise") is not None
+                else ""
+            )
+            + (
                 f" (a mesh whose vertex noise exceeds {data['mesh_cloud_noise']:.2f} of its edge "
                 "length is answered as the cloud of its vertices)"
                 if data.get("mesh_cloud_noise") is not None

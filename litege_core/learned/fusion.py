@@ -10,8 +10,11 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                mesh edges apart (the mesh's connectivity: no shortcut between parts that
                touch), where the calibration says so (``mesh_arcs``) lengthened to the arcs
                they span (from the vertex normals: a chord across two rings of a coarse mesh
-               cuts through a curved part); for a point cloud, on the symmetric k-NN graph
-               of the points (canonical frame) after cutting every edge whose predicted
+               cuts through a curved part), on a mesh noisier than the calibration's
+               ``mesh_smooth_noise`` after smoothing it down to that noise (a raw scan's
+               paths would zig-zag with its vertices:
+               :func:`~litege_core.learned.mesh_noise.denoised_mesh`); for a point cloud, on
+               the symmetric k-NN graph of the points (canonical frame) after cutting every edge whose predicted
                geodesic exceeds ``prune_ratio`` × its chord (the network vetoes shortcuts
                between touching parts; the veto is the bundle's small head where the
                calibration says so: it costs one head evaluation per edge, ~8 N for N
@@ -28,7 +31,8 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                edges, e.g. a torus at 300 points: 3.4 → 12.2)
     b        = the graph's median over-estimate (zig-zag paths): on a mesh ``mesh_bias``,
                or where the calibration has noise knots b(ν) at the mesh's vertex noise ν
-               (:func:`mesh_noise`: a raw scan's noisy vertices lengthen every path),
+               (:func:`mesh_noise`: a raw scan's noisy vertices lengthen every path, less
+               so once smoothed),
                interpolated from them (extrapolated beyond the noisiest); b(N) at N cloud
                points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
@@ -68,6 +72,7 @@ from numpy.typing import NDArray
 from litege_core.arrays import distinct_indices
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import read_json_object, write_json_atomic
+from litege_core.learned.mesh_noise import MESH_NOISE_SMOOTHING, denoised_mesh, mesh_noise
 from litege_core.learned.veto_graph import (
     LAZY_SOURCES,
     MAX_ROUNDS,
@@ -82,7 +87,7 @@ if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports i
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 9
+FUSION_FORMAT = 10
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
@@ -90,8 +95,10 @@ added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
 ``veto_max_z`` (older files read as ``None``: the veto on every cloud), format 8
 ``mesh_arcs`` (older files read as ``False``: plain chords), format 9 ``mesh_noise_knots``,
 ``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise) and
-``mesh_cloud_noise`` (older files read as ``None``: every mesh its ring graph)."""
-READABLE_FORMATS = (3, 4, 5, 6, 7, 8, FUSION_FORMAT)
+``mesh_cloud_noise`` (older files read as ``None``: every mesh its ring graph), format 10
+``mesh_smooth_noise`` (older files read as ``None``: every mesh's ring graph on its own
+vertices)."""
+READABLE_FORMATS = (3, 4, 5, 6, 7, 8, 9, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -138,6 +145,12 @@ class FusionCalibration:
         mesh_cloud_noise: a mesh whose vertex noise exceeds this is answered as the cloud of
             its vertices (:meth:`answers_as_cloud`: noise beyond the edge length makes every
             ring-graph path zig-zag); ``None``: every mesh by its ring graph.
+        mesh_smooth_noise: a mesh whose vertex noise exceeds this is smoothed until it does
+            not before its ring graph is built
+            (:func:`~litege_core.learned.mesh_noise.denoised_mesh`; its bias still reads the
+            noise of the mesh as given: the noise knots were fitted on smoothed graphs);
+            ``None``: the ring graph on the mesh's own vertices. Excludes
+            ``mesh_cloud_noise``.
     """
 
     k: int
@@ -156,6 +169,7 @@ class FusionCalibration:
     mesh_noise_knots: tuple[float, ...] = ()
     mesh_noise_bias: tuple[float, ...] = ()
     mesh_cloud_noise: float | None = None
+    mesh_smooth_noise: float | None = None
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -187,6 +201,11 @@ class FusionCalibration:
         cloud_noise = self.mesh_cloud_noise
         if cloud_noise is not None and not (math.isfinite(cloud_noise) and cloud_noise > 0):
             raise ArtifactError(f"fusion mesh_cloud_noise must be positive, got {cloud_noise!r}")
+        smooth_noise = self.mesh_smooth_noise
+        if smooth_noise is not None and not (math.isfinite(smooth_noise) and smooth_noise > 0):
+            raise ArtifactError(f"fusion mesh_smooth_noise must be positive, got {smooth_noise!r}")
+        if smooth_noise is not None and cloud_noise is not None:
+            raise ArtifactError("fusion mesh_smooth_noise and mesh_cloud_noise exclude each other")
         if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
             raise ArtifactError(
                 f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
@@ -272,6 +291,11 @@ class FusionCalibration:
                     None
                     if data.get("mesh_cloud_noise") is None
                     else float(data["mesh_cloud_noise"])
+                ),
+                mesh_smooth_noise=(
+                    None
+                    if data.get("mesh_smooth_noise") is None
+                    else float(data["mesh_smooth_noise"])
                 ),
             )
         except (KeyError, TypeError, ValueError) as exc:
@@ -391,12 +415,14 @@ def shape_graph(
         z_score: the shape's OOD z-score.
     """
     if faces is not None:
-        key, arcs = f"fusion.mesh_graph.{calibration.mesh_arcs}", calibration.mesh_arcs
-        normals = kept_arc_normals(points, faces, kept) if arcs else None
+        vertices, smoothed = kept_graph_mesh(points, faces, calibration, kept)
+        arcs, suffix = calibration.mesh_arcs, f".{smoothed}" if smoothed else ""
+        normals = kept_arc_normals(vertices, faces, kept, suffix) if arcs else None
+        key = f"fusion.mesh_graph.{arcs}{suffix}"
         if key not in kept:
             from litege_core.engines.graph import mesh_ring_graph  # scipy: on use
 
-            kept[key] = mesh_ring_graph(points, faces, MESH_RINGS, normals=normals)
+            kept[key] = mesh_ring_graph(vertices, faces, MESH_RINGS, normals=normals)
         noise = kept_mesh_noise(points, faces, calibration, kept)
         return ShapeGraph(kept[key], noise, points.shape[0], normals)
     k, ratio, mutual = calibration.k, calibration.prune_ratio, calibration.mutual_k
@@ -433,27 +459,52 @@ def shape_graph(
     return ShapeGraph(graph, surface[0], int(nodes[1].size))
 
 
-def kept_arc_normals(points: NDArray, faces: NDArray, kept: dict[str, Any]) -> NDArray | None:
+def kept_arc_normals(
+    points: NDArray, faces: NDArray, kept: dict[str, Any], suffix: str = ""
+) -> NDArray | None:
     """A mesh's :func:`~litege_core.engines.graph.arc_normals`, kept in ``kept`` as
-    ``fusion.mesh_normals`` (its arcs and its vertex noise read the same normals)."""
-    if "fusion.mesh_normals" not in kept:
+    ``fusion.mesh_normals`` + ``suffix`` (its arcs and its vertex noise read the same normals;
+    ``suffix`` names smoothed vertices, :func:`kept_graph_mesh`)."""
+    key = f"fusion.mesh_normals{suffix}"
+    if key not in kept:
         from litege_core.engines.graph import arc_normals  # scipy: on use
 
-        kept["fusion.mesh_normals"] = arc_normals(points, faces)
-    return kept["fusion.mesh_normals"]
+        kept[key] = arc_normals(points, faces)
+    return kept[key]
 
 
 def kept_mesh_noise(
     points: NDArray, faces: NDArray, calibration: FusionCalibration, kept: dict[str, Any]
 ) -> float:
     """A mesh's vertex noise (:func:`mesh_noise`, kept in ``kept`` as ``fusion.mesh_noise``)
-    where the calibration reads it (noise knots or a cloud limit), else 0."""
-    if not (calibration.mesh_noise_knots or calibration.mesh_cloud_noise is not None):
+    where the calibration reads it (noise knots, a cloud or a smoothing limit), else 0."""
+    reads = calibration.mesh_noise_knots or calibration.mesh_cloud_noise is not None
+    if not (reads or calibration.mesh_smooth_noise is not None):
         return 0.0
     if "fusion.mesh_noise" not in kept:
         normals = kept_arc_normals(points, faces, kept)
         kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
     return float(kept["fusion.mesh_noise"])
+
+
+def kept_graph_mesh(
+    points: NDArray, faces: NDArray, calibration: FusionCalibration, kept: dict[str, Any]
+) -> tuple[NDArray, float | None]:
+    """The ``(N, 3)`` vertices a mesh's ring graph is built on and the smoothing limit they
+    were taken to, or the mesh's own ``points`` and ``None``. A mesh noisier than the
+    calibration's ``mesh_smooth_noise`` (:func:`kept_mesh_noise`) is smoothed down to it
+    (:func:`~litege_core.learned.mesh_noise.denoised_mesh`, kept in ``kept`` as
+    ``fusion.mesh_denoised.LIMIT``)."""
+    limit = calibration.mesh_smooth_noise
+    if limit is None:
+        return points, None
+    noise = kept_mesh_noise(points, faces, calibration, kept)
+    if noise <= limit:
+        return points, None
+    key = f"fusion.mesh_denoised.{limit}"
+    if key not in kept:
+        kept[key] = denoised_mesh(points, faces, limit, noise)
+    return kept[key].points, limit
 
 
 def graph_faces(
@@ -852,61 +903,6 @@ def surface_roughness(
     return float(np.median(local_surface(points, k, nearest)[0]))
 
 
-MESH_NOISE_SMOOTHING = 3
-"""Uniform Laplacian steps (half a step each) that take the noise out of the edge length
-:func:`mesh_noise` divides by: noise longer than the edges stretches them too, and a ratio to
-the noisy edge length stops growing at about 0.29 (a 50K-vertex scan with noise of one or of
-three edge lengths would read the same)."""
-
-
-def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
-    """How noisy a mesh's vertices are, as a fraction of its edge length: the part of each
-    vertex's normal displacement from its neighbours' mean (umbrella Laplacian ``h_i``) that
-    its neighbours do not share, ``sqrt(median_i(h_i² − h_i · mean_{j∼i} h_j))``, over the
-    median edge length of the mesh smoothed by :data:`MESH_NOISE_SMOOTHING` Laplacian steps
-    (what the edges would be without the noise).
-
-    Curvature bends neighbouring vertices alike (a coarse but clean mesh scores ~0.02–0.06),
-    vertex noise does not (σ of a fifth of the edge length scores ~0.2, of one edge length
-    ~0.65); scale-free. ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``, seams welded
-    here (:func:`~litege_core.seams.seam_welds`); ``normals``: ``(N, 3)``
-    :func:`~litege_core.engines.graph.arc_normals` if already known (else computed; a
-    non-orientable mesh uses its unoriented vertex normals). 0 for a mesh without edges.
-    """
-    from litege_core.engines.graph import arc_normals
-    from litege_core.seams import seam_welds, unique_edges, vertex_normals
-
-    faces = seam_welds(points, faces)[np.asarray(faces, dtype=np.int64)]
-    if normals is None:
-        normals = arc_normals(points, faces)
-        if normals is None:
-            normals = vertex_normals(points, faces)
-    edges = unique_edges(faces)[0]
-    a, b = edges[:, 0], edges[:, 1]
-    a, b = a[a != b], b[a != b]
-    n = points.shape[0]
-    degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
-    joined = degree > 0
-    if not joined.any():
-        return 0.0
-    per = np.maximum(degree, 1)
-
-    def neighbour_mean(values: NDArray) -> NDArray:  # (N, 3) → (N, 3): over each 1-ring
-        sums = [np.bincount(a, values[b, i], n) + np.bincount(b, values[a, i], n) for i in range(3)]
-        return np.stack(sums, axis=1) / per[:, None]
-
-    height = np.einsum("ij,ij->i", neighbour_mean(points) - points, normals)
-    shared = (np.bincount(a, height[b], n) + np.bincount(b, height[a], n)) / per
-    unshared = (height * (height - shared))[joined]
-    smooth = points
-    for _ in range(MESH_NOISE_SMOOTHING):
-        smooth = smooth + 0.5 * (neighbour_mean(smooth) - smooth) * joined[:, None]
-    length = float(np.median(np.linalg.norm(smooth[a] - smooth[b], axis=1)))
-    if not length > 0:
-        return 0.0
-    return float(np.sqrt(max(float(np.median(unshared)), 0.0)) / length)
-
-
 def fuse(
     network: NDArray,
     graph: NDArray,
@@ -955,6 +951,7 @@ __all__ = [
     "graph_faces",
     "graph_rows",
     "kept_arc_normals",
+    "kept_graph_mesh",
     "kept_mesh_noise",
     "load_fusion",
     "local_surface",

@@ -205,6 +205,33 @@ def test_samples_share_the_network_rows_across_veto_thresholds(
     assert np.any(normal[1].graph[joined] > loose[1].graph[joined] + 1e-6)
 
 
+def test_samples_of_smoothed_meshes_read_the_smoothed_noise(blob, toy_bundle_dir_with_ood) -> None:
+    """With a smoothing limit a noisy mesh's sample reads the denoised mesh's graph and the noise
+    of the mesh as given (what the fitted bias reads); a clean mesh's is the same as without
+    the limit."""
+    from litege_core.evaluation.fusion import collect_samples
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.learned.fusion import mesh_noise
+
+    shapes = _blob_shapes(blob)
+    predictor = Predictor(load_bundle(toy_bundle_dir_with_ood))
+    settings = ("mesh", "meshnoise_0.02")
+    plain, smoothed = (
+        next(iter(collect_samples(predictor, shapes, settings, mesh_smooth_noise=s).values()))
+        for s in (None, 0.08)
+    )
+    np.testing.assert_array_equal(plain[0].graph, smoothed[0].graph)
+    assert [s.roughness for s in plain] == [s.roughness for s in smoothed]
+    assert plain[0].roughness <= 0.08 < plain[1].roughness
+    noisy = make_input(shapes[0], "meshnoise_0.02", 0).shape
+    assert plain[1].roughness == pytest.approx(
+        mesh_noise(predictor.register(noisy).canonical_points, np.asarray(noisy.faces))
+    )
+    far = plain[1].truth > 0
+    ratios = [np.median(s.graph[far] / s.truth[far]) for s in (smoothed[1], plain[1])]
+    assert 1.0 < ratios[0] < ratios[1]  # the smoothed mesh's paths zig-zag less
+
+
 def _limit_samples(limit: float, rng_seed: int = 0) -> list[FusionSample]:
     """Samples as one normal limit would give them: at 2000 points the limit 0.7 cuts the
     shortcuts that leave the graph 10 % short, at 300 points it cuts surface edges (+15 %);

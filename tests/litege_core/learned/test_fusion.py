@@ -75,6 +75,9 @@ def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
         {"mesh_noise_knots": (0.02, float("inf")), "mesh_noise_bias": (1.01, 1.02)},
         {"mesh_cloud_noise": 0.0},
         {"mesh_cloud_noise": float("nan")},
+        {"mesh_smooth_noise": -0.1},
+        {"mesh_smooth_noise": float("inf")},
+        {"mesh_smooth_noise": 0.08, "mesh_cloud_noise": 0.3},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -152,39 +155,6 @@ def test_mesh_bias_follows_the_noise_knots() -> None:
     falling = _calibration(mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.02, 1.01))
     assert falling.graph_bias(5000, mesh=True, noise=0.5) == pytest.approx(1.01)
     assert knotted.graph_bias(1000, noise=0.3) == plain.graph_bias(1000) == pytest.approx(1.01)
-
-
-def test_mesh_noise_measures_vertex_noise_not_curvature() -> None:
-    """Scale-free; ~0 on clean coarse meshes, rising with the vertex noise (as a
-    fraction of the edge length), the same with the faces wound either way or split along
-    seams."""
-    import trimesh
-
-    from litege_core.learned.fusion import mesh_noise
-
-    rng = np.random.default_rng(0)
-    fine, coarse = trimesh.creation.icosphere(4), trimesh.creation.icosphere(2)
-    assert mesh_noise(np.asarray(coarse.vertices), np.asarray(coarse.faces)) < 0.01
-    capsule = trimesh.creation.capsule(radius=0.1, height=1.0, count=[8, 8])  # 66 vertices
-    assert mesh_noise(np.asarray(capsule.vertices), np.asarray(capsule.faces)) < 0.05
-    points, faces = np.asarray(fine.vertices), np.asarray(fine.faces)
-    assert mesh_noise(points, faces) < 0.01
-    edge = float(np.median(np.linalg.norm(points[faces[:, 0]] - points[faces[:, 1]], axis=1)))
-    levels = [
-        mesh_noise(points + rng.normal(0.0, s * edge, points.shape), faces)
-        for s in (0.05, 0.1, 0.2, 0.4)
-    ]
-    assert levels == sorted(levels) and levels[0] > 0.02
-    noisy = points + rng.normal(0.0, 0.1 * edge, points.shape)
-    value = mesh_noise(noisy, faces)
-    assert 0.05 < value < 0.12
-    assert mesh_noise(10.0 * noisy, faces) == pytest.approx(value)
-    flipped = faces.copy()
-    flipped[::3] = flipped[::3, ::-1]  # wound against their neighbours: turned over first
-    assert mesh_noise(noisy, flipped) == pytest.approx(value)
-    soup = noisy[faces].reshape(-1, 3)  # every face its own vertices: welded at the seams
-    assert mesh_noise(soup, np.arange(len(soup)).reshape(-1, 3)) == pytest.approx(value)
-    assert mesh_noise(points[:3], np.array([[0, 0, 0]])) == 0.0  # no edge
 
 
 def test_closed_form_eigenpairs_equal_the_eigh_reference() -> None:
@@ -266,6 +236,11 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
     assert limited.answers_as_cloud(0.5) and not limited.answers_as_cloud(0.45)
     assert not noisy.answers_as_cloud(10.0)
+    # a format-9 file (no smoothing limit) reads as meshes on their own vertices; it round-trips
+    del older["mesh_smooth_noise"]
+    assert FusionCalibration.from_json({**older, "format_version": 9}) == calibration
+    smoothed = dataclasses.replace(noisy, mesh_smooth_noise=0.08)
+    assert FusionCalibration.from_json(json.loads(json.dumps(smoothed.to_json()))) == smoothed
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
@@ -781,6 +756,41 @@ def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
         np.testing.assert_allclose(rows, plain * calibration.mesh_bias / bias, rtol=1e-6)
         biases.append(bias)
     assert biases[0] < 1.05 < 1.1 < biases[1] < 1.5  # the noisy mesh's well above the clean
+
+
+def test_a_noisy_mesh_is_smoothed_before_its_graph(bundle_dir, blob) -> None:
+    """With ``mesh_smooth_noise`` a mesh noisier than the limit is answered by the ring graph of
+    its denoised vertices (kept with the state); its rows come closer to the clean mesh's than
+    the unsmoothed graph's do (one constant bias here: the noise knots are fitted on smoothed
+    graphs, their bias read at the noise of the mesh as given). A mesh no noisier than the
+    limit is answered exactly as without it."""
+    from litege_core.learned.mesh_noise import denoised_mesh
+
+    predictor, calibration = _graph_only_predictor(bundle_dir)
+    plain = predictor
+    smoothing = Predictor(
+        predictor.bundle, fusion=dataclasses.replace(calibration, mesh_smooth_noise=0.08)
+    )
+    shape, noisy = _noisy_blob(blob, 0.3)
+    sources = np.array([0, 17, 200])
+    clean = plain.distances(plain.register(shape), sources)
+    np.testing.assert_array_equal(smoothing.distances(smoothing.register(shape), sources), clean)
+    state = smoothing.register(noisy)
+    rows = smoothing.distances(state, sources)
+    denoised = state._lazy["fusion.mesh_denoised.0.08"]
+    expected = denoised_mesh(state.canonical_points, np.asarray(noisy.faces), 0.08)
+    np.testing.assert_array_equal(denoised.points, expected.points)
+    assert denoised.steps > 0 and denoised.noise <= 0.08 < state._lazy["fusion.mesh_noise"]
+    graph = mesh_ring_graph(denoised.points, np.asarray(noisy.faces), MESH_RINGS)
+    scale = state.transform.scale
+    expected_rows = dijkstra(graph, directed=False, indices=sources) / scale / calibration.mesh_bias
+    np.testing.assert_allclose(rows, expected_rows, rtol=1e-6)
+    unsmoothed = plain.distances(plain.register(noisy), sources)
+
+    def error(answer: np.ndarray) -> float:
+        return float(np.mean(np.abs(answer - clean)) / np.mean(clean))
+
+    assert error(rows) < 0.5 * error(unsmoothed)
 
 
 def test_a_mesh_noisier_than_the_cloud_limit_is_answered_as_its_vertices(bundle_dir, blob) -> None:
