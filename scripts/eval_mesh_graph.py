@@ -4,7 +4,7 @@
 Usage::
 
     python scripts/eval_mesh_graph.py [--set tosca --set faust ...] [--dataset data/folder-cal ...]
-        [--rings 1,2,3] [--arcs] [--knn 16] [--sources 12] [--setting mesh]
+        [--rings 1,2,3] [--arcs] [--knn 16] [--smooth 0.08] [--sources 12] [--setting mesh]
         [--cache out/exact-cache]
 
 Each graph's rows are divided by its median ratio to the truth over the shapes of a group (the
@@ -18,8 +18,11 @@ lengthened to their arcs (``mesh_ring_graph(..., normals=arc_normals(...))``);
 ``--setting decimated_N`` scores the meshes simplified to about N vertices against their own
 exact geodesics (:func:`~litege_core.evaluation.geodesic.make_input`), ``--setting
 meshnoise_S`` the meshes with vertex noise against the clean surface's, instead of the meshes
-as they are. The ``ν`` column is the group's median vertex noise
-(:func:`~litege_core.learned.fusion.mesh_noise`, what a fusion's mesh bias reads).
+as they are. ``--smooth L`` adds each ring graph again on the mesh smoothed until its vertex
+noise is at most ``L`` (:func:`~litege_core.learned.mesh_noise.denoised_mesh`, what a fusion
+with ``mesh_smooth_noise = L`` builds its graph on; a mesh no noisier is left as it is). The
+``ν`` column is the group's median vertex noise before any smoothing
+(:func:`~litege_core.learned.mesh_noise.mesh_noise`, what a fusion's mesh bias reads).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from litege_core.evaluation.geodesic import (
     real_shape_paths,
 )
 from litege_core.evaluation.speed import cpu_name
-from litege_core.learned.fusion import mesh_noise
+from litege_core.learned.mesh_noise import denoised_mesh, mesh_noise
 from litege_core.metrics import geodesic_error
 
 
@@ -86,6 +89,7 @@ def main() -> None:
     parser.add_argument("--arcs", action="store_true", help="add the arc-lengthened graphs")
     parser.add_argument("--setting", default="mesh", help="mesh, decimated_N or meshnoise_S")
     parser.add_argument("--knn", type=int, default=16, help="0: no kNN row")
+    parser.add_argument("--smooth", type=float, default=None, help="add smoothed-mesh graphs")
     parser.add_argument("--sources", type=int, default=12)
     parser.add_argument("--eval-root", default="../shared/eval-data")
     parser.add_argument("--cache", default="out/exact-cache", help="exact-row cache")
@@ -114,32 +118,36 @@ def main() -> None:
             for group, shapes in groups.items()
         }
     rings = [int(r) for r in args.rings.split(",")]
-    variants: list[tuple[str, int | None, bool]] = [(f"{r}-ring chords", r, False) for r in rings]
+    variants: list[tuple[str, int | None, bool, bool]] = [
+        (f"{r}-ring chords", r, False, False) for r in rings
+    ]
     if args.arcs:
-        variants += [(f"{r}-ring arcs", r, True) for r in rings if r > 1]
+        variants += [(f"{r}-ring arcs", r, True, False) for r in rings if r > 1]
+    if args.smooth is not None:
+        variants += [(f"{name}, smoothed", r, a, True) for name, r, a, _ in variants]
     if args.knn:
-        variants.append((f"{args.knn}-NN graph of the vertices", None, False))
+        variants.append((f"{args.knn}-NN graph of the vertices", None, False, False))
     lines = [
-        "| shapes | n | ν | " + " | ".join(name for name, _, _ in variants) + " |",
+        "| shapes | n | ν | " + " | ".join(name for name, _, _, _ in variants) + " |",
         "|---|---:|---:|" + "---:|" * len(variants),
     ]
     for group, shapes in groups.items():
         cells = []
-        for _, ring_count, arcs in variants:
-            rows = [
-                shape_rows(
-                    s,
-                    knn_graph(s.vertices, args.knn)
-                    if ring_count is None
-                    else mesh_ring_graph(
-                        s.vertices,
-                        s.faces,
-                        ring_count,
-                        normals=arc_normals(s.vertices, s.faces) if arcs else None,
-                    ),
-                )
-                for s in shapes
-            ]
+        smoothed = (
+            [denoised_mesh(s.vertices, s.faces, args.smooth).points for s in shapes]
+            if args.smooth is not None
+            else []
+        )
+        for _, ring_count, arcs, smooth in variants:
+            rows = []
+            for index, s in enumerate(shapes):
+                points = smoothed[index] if smooth else s.vertices
+                if ring_count is None:
+                    graph = knn_graph(points, args.knn)
+                else:
+                    normals = arc_normals(points, s.faces) if arcs else None
+                    graph = mesh_ring_graph(points, s.faces, ring_count, normals=normals)
+                rows.append(shape_rows(s, graph))
             mean, worst, bias = scored(rows)
             cells.append(f"{mean:.2f} (worst {worst:.2f}, bias {bias:.3f})")
         noise = float(np.median([mesh_noise(s.vertices, s.faces) for s in shapes]))
@@ -148,6 +156,7 @@ def main() -> None:
         [f"--set {s}" for s in args.set]
         + [f"--dataset {d}" for d in args.dataset]
         + [f"--rings {args.rings}" + (" --arcs" if args.arcs else "")]
+        + ([f"--smooth {args.smooth:g}"] if args.smooth is not None else [])
         + [f"--knn {args.knn} --sources {args.sources} --setting {args.setting}"]
     )
     print(

@@ -14,11 +14,11 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                ``mesh_smooth_noise`` after smoothing it down to that noise (a raw scan's
                paths would zig-zag with its vertices:
                :func:`~litege_core.learned.mesh_noise.denoised_mesh`); for a point cloud, on
-               the symmetric k-NN graph of the points (canonical frame) after cutting every edge whose predicted
-               geodesic exceeds ``prune_ratio`` × its chord (the network vetoes shortcuts
-               between touching parts; the veto is the bundle's small head where the
-               calibration says so: it costs one head evaluation per edge, ~8 N for N
-               points) and, where the calibration has normal limits, every edge whose chord
+               the symmetric k-NN graph of the points (canonical frame) after cutting every
+               edge whose predicted geodesic exceeds ``prune_ratio`` × its chord (the network
+               vetoes shortcuts between touching parts; the veto is the bundle's small head
+               where the calibration says so: it costs one head evaluation per edge, ~8 N for
+               N points) and, where the calibration has normal limits, every edge whose chord
                runs along the surface normal at either end, ``|n · ĉ| > c(N)`` (a chord
                across a thin part or a gap between parts; ``n`` from the points' k-NN
                covariance, ``c(N)`` interpolated in log10 N from calibration knots: looser on

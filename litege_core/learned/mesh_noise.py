@@ -13,10 +13,13 @@ a clean mesh's, so the fusion's ring graph follows the surface the noise was add
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # scipy loads on first use
+    import scipy.sparse as sp
 
 MESH_NOISE_SMOOTHING = 3
 """Uniform Laplacian steps (half a step each) that take the noise out of the edge length
@@ -39,31 +42,51 @@ triangle soup whose vertices share no edge)."""
 class MeshEdges(NamedTuple):
     """A mesh's distinct edges between distinct vertices, seams welded
     (:func:`~litege_core.seams.seam_welds`): ``(E,)`` ends ``a``, ``b``, each vertex's
-    ``(N,)`` edge count ``degree`` and ``(N,)`` int64 ``welds`` (a seam copy's welded
-    vertex, else itself; a copy has no edge of its own)."""
+    ``(N,)`` edge count ``degree``, ``(N,)`` int64 ``welds`` (a seam copy's welded vertex,
+    else itself; a copy has no edge of its own), the ``(N, N)`` CSR ``mean`` of each vertex's
+    1-ring (row ``i``: ``1 / degree_i`` at its neighbours; empty without edges) and the
+    ``(F, 3)`` faces its normals are summed over (welded, wound alike where the surface is
+    orientable: :func:`~litege_core.engines.graph.arc_faces`)."""
 
     a: NDArray
     b: NDArray
     degree: NDArray
     welds: NDArray
+    mean: sp.csr_array
+    normal_faces: NDArray
 
     def neighbour_mean(self, values: NDArray) -> NDArray:
         """``(N, 3)`` → ``(N, 3)``: each vertex's mean over its 1-ring (0 without edges)."""
-        a, b, n = self.a, self.b, self.degree.size
-        sums = [np.bincount(a, values[b, i], n) + np.bincount(b, values[a, i], n) for i in range(3)]
-        return np.stack(sums, axis=1) / np.maximum(self.degree, 1)[:, None]
+        return np.asarray(self.mean @ values)
+
+    def normals(self, points: NDArray) -> NDArray:
+        """``(N, 3)`` unit vertex normals of the mesh at these vertex positions (what
+        :func:`~litege_core.engines.graph.arc_normals` gives, unoriented vertex normals on a
+        non-orientable surface)."""
+        from litege_core.seams import vertex_normals
+
+        return vertex_normals(points, self.normal_faces)
 
 
 def mesh_edges(points: NDArray, faces: NDArray) -> MeshEdges:
     """The :class:`MeshEdges` of a mesh (``points (N, 3)``, ``faces (F, 3)``)."""
+    import scipy.sparse as sp
+
+    from litege_core.engines.graph import arc_faces
     from litege_core.seams import seam_welds, unique_edges
 
     welds = seam_welds(points, faces)
-    edges = unique_edges(welds[np.asarray(faces, dtype=np.int64)])[0]
+    welded = welds[np.asarray(faces, dtype=np.int64)]
+    edges = unique_edges(welded)[0]
     a, b = edges[:, 0], edges[:, 1]
     a, b = a[a != b], b[a != b]
     n = points.shape[0]
-    return MeshEdges(a, b, np.bincount(a, minlength=n) + np.bincount(b, minlength=n), welds)
+    degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+    weights = 1.0 / np.maximum(degree, 1)
+    rows, columns = np.concatenate([a, b]), np.concatenate([b, a])
+    mean = sp.csr_array((weights[rows], (rows, columns)), shape=(n, n))
+    oriented = arc_faces(points, faces)
+    return MeshEdges(a, b, degree, welds, mean, welded if oriented is None else oriented)
 
 
 def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
@@ -80,16 +103,8 @@ def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) 
     :func:`~litege_core.engines.graph.arc_normals` if already known (else computed; a
     non-orientable mesh uses its unoriented vertex normals). 0 for a mesh without edges.
     """
-    from litege_core.engines.graph import arc_normals
-    from litege_core.seams import vertex_normals
-
     edges = mesh_edges(points, faces)
-    if normals is None:
-        welded = edges.welds[np.asarray(faces, dtype=np.int64)]
-        normals = arc_normals(points, welded)
-        if normals is None:
-            normals = vertex_normals(points, welded)
-    return _noise(points, normals, edges)
+    return _noise(points, edges.normals(points) if normals is None else normals, edges)
 
 
 def _noise(points: NDArray, normals: NDArray, edges: MeshEdges) -> float:
@@ -171,24 +186,19 @@ def denoised_mesh(
     smoothing). ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``; ``noise``: the mesh's
     :func:`mesh_noise` if already known.
     """
-    from litege_core.engines.graph import arc_normals
-    from litege_core.seams import vertex_normals
-
     points = np.asarray(points, dtype=np.float64)
+    edges = None
     if noise is None:
-        noise = mesh_noise(points, faces)
+        edges = mesh_edges(points, faces)
+        noise = _noise(points, edges.normals(points), edges)
     if noise <= limit:
         return DenoisedMesh(points, float(noise), 0)
-    edges = mesh_edges(points, faces)
-    welded = edges.welds[np.asarray(faces, dtype=np.int64)]
+    edges = mesh_edges(points, faces) if edges is None else edges
     smooth, steps = points, 0
     while noise > limit and steps < DENOISE_MAX_PAIRS:
         smooth = taubin_smooth(smooth, edges, DENOISE_PAIRS_PER_CHECK)
         steps += DENOISE_PAIRS_PER_CHECK
-        normals = arc_normals(smooth, welded)
-        if normals is None:
-            normals = vertex_normals(smooth, welded)
-        noise = _noise(smooth, normals, edges)
+        noise = _noise(smooth, edges.normals(smooth), edges)
     return DenoisedMesh(smooth, float(noise), steps)
 
 
