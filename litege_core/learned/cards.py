@@ -280,16 +280,17 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 else ""
             )
             + (
-                ", its distances divided by the graph's median over-estimate at the mesh's "
-                "vertex noise, which lengthens every path"
-                if data.get("mesh_noise_knots")
+                f", on a mesh whose vertex noise exceeds {data['mesh_smooth_noise']:g} of its "
+                "edge length (a raw scan) after smoothing it down to that (Taubin's filter: "
+                "paths follow the surface, not the noise)"
+                if data.get("mesh_smooth_noise") is not None
                 else ""
             )
             + (
-                f", on a mesh whose vertex noise exceeds {data['mesh_smooth_noise']:g} of its "
-                "edge length (a raw scan) after smoothing it down to that (Taubin's filter), so "
-                "that paths follow the surface, not the noise"
-                if data.get("mesh_smooth_noise") is not None
+                ", its distances divided by the graph's median over-estimate at the mesh's "
+                "vertex noise, which lengthens every path"
+                + (" even once smoothed" if data.get("mesh_smooth_noise") is not None else "")
+                if data.get("mesh_noise_knots")
                 else ""
             )
             + (
