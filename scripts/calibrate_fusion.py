@@ -291,7 +291,9 @@ def main() -> None:
         + f" --sources {args.sources} --prune-ratio {args.prune_ratio}"
         + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}"
         + f" --mesh-arcs {args.mesh_arcs} --mesh-smooth-noise {args.mesh_smooth_noise}"
-        + f" --veto-max-z {args.veto_max_z} --ood-gate-tolerance {args.ood_gate_tolerance:g}`"
+        + f" --veto-max-z {args.veto_max_z} --ood-gate-tolerance {args.ood_gate_tolerance:g}"
+        + (f" --settings {args.settings}" if settings != CALIBRATION_SETTINGS else "")
+        + "`"
     )
     knots = ", ".join(
         f"{10**x:.0f} pts: {b:.4f}"
