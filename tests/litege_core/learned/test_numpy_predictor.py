@@ -173,20 +173,29 @@ def test_shipped_models_match(scaled_blob, name):
 @pytest.mark.parametrize("name", shipped_bundles())
 @pytest.mark.parametrize("n_points", [300, 2000])
 def test_shipped_fusion_equals_the_torch_predictor(scaled_blob, name, n_points):
-    """The default (``fusion="auto"``: the shipped calibration) on a cloud and on a mesh: the
-    same veto, graph, normal limit and blend as the torch predictor."""
+    """The default (``fusion="auto"``: the shipped calibration) on a cloud, a mesh and a noisy
+    mesh (smoothed before its graph): the same veto, graph, normal limit, smoothing and blend as
+    the torch predictor."""
     mesh = scaled_blob(2, subdivisions=4)
     rng = np.random.default_rng(n_points)
     cloud = Shape.from_arrays(mesh.vertices[rng.choice(mesh.n_points, n_points, replace=False)])
+    edge = float(np.linalg.norm(mesh.vertices[mesh.faces[0, 0]] - mesh.vertices[mesh.faces[0, 1]]))
+    noisy = Shape.from_arrays(
+        mesh.vertices + rng.normal(0.0, 0.5 * edge, (mesh.n_points, 3)), mesh.faces
+    )
     runtime, reference = NumpyPredictor.shipped(name), Predictor(load_shipped(name))
     assert runtime.fusion is not None and runtime.fusion == reference.fusion
+    assert runtime.fusion.mesh_smooth_noise is not None
     network = NumpyPredictor.shipped(name, fusion="none")
-    for shape in (cloud, mesh):
+    for shape in (cloud, mesh, noisy):
         got = runtime.distances(runtime.register(shape), [0, 7, 150], "all")
         want = reference.distances(reference.register(shape), [0, 7, 150], "all")
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * float(want.max()))
         alone = network.distances(network.register(shape), [0, 7, 150], "all")
         assert np.abs(alone - got).mean() > 1e-3 * float(want.mean())  # the blend did act
+    state = runtime.register(noisy)
+    runtime.distances(state, [0], "all")
+    assert any(key.startswith("fusion.mesh_denoised.") for key in state._kept)  # smoothed
 
 
 @pytest.mark.parametrize("name", shipped_bundles())
