@@ -326,22 +326,18 @@ def mutual_knn_graph_reference(points: NDArray, k: int) -> sp.csr_array:
 
 def arc_normals(points: NDArray, faces: NDArray) -> NDArray | None:
     """``(N, 3)`` vertex normals of a mesh with its seams welded, for the arcs of
-    :func:`mesh_ring_graph`: those of :func:`arc_faces` (``None`` where it has none: plain
-    chords). A seam copy's normal is zero (its arcs are chords)."""
-    oriented = arc_faces(points, faces)
-    return None if oriented is None else vertex_normals(points, oriented)
-
-
-def arc_faces(points: NDArray, faces: NDArray) -> NDArray | None:
-    """``(F, 3)`` a mesh's faces with its seams welded and every face wound like its
-    neighbours: faces wound against them (a mesh with flipped triangles, or non-manifold
-    edges) are turned over (:func:`~litege_core.seams.oriented_faces`), so that summed normals
-    do not cancel; ``None`` where no turning does (a non-orientable surface). They depend on
-    the topology only: a mesh whose vertices move keeps them."""
+    :func:`mesh_ring_graph`. Faces wound against their neighbours (a mesh with flipped
+    triangles, or non-manifold edges) are turned over first
+    (:func:`~litege_core.seams.oriented_faces`), so that summed normals do not cancel;
+    ``None`` where no turning does (a non-orientable surface: plain chords). A seam copy's
+    normal is zero (its arcs are chords)."""
     faces = seam_welds(points, faces)[np.asarray(faces, dtype=np.int64)]
-    if consistently_wound(faces):
-        return faces
-    return oriented_faces(faces)
+    if not consistently_wound(faces):
+        oriented = oriented_faces(faces)
+        if oriented is None:
+            return None
+        faces = oriented
+    return vertex_normals(points, faces)
 
 
 def mesh_ring_graph(
@@ -461,7 +457,6 @@ class KnnGraphEngine(GeodesicEngine):
 __all__ = [
     "DEFAULT_K",
     "KnnGraphEngine",
-    "arc_faces",
     "arc_factors",
     "arc_normals",
     "dijkstra_path",

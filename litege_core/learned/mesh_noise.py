@@ -13,6 +13,8 @@ a clean mesh's, so the fusion's ring graph follows the surface the noise was add
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -39,25 +41,39 @@ DENOISE_MAX_PAIRS = 200
 triangle soup whose vertices share no edge)."""
 
 
-class MeshEdges(NamedTuple):
+@dataclass(frozen=True)
+class MeshEdges:
     """A mesh's distinct edges between distinct vertices, seams welded
     (:func:`~litege_core.seams.seam_welds`): ``(E,)`` ends ``a``, ``b``, each vertex's
     ``(N,)`` edge count ``degree``, ``(N,)`` int64 ``welds`` (a seam copy's welded vertex,
     else itself; a copy has no edge of its own), the ``(N, N)`` CSR ``mean`` of each vertex's
-    1-ring (row ``i``: ``1 / degree_i`` at its neighbours; empty without edges) and the
-    ``(F, 3)`` faces its normals are summed over (welded, wound alike where the surface is
-    orientable: :func:`~litege_core.engines.graph.arc_faces`)."""
+    1-ring (row ``i``: ``1 / degree_i`` at its neighbours; empty without edges) and the mesh's
+    ``(F, 3)`` ``faces`` as given."""
 
     a: NDArray
     b: NDArray
     degree: NDArray
     welds: NDArray
     mean: sp.csr_array
-    normal_faces: NDArray
+    faces: NDArray
 
     def neighbour_mean(self, values: NDArray) -> NDArray:
         """``(N, 3)`` → ``(N, 3)``: each vertex's mean over its 1-ring (0 without edges)."""
         return np.asarray(self.mean @ values)
+
+    @cached_property
+    def normal_faces(self) -> NDArray:
+        """``(F, 3)`` the faces vertex normals are summed over: welded, every face wound like
+        its neighbours where the surface is orientable (as
+        :func:`~litege_core.engines.graph.arc_normals` turns them); found once, on first use
+        (they depend on the topology only)."""
+        from litege_core.seams import consistently_wound, oriented_faces
+
+        welded = self.welds[self.faces]
+        if consistently_wound(welded):
+            return welded
+        oriented = oriented_faces(welded)
+        return welded if oriented is None else oriented
 
     def normals(self, points: NDArray) -> NDArray:
         """``(N, 3)`` unit vertex normals of the mesh at these vertex positions (what
@@ -72,12 +88,11 @@ def mesh_edges(points: NDArray, faces: NDArray) -> MeshEdges:
     """The :class:`MeshEdges` of a mesh (``points (N, 3)``, ``faces (F, 3)``)."""
     import scipy.sparse as sp
 
-    from litege_core.engines.graph import arc_faces
     from litege_core.seams import seam_welds, unique_edges
 
+    faces = np.asarray(faces, dtype=np.int64)
     welds = seam_welds(points, faces)
-    welded = welds[np.asarray(faces, dtype=np.int64)]
-    edges = unique_edges(welded)[0]
+    edges = unique_edges(welds[faces])[0]
     a, b = edges[:, 0], edges[:, 1]
     a, b = a[a != b], b[a != b]
     n = points.shape[0]
@@ -85,8 +100,7 @@ def mesh_edges(points: NDArray, faces: NDArray) -> MeshEdges:
     weights = 1.0 / np.maximum(degree, 1)
     rows, columns = np.concatenate([a, b]), np.concatenate([b, a])
     mean = sp.csr_array((weights[rows], (rows, columns)), shape=(n, n))
-    oriented = arc_faces(points, faces)
-    return MeshEdges(a, b, degree, welds, mean, welded if oriented is None else oriented)
+    return MeshEdges(a, b, degree, welds, mean, faces)
 
 
 def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
