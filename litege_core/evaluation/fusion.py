@@ -75,7 +75,8 @@ arcs (:func:`choose_mesh_arcs`)."""
 DEFAULT_MESH_SMOOTH_NOISE = 0.08
 """The vertex noise above which ``scripts/calibrate_fusion.py`` has a mesh smoothed down to it
 before its ring graph (:func:`~litege_core.learned.mesh_noise.denoised_mesh`): just above the
-0.02–0.06 of clean meshes at any resolution, so no clean calibration or dev mesh is touched."""
+at most ~0.06 that clean meshes read (0.001–0.06 on every dev, calibration and train-data mesh
+we have, the denser the lower), so no clean mesh is touched."""
 MUTUAL_K_CANDIDATES = (0, 24)
 """Cloud graphs ``scripts/calibrate_fusion.py`` tries: 0, the symmetric k-NN graph, or the
 mutual k-NN graph of that many neighbours (:func:`~litege_core.engines.graph.mutual_knn_graph`);

@@ -7,7 +7,7 @@ the noise as a fraction of the edge length; :func:`denoised_mesh` smooths the ve
 λ|μ filter: a low-pass that neither shrinks nor drifts the surface) until the noise is down to
 a clean mesh's, so the fusion's ring graph follows the surface the noise was added to::
 
-    noise = mesh_noise(points, faces)              # ~0.02–0.06 clean, ~0.65 at σ = 1 edge
+    noise = mesh_noise(points, faces)              # ≤ ~0.06 clean, ~0.65 at σ = 1 edge
     smooth = denoised_mesh(points, faces, 0.08)    # .points (N, 3), .noise, .steps
 """
 
