@@ -33,9 +33,9 @@ from litege_core.learned.fusion import (
     MESH_RINGS,
     FusionCalibration,
     fuse,
-    mesh_noise,
     surface_roughness,
 )
+from litege_core.learned.mesh_noise import mesh_noise
 from litege_core.metrics import geodesic_error
 
 CALIBRATION_SETTINGS = (
@@ -101,7 +101,7 @@ class FusionSample:
     """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit), with the
     gate's inputs (mesh or cloud, OOD z-score, point count, surface roughness: a cloud's
     :func:`~litege_core.learned.fusion.surface_roughness`, a mesh's
-    :func:`~litege_core.learned.fusion.mesh_noise`)."""
+    :func:`~litege_core.learned.mesh_noise.mesh_noise`)."""
 
     shape: str
     group: str
@@ -341,7 +341,7 @@ def mesh_noise_knots(
 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """The noise knots of a mesh graph's bias: the clean meshes' (:func:`is_clean_mesh`) at
     the :data:`CLEAN_MESH_NOISE_QUANTILE` of their vertex noise
-    (:func:`~litege_core.learned.fusion.mesh_noise`) with their median bias, then per noisy
+    (:func:`~litege_core.learned.mesh_noise.mesh_noise`) with their median bias, then per noisy
     setting (``meshnoise_S``) the median noise of its samples with their median bias, in
     increasing noise (a noisy setting no noisier than the knot before it is left out); empty
     where fewer than two knots remain (a constant bias)."""

@@ -72,7 +72,7 @@ from numpy.typing import NDArray
 from litege_core.arrays import distinct_indices
 from litege_core.errors import ArtifactError, InputError
 from litege_core.files import read_json_object, write_json_atomic
-from litege_core.learned.mesh_noise import MESH_NOISE_SMOOTHING, denoised_mesh, mesh_noise
+from litege_core.learned.mesh_noise import denoised_mesh, mesh_noise
 from litege_core.learned.veto_graph import (
     LAZY_SOURCES,
     MAX_ROUNDS,
@@ -940,7 +940,6 @@ __all__ = [
     "DEFAULT_FUSION",
     "FUSIONS",
     "FUSION_CONFIG",
-    "MESH_NOISE_SMOOTHING",
     "MESH_RINGS",
     "FusionCalibration",
     "ShapeGraph",
@@ -955,7 +954,6 @@ __all__ = [
     "kept_mesh_noise",
     "load_fusion",
     "local_surface",
-    "mesh_noise",
     "normal_cosines",
     "pruned_knn_graph",
     "resolve_fusion",

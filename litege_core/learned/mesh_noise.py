@@ -58,7 +58,8 @@ class MeshEdges:
     faces: NDArray
 
     def neighbour_mean(self, values: NDArray) -> NDArray:
-        """``(N, 3)`` → ``(N, 3)``: each vertex's mean over its 1-ring (0 without edges)."""
+        """``(N, ...)`` → ``(N, ...)``: each vertex's mean over its 1-ring (0 without
+        edges)."""
         return np.asarray(self.mean @ values)
 
     @cached_property
@@ -123,18 +124,16 @@ def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) 
 
 def _noise(points: NDArray, normals: NDArray, edges: MeshEdges) -> float:
     """:func:`mesh_noise` with the mesh's edges and vertex normals known."""
-    a, b, degree = edges.a, edges.b, edges.degree
-    joined = degree > 0
+    joined = edges.degree > 0
     if not joined.any():
         return 0.0
-    n = points.shape[0]
     height = np.einsum("ij,ij->i", edges.neighbour_mean(points) - points, normals)
-    shared = (np.bincount(a, height[b], n) + np.bincount(b, height[a], n)) / np.maximum(degree, 1)
+    shared = edges.neighbour_mean(height)
     unshared = (height * (height - shared))[joined]
     smooth = points
     for _ in range(MESH_NOISE_SMOOTHING):
         smooth = smooth + 0.5 * (edges.neighbour_mean(smooth) - smooth) * joined[:, None]
-    length = float(np.median(np.linalg.norm(smooth[a] - smooth[b], axis=1)))
+    length = float(np.median(np.linalg.norm(smooth[edges.a] - smooth[edges.b], axis=1)))
     if not length > 0:
         return 0.0
     return float(np.sqrt(max(float(np.median(unshared)), 0.0)) / length)

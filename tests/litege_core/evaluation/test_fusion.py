@@ -211,7 +211,7 @@ def test_samples_of_smoothed_meshes_read_the_smoothed_noise(blob, toy_bundle_dir
     the limit."""
     from litege_core.evaluation.fusion import collect_samples
     from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion import mesh_noise
+    from litege_core.learned.mesh_noise import mesh_noise
 
     shapes = _blob_shapes(blob)
     predictor = Predictor(load_bundle(toy_bundle_dir_with_ood))

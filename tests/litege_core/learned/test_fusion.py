@@ -735,7 +735,7 @@ def _noisy_blob(blob, fraction: float) -> tuple[Shape, Shape]:
 def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
     """With noise knots a mesh's rows are divided by the bias at its vertex noise (measured
     once per shape, on its canonical vertices); the clean mesh keeps the first knot's."""
-    from litege_core.learned.fusion import mesh_noise
+    from litege_core.learned.mesh_noise import mesh_noise
 
     predictor, calibration = _graph_only_predictor(bundle_dir)
     knotted = dataclasses.replace(
