@@ -170,7 +170,7 @@ def _match(method, x: Shape, y: Shape, queries):
 def litege_predictors(bundle) -> dict[str, Predictor]:
     """The LiteGE configurations the bundle supports (``small head`` and ``graph fusion``
     need their sidecars)."""
-    from litege_core.learned.fusion import FUSION_CONFIG
+    from litege_core.learned.fusion_calibration import FUSION_CONFIG
     from litege_core.learned.small_head import small_head_config
 
     has_fusion = bundle.path is not None and (bundle.path / FUSION_CONFIG).is_file()

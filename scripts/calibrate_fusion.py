@@ -80,7 +80,8 @@ from litege_core.evaluation.geodesic import (
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_model
 from litege_core.learned.cards import write_sidecar_section
-from litege_core.learned.fusion import MESH_RINGS, save_fusion
+from litege_core.learned.fusion import MESH_RINGS
+from litege_core.learned.fusion_calibration import save_fusion
 from litege_core.learned.small_head import small_head_config
 from litege_core.synth import CATEGORIES
 

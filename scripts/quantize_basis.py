@@ -23,7 +23,7 @@ from ship_model import rendered_card  # scripts/ is sys.path[0]
 
 from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.files import write_json_atomic
-from litege_core.learned.fusion import FUSION_CONFIG
+from litege_core.learned.fusion_calibration import FUSION_CONFIG
 from litege_core.learned.manifest import (
     BASIS_FILE,
     SMALL_HEAD_CONFIG,

@@ -45,7 +45,8 @@ from litege_core.evaluation.geodesic import (
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
-from litege_core.learned.fusion import FusionCalibration, corrected_graph, load_fusion
+from litege_core.learned.fusion import corrected_graph
+from litege_core.learned.fusion_calibration import FusionCalibration, load_fusion
 from litege_core.learned.predictor import Predictor
 from litege_core.shape import Shape
 

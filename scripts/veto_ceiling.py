@@ -57,7 +57,8 @@ from litege_core.evaluation.geodesic import (
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
-from litege_core.learned.fusion import fuse, local_surface, pruned_knn_graph
+from litege_core.learned.cloud_surface import local_surface
+from litege_core.learned.fusion import fuse, pruned_knn_graph
 from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
 from litege_core.variants import add_noise

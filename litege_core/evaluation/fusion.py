@@ -29,12 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.evaluation.geodesic import EvalShape, make_input
-from litege_core.learned.fusion import (
-    MESH_RINGS,
-    FusionCalibration,
-    fuse,
-    surface_roughness,
-)
+from litege_core.learned.cloud_surface import surface_roughness
+from litege_core.learned.fusion import MESH_RINGS, fuse
+from litege_core.learned.fusion_calibration import FusionCalibration
 from litege_core.learned.mesh_noise import mesh_noise
 from litege_core.metrics import geodesic_error
 
@@ -100,7 +97,7 @@ large one: the bound is a constraint)."""
 class FusionSample:
     """One (shape, setting): ``(S, T)`` network, raw graph and exact rows (one unit), with the
     gate's inputs (mesh or cloud, OOD z-score, point count, surface roughness: a cloud's
-    :func:`~litege_core.learned.fusion.surface_roughness`, a mesh's
+    :func:`~litege_core.learned.cloud_surface.surface_roughness`, a mesh's
     :func:`~litege_core.learned.mesh_noise.mesh_noise`)."""
 
     shape: str
@@ -180,10 +177,10 @@ def collect_samples(
         mutual_ks: the cloud graphs' neighbour rules (0: symmetric k-NN; else mutual k-NN of
             that many neighbours).
         veto_head: the head that prunes the graph (see
-            :class:`~litege_core.learned.fusion.FusionCalibration`).
+            :class:`~litege_core.learned.fusion_calibration.FusionCalibration`).
         mesh_arcs: a mesh's graph lengthens its chords to their arcs (:func:`choose_mesh_arcs`).
         mesh_smooth_noise: meshes noisier than this are smoothed down to it before their graph
-            (see :class:`~litege_core.learned.fusion.FusionCalibration`); their samples'
+            (see :class:`~litege_core.learned.fusion_calibration.FusionCalibration`); their samples'
             roughness stays the noise of the mesh as given, what the bias reads.
 
     Returns:
@@ -653,7 +650,7 @@ def with_veto_limit(
 ) -> list[FusionSample]:
     """``samples`` with each cloud's graph rows as ``calibration`` reads them: the unvetoed
     rows where its ``veto_max_z`` keeps the veto off at the sample's z-score
-    (:meth:`~litege_core.learned.fusion.FusionCalibration.vetoes`)."""
+    (:meth:`~litege_core.learned.fusion_calibration.FusionCalibration.vetoes`)."""
     return [
         replace(s, graph=s.unvetoed)
         if s.unvetoed is not None and not calibration.vetoes(s.z_score)

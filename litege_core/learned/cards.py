@@ -243,7 +243,8 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
     """The card's section on the bundle's optional sidecars (the small head, the graph-fusion
     calibration) present in ``directory``, with the calibration data's credits; ``None`` when
     there are none."""
-    from litege_core.learned.fusion import FUSION_CONFIG, MESH_RINGS
+    from litege_core.learned.fusion import MESH_RINGS
+    from litege_core.learned.fusion_calibration import FUSION_CONFIG
     from litege_core.learned.small_head import SMALL_HEAD_CONFIG
 
     directory = Path(directory)

@@ -37,8 +37,8 @@ estimate takes the better of the two per shape, with weights fitted on data we g
                points, interpolated in log10 N from calibration knots
     w        = 0 on a mesh (its ring graph alone); for a cloud
                sigmoid(a + c_z · z + c_n · (log10 N − 3) + c_r · r)
-               (z: the shape's OOD z-score; r: its surface roughness, see
-               :func:`surface_roughness`, high on noisy scans)
+               (z: the shape's OOD z-score; r: its surface roughness, high on noisy scans:
+               :func:`~litege_core.learned.cloud_surface.surface_roughness`)
     G        = w · G_network + (1 − w) · G_graph / b
 
 so a shape the network knows (low z), a sparse or a noisy cloud leans on the network, and an
@@ -52,26 +52,24 @@ k-NN graph's shortest path on a cloud).
 
 The calibration is a sidecar of the bundle, like the small head: ``fusion.json`` beside the
 bundle files, naming the content hash of the bundle it was fitted for (a mismatch is refused),
-written by :func:`save_fusion` (``scripts/calibrate_fusion.py``), read by :func:`load_fusion`
-(``Predictor(bundle, fusion="graph")``).
+written by :func:`~litege_core.learned.fusion_calibration.save_fusion`
+(``scripts/calibrate_fusion.py``), read by
+:func:`~litege_core.learned.fusion_calibration.load_fusion` (``Predictor(bundle,
+fusion="graph")``).
 """
 
 from __future__ import annotations
 
-import math
-import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from datetime import UTC, datetime
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.arrays import distinct_indices
-from litege_core.errors import ArtifactError, InputError
-from litege_core.files import read_json_object, write_json_atomic
+from litege_core.errors import InputError
+from litege_core.learned.cloud_surface import ROUGHNESS_NEIGHBOURS, local_surface, normal_cosines
+from litege_core.learned.fusion_calibration import FusionCalibration
 from litege_core.learned.mesh_noise import denoised_mesh, mesh_noise
 from litege_core.learned.veto_graph import (
     LAZY_SOURCES,
@@ -85,282 +83,10 @@ from litege_core.learned.veto_graph import (
 if TYPE_CHECKING:  # scipy loads on first use: a plain CLI query never imports it
     import scipy.sparse as sp
 
-FUSION_CONFIG = "fusion.json"
-FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 10
-"""Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
-``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
-``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
-added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
-``veto_max_z`` (older files read as ``None``: the veto on every cloud), format 8
-``mesh_arcs`` (older files read as ``False``: plain chords), format 9 ``mesh_noise_knots``,
-``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise) and
-``mesh_cloud_noise`` (older files read as ``None``: every mesh its ring graph), format 10
-``mesh_smooth_noise`` (older files read as ``None``: every mesh's ring graph on its own
-vertices)."""
-READABLE_FORMATS = (3, 4, 5, 6, 7, 8, 9, FUSION_FORMAT)
-
-FUSIONS = ("auto", "none", "graph")
-"""Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
-a calibration, else ``none``), ``none`` (the network alone) or ``graph``."""
-DEFAULT_FUSION = "auto"
-VETO_HEADS = ("full", "small")
 MESH_RINGS = 2
 """Mesh edges between two vertices the graph of a mesh input joins by a chord
 (:func:`~litege_core.engines.graph.mesh_ring_graph`): on the real dev meshes and the calibration
 meshes two rings gave the lowest error of 1–3 (the own edges zig-zag, three admit shortcuts)."""
-ROUGHNESS_NEIGHBOURS = 16
-"""Points per neighbourhood of :func:`surface_roughness` (the point itself included)."""
-ROUGHNESS_CHUNK = 65_536
-"""Points per block of :func:`surface_roughness` (bounds its ``(C, k, 3)`` temporaries)."""
-
-
-@dataclass(frozen=True)
-class FusionCalibration:
-    """Fitted constants of the fusion (see the module docstring).
-
-    Attributes:
-        k: neighbours per point of the graph.
-        prune_ratio: an edge is cut when its predicted geodesic exceeds this × its chord.
-        bias_log10_points: increasing knots of ``log10 N``.
-        bias: the graph's median distance / true distance at each knot.
-        gate: ``(a, c_z, c_n, c_r)`` of the network's weight ``w`` on a point cloud.
-        mesh_bias: the mesh graph's median distance / true distance.
-        bundle_hash: content hash of the bundle the calibration belongs to.
-        fitted_on: what it was fitted on (free-form JSON: data, counts, errors).
-        veto_head: the head whose edge predictions prune the graph: ``"small"`` (the
-            bundle's distilled head, ~18× cheaper per pair: what the shipped calibrations use)
-            or ``"full"``; whatever head answers the queries.
-        normal_cos: the normal limit ``c`` at each bias knot (a cloud edge is cut when
-            ``|n · ĉ| > c`` at either end), or empty: no normal limit.
-        mutual_k: 0: a cloud's graph joins each point to its ``k`` nearest (symmetric k-NN);
-            else the mutual k-NN graph of this many neighbours.
-        veto_max_z: the network veto runs on clouds whose OOD z-score is at most this
-            (:meth:`vetoes`); ``None``: on every cloud.
-        mesh_arcs: a mesh's ring graph lengthens its chords to the arcs they span
-            (:func:`~litege_core.engines.graph.mesh_ring_graph`); ``False``: plain chords.
-        mesh_noise_knots: increasing knots of a mesh's vertex noise (:func:`mesh_noise`), or
-            empty: ``mesh_bias`` whatever the noise.
-        mesh_noise_bias: the mesh graph's median distance / true distance at each noise knot.
-        mesh_cloud_noise: a mesh whose vertex noise exceeds this is answered as the cloud of
-            its vertices (:meth:`answers_as_cloud`: noise beyond the edge length makes every
-            ring-graph path zig-zag); ``None``: every mesh by its ring graph.
-        mesh_smooth_noise: a mesh whose vertex noise exceeds this is smoothed until it does
-            not before its ring graph is built
-            (:func:`~litege_core.learned.mesh_noise.denoised_mesh`; its bias still reads the
-            noise of the mesh as given: the noise knots were fitted on smoothed graphs);
-            ``None``: the ring graph on the mesh's own vertices. Excludes
-            ``mesh_cloud_noise``.
-    """
-
-    k: int
-    prune_ratio: float
-    bias_log10_points: tuple[float, ...]
-    bias: tuple[float, ...]
-    gate: tuple[float, float, float, float]
-    mesh_bias: float
-    bundle_hash: str
-    fitted_on: dict[str, Any] = field(default_factory=dict, compare=False)
-    veto_head: str = "full"
-    normal_cos: tuple[float, ...] = ()
-    mutual_k: int = 0
-    veto_max_z: float | None = None
-    mesh_arcs: bool = False
-    mesh_noise_knots: tuple[float, ...] = ()
-    mesh_noise_bias: tuple[float, ...] = ()
-    mesh_cloud_noise: float | None = None
-    mesh_smooth_noise: float | None = None
-
-    def __post_init__(self) -> None:
-        knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
-        if not (isinstance(self.k, int) and self.k >= 1):
-            raise ArtifactError(f"fusion k must be a positive integer, got {self.k!r}")
-        if not (math.isfinite(self.prune_ratio) and self.prune_ratio >= 1.0):
-            raise ArtifactError(f"fusion prune_ratio must be >= 1, got {self.prune_ratio!r}")
-        if knots.size < 1 or knots.shape != bias.shape or np.any(np.diff(knots) <= 0):
-            raise ArtifactError("fusion bias knots must be increasing, one bias per knot")
-        if not (np.all(np.isfinite(bias)) and np.all(bias > 0)):
-            raise ArtifactError("fusion bias values must be positive and finite")
-        if self.veto_head not in VETO_HEADS:
-            raise ArtifactError(f"fusion veto_head must be {VETO_HEADS}, got {self.veto_head!r}")
-        if len(self.gate) != 4 or not all(math.isfinite(v) for v in self.gate):
-            raise ArtifactError(f"fusion gate must be four finite numbers, got {self.gate!r}")
-        if not (math.isfinite(self.mesh_bias) and self.mesh_bias > 0):
-            raise ArtifactError(f"fusion mesh_bias must be positive, got {self.mesh_bias!r}")
-        limits = np.asarray(self.normal_cos, dtype=np.float64)
-        valid = limits.shape == knots.shape and np.all((limits > 0) & (limits <= 1))
-        if limits.size and not valid:
-            raise ArtifactError("fusion normal_cos must be empty or one value in (0, 1] per knot")
-        if not (isinstance(self.mutual_k, int) and self.mutual_k >= 0):
-            raise ArtifactError(f"fusion mutual_k must be an integer >= 0, got {self.mutual_k!r}")
-        noise, noise_bias = np.asarray(self.mesh_noise_knots), np.asarray(self.mesh_noise_bias)
-        if noise.shape != noise_bias.shape or np.any(np.diff(noise) <= 0):
-            raise ArtifactError("fusion mesh noise knots must be increasing, one bias per knot")
-        if not (np.all(np.isfinite(noise)) and np.all(np.isfinite(noise_bias) & (noise_bias > 0))):
-            raise ArtifactError("fusion mesh noise knots and biases must be finite, biases > 0")
-        cloud_noise = self.mesh_cloud_noise
-        if cloud_noise is not None and not (math.isfinite(cloud_noise) and cloud_noise > 0):
-            raise ArtifactError(f"fusion mesh_cloud_noise must be positive, got {cloud_noise!r}")
-        smooth_noise = self.mesh_smooth_noise
-        if smooth_noise is not None and not (math.isfinite(smooth_noise) and smooth_noise > 0):
-            raise ArtifactError(f"fusion mesh_smooth_noise must be positive, got {smooth_noise!r}")
-        if smooth_noise is not None and cloud_noise is not None:
-            raise ArtifactError("fusion mesh_smooth_noise and mesh_cloud_noise exclude each other")
-        if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
-            raise ArtifactError(
-                f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
-            )
-
-    def vetoes(self, z_score: float) -> bool:
-        """Whether the network vetoes the graph edges of a cloud of this OOD z-score: always
-        without ``veto_max_z``, else where ``z_score <= veto_max_z`` (never for a ``nan``)."""
-        return self.veto_max_z is None or float(z_score) <= self.veto_max_z
-
-    def answers_as_cloud(self, noise: float) -> bool:
-        """Whether a mesh of this vertex noise (:func:`mesh_noise`) is answered as the cloud of
-        its vertices (above ``mesh_cloud_noise``), not by its ring graph."""
-        return self.mesh_cloud_noise is not None and noise > self.mesh_cloud_noise
-
-    def graph_bias(self, n_points: int, mesh: bool = False, noise: float = 0.0) -> float:
-        """The graph's over-estimate factor: on a mesh of vertex ``noise``
-        (:func:`mesh_noise`) interpolated in the noise knots (the first knot's below them,
-        the last segment extended beyond them; ``mesh_bias`` without knots), else at
-        ``n_points`` cloud points (clamped to the knots)."""
-        if not mesh:
-            return float(np.interp(np.log10(n_points), self.bias_log10_points, self.bias))
-        knots, bias = self.mesh_noise_knots, self.mesh_noise_bias
-        if not knots:
-            return self.mesh_bias
-        if len(knots) > 1 and noise > knots[-1]:
-            slope = (bias[-1] - bias[-2]) / (knots[-1] - knots[-2])
-            return float(max(bias[-1] + slope * (noise - knots[-1]), bias[-1]))
-        return float(np.interp(noise, knots, bias))
-
-    @property
-    def reach(self) -> int:
-        """Neighbours per point a cloud's graph searches: ``k``, or ``mutual_k`` for a
-        larger mutual graph (:func:`pruned_knn_graph` takes a search of at least this many)."""
-        return max(self.k, self.mutual_k)
-
-    def normal_limit(self, n_points: int) -> float:
-        """The normal limit ``c`` of a cloud of ``n_points`` (clamped to the knots; 1: none)."""
-        if not self.normal_cos:
-            return 1.0
-        return float(np.interp(np.log10(n_points), self.bias_log10_points, self.normal_cos))
-
-    def network_weight(
-        self, z_score: float, n_points: int, roughness: float, mesh: bool = False
-    ) -> float:
-        """The network's weight ``w`` in ``[0, 1]`` for a cloud of this OOD z, size and surface
-        roughness; 0 for a mesh (its ring graph alone)."""
-        if mesh:
-            return 0.0
-        a, c_z, c_n, c_r = self.gate
-        logit = a + c_z * float(z_score) + c_n * (math.log10(n_points) - 3.0) + c_r * roughness
-        return float(1.0 / (1.0 + math.exp(-min(max(logit, -60.0), 60.0))))
-
-    def to_json(self) -> dict[str, Any]:
-        data = asdict(self)
-        return {"kind": FUSION_KIND, "format_version": FUSION_FORMAT, **data}
-
-    @classmethod
-    def from_json(cls, data: dict[str, Any]) -> FusionCalibration:
-        if data.get("kind") != FUSION_KIND or data.get("format_version") not in READABLE_FORMATS:
-            raise ArtifactError(
-                f"{FUSION_CONFIG} is not a graph fusion of format {READABLE_FORMATS}; fit it again "
-                "(scripts/calibrate_fusion.py)"
-            )
-        try:
-            return cls(
-                k=int(data["k"]),
-                prune_ratio=float(data["prune_ratio"]),
-                bias_log10_points=tuple(float(v) for v in data["bias_log10_points"]),
-                bias=tuple(float(v) for v in data["bias"]),
-                gate=tuple(float(v) for v in data["gate"]),  # type: ignore[arg-type]
-                mesh_bias=float(data["mesh_bias"]),
-                bundle_hash=str(data["bundle_hash"]),
-                fitted_on=dict(data.get("fitted_on") or {}),
-                veto_head=str(data["veto_head"]),
-                normal_cos=tuple(float(v) for v in data.get("normal_cos", ())),
-                mutual_k=int(data.get("mutual_k", 0)),
-                veto_max_z=None if data.get("veto_max_z") is None else float(data["veto_max_z"]),
-                mesh_arcs=_flag(data.get("mesh_arcs", False)),
-                mesh_noise_knots=tuple(float(v) for v in data.get("mesh_noise_knots", ())),
-                mesh_noise_bias=tuple(float(v) for v in data.get("mesh_noise_bias", ())),
-                mesh_cloud_noise=(
-                    None
-                    if data.get("mesh_cloud_noise") is None
-                    else float(data["mesh_cloud_noise"])
-                ),
-                mesh_smooth_noise=(
-                    None
-                    if data.get("mesh_smooth_noise") is None
-                    else float(data["mesh_smooth_noise"])
-                ),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ArtifactError(f"{FUSION_CONFIG} is inconsistent: {exc}") from exc
-
-
-def _flag(value: Any) -> bool:
-    """A JSON boolean (anything else is a damaged file)."""
-    if not isinstance(value, bool):
-        raise ValueError(f"expected true or false, got {value!r}")
-    return value
-
-
-def save_fusion(directory: str | os.PathLike, calibration: FusionCalibration) -> Path:
-    """Write ``calibration`` as ``DIRECTORY/fusion.json`` (atomically); returns the path."""
-    path = Path(directory) / FUSION_CONFIG
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = calibration.to_json()
-    data["created"] = datetime.now(UTC).isoformat(timespec="seconds")
-    write_json_atomic(path, data)
-    return path
-
-
-def load_fusion(
-    bundle_dir: str | os.PathLike | None, bundle_hash: str, name: str
-) -> FusionCalibration:
-    """The verified fusion calibration beside a bundle.
-
-    Raises:
-        InputError: the bundle has none, or it was fitted for another bundle.
-        ArtifactError: a damaged file.
-    """
-    path = None if bundle_dir is None else Path(bundle_dir) / FUSION_CONFIG
-    if path is None or not path.is_file():
-        raise InputError(
-            f"model {name!r} has no graph-fusion calibration ({FUSION_CONFIG}); fit one with "
-            "scripts/calibrate_fusion.py or use fusion='none'"
-        )
-    calibration = FusionCalibration.from_json(read_json_object(path, f"{FUSION_CONFIG} of {name}"))
-    if calibration.bundle_hash != bundle_hash:
-        raise InputError(
-            f"the graph fusion of {name!r} was fitted for bundle {calibration.bundle_hash[:12]}…, "
-            f"not for this bundle ({bundle_hash[:12]}…); fit it again"
-        )
-    return calibration
-
-
-def resolve_fusion(
-    fusion: str, bundle_dir: str | os.PathLike | None, bundle_hash: str, name: str
-) -> FusionCalibration | None:
-    """The calibration a predictor's ``fusion`` setting selects: ``None`` for ``"none"``, and
-    for ``"auto"`` where the bundle has no ``fusion.json``; else the verified calibration.
-
-    Raises:
-        InputError: an unknown setting; ``"graph"`` on a bundle without a calibration; a
-            calibration fitted for another bundle (also under ``"auto"``: a stale file beside
-            a bundle is an error, not a silent fallback).
-        ArtifactError: a damaged file.
-    """
-    if fusion not in FUSIONS:
-        raise InputError(f"fusion must be one of {FUSIONS}, got {fusion!r}")
-    present = bundle_dir is not None and (Path(bundle_dir) / FUSION_CONFIG).is_file()
-    if fusion == "none" or (fusion == "auto" and not present):
-        return None
-    return load_fusion(bundle_dir, bundle_hash, name)
 
 
 class ShapeGraph(NamedTuple):
@@ -369,7 +95,8 @@ class ShapeGraph(NamedTuple):
     graph: sp.csr_array | LazyVetoGraph
     """``(N, N)`` over every point (a cloud's copies and twins join their node)."""
     roughness: float
-    """How rough the surface is: a cloud's :func:`surface_roughness` (an input of the gate), a
+    """How rough the surface is: a cloud's
+    :func:`~litege_core.learned.cloud_surface.surface_roughness` (an input of the gate), a
     mesh's vertex noise (:func:`mesh_noise`, the input of its bias; 0 where the calibration
     reads none: :func:`kept_mesh_noise`)."""
     n_nodes: int
@@ -398,8 +125,8 @@ def shape_graph(
     :class:`~litege_core.learned.veto_graph.LazyVetoGraph` whose network veto
     :func:`graph_rows` runs on the edges that paths use (the rows equal those of
     :func:`pruned_knn_graph`), or as it is where the calibration keeps the veto off at this
-    OOD ``z_score`` (:meth:`FusionCalibration.vetoes`); its roughness from the same 16-NN
-    covariance.
+    OOD ``z_score`` (:meth:`~litege_core.learned.fusion_calibration.FusionCalibration.vetoes`);
+    its roughness from the same 16-NN covariance.
 
     Args:
         points: ``(N, 3)`` float64 canonical points.
@@ -512,7 +239,8 @@ def graph_faces(
 ) -> NDArray | None:
     """The faces the fusion's graph follows: a mesh's own, or ``None`` (the cloud of its
     vertices) where its vertex noise is above the calibration's cloud limit
-    (:meth:`FusionCalibration.answers_as_cloud`); ``None`` for a cloud."""
+    (:meth:`~litege_core.learned.fusion_calibration.FusionCalibration.answers_as_cloud`);
+    ``None`` for a cloud."""
     if faces is None or calibration.mesh_cloud_noise is None:
         return faces
     noise = kept_mesh_noise(points, faces, calibration, kept)
@@ -613,7 +341,8 @@ def pruned_knn_graph(
         edge_geodesics: predicted geodesics of ``(i, j)`` pairs, or ``None`` (no pruning).
         neighbours: :func:`~litege_core.engines.graph.knn_neighbours` of ``points`` for
             ``k`` or more, if already known.
-        normals: ``(N, 3)`` unit normals (any sign, :func:`local_surface`), or ``None``.
+        normals: ``(N, 3)`` unit normals (any sign,
+            :func:`~litege_core.learned.cloud_surface.local_surface`), or ``None``.
         normal_cos: cut an edge whose unit chord ``ĉ`` has ``|n · ĉ| > normal_cos`` at either
             end (1: keep every edge).
         mutual_k: 0: the symmetric k-NN graph; else the mutual k-NN graph of ``mutual_k``
@@ -648,25 +377,6 @@ def pruned_knn_graph(
         )
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
     return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
-
-
-def normal_cosines(
-    points: NDArray, normals: NDArray, starts: NDArray, ends: NDArray, lengths: NDArray
-) -> NDArray:
-    """``(E,)`` how far each chord runs along the surface normal: ``|n · ĉ|`` at the end where it
-    is larger, ``ĉ`` the unit chord (0 for a zero chord).
-
-    Args:
-        points: ``(N, 3)`` float64; normals: ``(N, 3)`` unit normals (any sign).
-        starts, ends: ``(E,)`` the chords' end points; lengths: ``(E,)`` their lengths.
-    """
-    axes, normal_axes = np.ascontiguousarray(points.T), np.ascontiguousarray(normals.T)
-    chords = np.take(axes, ends, axis=1) - np.take(axes, starts, axis=1)  # (3, E)
-    chords /= np.maximum(lengths, 1e-300)  # zero chords: cosines 0
-    return np.maximum(
-        np.abs(np.einsum("ie,ie->e", np.take(normal_axes, starts, axis=1), chords)),
-        np.abs(np.einsum("ie,ie->e", np.take(normal_axes, ends, axis=1), chords)),
-    )
 
 
 def graph_rows(
@@ -806,103 +516,6 @@ def _with_free_points(
     return augmented, ids[0], ids[1]
 
 
-def local_surface(
-    points: NDArray, k: int = ROUGHNESS_NEIGHBOURS, nearest: NDArray | None = None
-) -> tuple[NDArray, NDArray]:
-    """Each point's neighbourhood shape from the covariance of its ``k`` nearest points
-    (itself included): ``(N,)`` ``sqrt(λ_min / λ_max)`` (flatness; scale-free) and ``(N, 3)``
-    unit normals (the ``λ_min`` eigenvector, unoriented).
-
-    ``points``: ``(N, 3)`` float64; ``nearest``: the indices of
-    :func:`~litege_core.engines.graph.knn_neighbours` ``(points, k)`` if already known. Fewer
-    than 4 points: ratios 0 and normals 0.
-    """
-    from litege_core.engines.graph import knn_neighbours
-
-    n = points.shape[0]
-    count = min(k, n)
-    ratios, normals = np.zeros(n), np.zeros((n, 3))
-    if count < 4:
-        return ratios, normals
-    if nearest is None:  # the same search as a k = 16 fusion graph's: same ties, same answer
-        nearest = knn_neighbours(points, k)[1]
-    axes = np.ascontiguousarray(points.T)  # (3, N): np.take along rows beats fancy indexing
-    for start in range(0, n, ROUGHNESS_CHUNK):
-        block = np.ascontiguousarray(nearest[start : start + ROUGHNESS_CHUNK, :count].T)
-        local = np.take(axes, block, axis=1)  # (3, k, C): sums over k run along C
-        local -= local.mean(axis=1, keepdims=True)
-        covariance = np.einsum("ikc,jkc->cij", local, local)  # (C, 3, 3)
-        smallest, largest, normal = _extreme_eigenpairs(covariance)
-        ratios[start : start + ROUGHNESS_CHUNK] = np.sqrt(
-            np.clip(smallest, 0.0, None) / np.maximum(largest, 1e-300)
-        )
-        normals[start : start + ROUGHNESS_CHUNK] = normal
-    return ratios, normals
-
-
-def _extreme_eigenpairs(matrices: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-    """The smallest and largest eigenvalues ``(C,)`` of symmetric ``(C, 3, 3)`` matrices and a
-    unit eigenvector ``(C, 3)`` of the smallest, in closed form (~30x faster than batched
-    ``numpy.linalg.eigh``, which :func:`_extreme_eigenpairs_reference` calls).
-
-    Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector as
-    the longest cross product of two rows of ``A − λ_min I`` (they span the plane orthogonal
-    to it). Where that is not well defined (a repeated smallest eigenvalue: points on a line,
-    or all at one spot) the row falls back to ``eigh``, whose choice is as good as any. All on
-    ``(C,)`` arrays of the six distinct entries (no small-axis operations)."""
-    xx, yy, zz = matrices[:, 0, 0], matrices[:, 1, 1], matrices[:, 2, 2]
-    xy, xz, yz = matrices[:, 0, 1], matrices[:, 0, 2], matrices[:, 1, 2]
-    q = (xx + yy + zz) / 3.0
-    off = xy**2 + xz**2 + yz**2
-    p = np.sqrt(((xx - q) ** 2 + (yy - q) ** 2 + (zz - q) ** 2 + 2.0 * off) / 6.0)
-    scale = np.maximum(p, 1e-300)  # B = (A − qI) / p: its determinant by cofactors
-    bxx, byy, bzz, bxy, bxz, byz = (v / scale for v in (xx - q, yy - q, zz - q, xy, xz, yz))
-    det = bxx * (byy * bzz - byz * byz) - bxy * (bxy * bzz - byz * bxz)
-    det += bxz * (bxy * byz - byy * bxz)
-    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
-    largest = q + 2.0 * p * np.cos(phi)
-    smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    rows = (xx - smallest, xy, xz), (xy, yy - smallest, yz), (xz, yz, zz - smallest)
-    crosses = np.stack(
-        [_cross(rows[0], rows[1]), _cross(rows[0], rows[2]), _cross(rows[1], rows[2])]
-    )  # (3 crosses, 3, C)
-    lengths = np.sqrt(np.einsum("xic,xic->xc", crosses, crosses))  # (3, C)
-    best = np.argmax(lengths, axis=0)
-    index = np.arange(matrices.shape[0])
-    longest = lengths[best, index]
-    normal = crosses[best, :, index] / np.maximum(longest, 1e-300)[:, None]  # (C, 3)
-    # a repeated smallest eigenvalue: the cross products vanish against the spread squared
-    loose = longest <= 1e-6 * np.maximum(largest - smallest, 1e-300) ** 2
-    if np.any(loose):
-        _, _, normal[loose] = _extreme_eigenpairs_reference(matrices[loose])
-    return smallest, largest, normal
-
-
-def _cross(
-    a: tuple[NDArray, NDArray, NDArray], b: tuple[NDArray, NDArray, NDArray]
-) -> tuple[NDArray, NDArray, NDArray]:
-    """The cross product ``a × b`` of vectors given as three ``(C,)`` component arrays."""
-    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
-
-
-def _extreme_eigenpairs_reference(matrices: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-    """:func:`_extreme_eigenpairs` by ``numpy.linalg.eigh`` (the slow reference)."""
-    eigenvalues, eigenvectors = np.linalg.eigh(matrices)  # ascending
-    return eigenvalues[:, 0], eigenvalues[:, 2], eigenvectors[:, :, 0]
-
-
-def surface_roughness(
-    points: NDArray, k: int = ROUGHNESS_NEIGHBOURS, nearest: NDArray | None = None
-) -> float:
-    """How far the points are from a smooth surface: the median over points of
-    ``sqrt(λ_min / λ_max)`` of :func:`local_surface`.
-
-    Scale-free, ~0.05–0.15 on clean surface samples (curvature within a neighbourhood),
-    higher with noise. ``points``: ``(N, 3)`` float64; ``nearest``: as :func:`local_surface`.
-    """
-    return float(np.median(local_surface(points, k, nearest)[0]))
-
-
 def fuse(
     network: NDArray,
     graph: NDArray,
@@ -937,11 +550,7 @@ def corrected_graph(
 
 
 __all__ = [
-    "DEFAULT_FUSION",
-    "FUSIONS",
-    "FUSION_CONFIG",
     "MESH_RINGS",
-    "FusionCalibration",
     "ShapeGraph",
     "cloud_graph_key",
     "corrected_graph",
@@ -952,13 +561,7 @@ __all__ = [
     "kept_arc_normals",
     "kept_graph_mesh",
     "kept_mesh_noise",
-    "load_fusion",
-    "local_surface",
-    "normal_cosines",
     "pruned_knn_graph",
-    "resolve_fusion",
     "route_trees",
-    "save_fusion",
     "shape_graph",
-    "surface_roughness",
 ]

@@ -39,12 +39,8 @@ from litege_core.descriptor.basis import AUTO_LATTICE, LATTICE_CHOICES
 from litege_core.descriptor.udf import compute_udf
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned.describe import shape_samples
-from litege_core.learned.fusion import (
-    DEFAULT_FUSION,
-    EdgeGeodesics,
-    fused_distances,
-    resolve_fusion,
-)
+from litege_core.learned.fusion import fused_distances
+from litege_core.learned.fusion_calibration import DEFAULT_FUSION, resolve_fusion
 from litege_core.learned.manifest import (
     AUTO_HEAD,
     GEODESIC,
@@ -61,7 +57,7 @@ from litege_core.learned.manifest import (
     verified_small_head,
 )
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
-from litege_core.learned.veto_graph import grown_features
+from litege_core.learned.veto_graph import EdgeGeodesics, grown_features
 from litege_core.query import parse_query
 from litege_core.shape import Shape
 

@@ -76,16 +76,8 @@ from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
-from litege_core.learned.fusion import (
-    DEFAULT_FUSION,
-    EdgeGeodesics,
-    FusionCalibration,
-    cloud_graph_key,
-    fused_distances,
-    resolve_fusion,
-    route_trees,
-    shape_graph,
-)
+from litege_core.learned.fusion import cloud_graph_key, fused_distances, route_trees, shape_graph
+from litege_core.learned.fusion_calibration import DEFAULT_FUSION, FusionCalibration, resolve_fusion
 from litege_core.learned.manifest import (
     AUTO_HEAD,
     HEADS,
@@ -102,7 +94,7 @@ from litege_core.learned.paths import (
 )
 from litege_core.learned.routing import AGREEMENT_SOURCES, shape_agreement
 from litege_core.learned.state import OOD_Z_THRESHOLD, ResolvedPoints, ShapeRecord, ShapeState
-from litege_core.learned.veto_graph import LazyVetoGraph, grown_features
+from litege_core.learned.veto_graph import EdgeGeodesics, LazyVetoGraph, grown_features
 from litege_core.nets import FoldedGeodesicNet, FoldedShapeMlp
 from litege_core.nets.folded import resolve_precision
 from litege_core.nets.small_head import FoldedSmallHead, SmallHead
@@ -187,8 +179,8 @@ class Predictor:
             graph blended with the network, weighted per shape by its OOD z-score, point count
             and roughness; :mod:`litege_core.learned.fusion`, ``fusion.json`` beside the
             bundle files), or a
-            :class:`~litege_core.learned.fusion.FusionCalibration` taken as it is (a fresh
-            calibration; its bundle hash must still match). Needs the bundle's residual
+            :class:`~litege_core.learned.fusion_calibration.FusionCalibration` taken as it is
+            (a fresh calibration; its bundle hash must still match). Needs the bundle's residual
             statistics (the OOD z-score). Applies to :meth:`distances` and everything built
             on it; its paths follow the same graphs (:meth:`surface_router`,
             ``route="auto"``). The graph's edges are vetoed by the head the calibration names

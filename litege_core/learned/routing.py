@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 from litege_core.errors import InputError
 
 if TYPE_CHECKING:
-    from litege_core.learned.fusion import EdgeGeodesics, FusionCalibration
+    from litege_core.learned.fusion_calibration import FusionCalibration
+    from litege_core.learned.veto_graph import EdgeGeodesics
 
 AGREEMENT_SOURCES = 4
 """Source rows of an agreement (farthest points from point 0, every point as target)."""

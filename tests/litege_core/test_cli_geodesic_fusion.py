@@ -12,7 +12,7 @@ import pytest
 from litege_core.cli import main
 from litege_core.io import load_shape, save_shape
 from litege_core.learned import Predictor, load_bundle
-from litege_core.learned.fusion import FUSIONS, FusionCalibration, save_fusion
+from litege_core.learned.fusion_calibration import FUSIONS, FusionCalibration, save_fusion
 
 
 def _calibrate(directory) -> None:

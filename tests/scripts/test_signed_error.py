@@ -88,7 +88,7 @@ def test_the_graph_table_reads_the_calibrations_own_graph(
     from litege_core.evaluation.fusion import probe_calibration
     from litege_core.evaluation.geodesic import unit_area
     from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion import save_fusion
+    from litege_core.learned.fusion_calibration import save_fusion
     from litege_core.sampling import farthest_point_sampling
     from litege_core.shape import Shape
 

@@ -82,7 +82,7 @@ def test_extra_oracle_and_veto_ratios_reproduce_the_base_variants(
     """``oracle R`` at the oracle's own ratio is the oracle, ``net veto R`` at the calibration's
     ratio is the shipped graph."""
     from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion import FusionCalibration
+    from litege_core.learned.fusion_calibration import FusionCalibration
 
     bundle = load_bundle(toy_bundle_dir_with_ood)
     calibration = FusionCalibration(

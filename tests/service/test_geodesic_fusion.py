@@ -63,7 +63,7 @@ def test_fused_answers_are_the_library_answers(fused_service, dog) -> None:
 
 
 def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:
-    import litege_core.learned.fusion as fusion
+    import litege_core.learned.fusion_calibration as fusion
 
     monkeypatch.setattr(fusion, "FUSION_CONFIG", "missing-fusion.json")
     with pytest.raises(InputError, match="no graph-fusion calibration"):
@@ -71,7 +71,7 @@ def test_a_model_without_calibration_stops_the_start(monkeypatch) -> None:
 
 
 def test_auto_answers_with_the_network_where_a_model_has_no_calibration(monkeypatch) -> None:
-    import litege_core.learned.fusion as fusion
+    import litege_core.learned.fusion_calibration as fusion
 
     monkeypatch.setattr(fusion, "FUSION_CONFIG", "missing-fusion.json")
 

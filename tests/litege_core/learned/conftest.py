@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -11,6 +12,7 @@ from litege_core.canonical import canonicalize_bbox
 from litege_core.descriptor import VoxelGrid, fit_basis
 from litege_core.descriptor.basis import UdfPcaBasis
 from litege_core.learned import shape_samples
+from litege_core.learned.fusion_calibration import FusionCalibration
 from litege_core.shape import Shape
 
 
@@ -36,3 +38,18 @@ def _fit_toy_basis(make_shape: Callable[[int], Shape], count: int = 12) -> UdfPc
 def fit_toy_basis() -> Callable[..., UdfPcaBasis]:
     """``fit_toy_basis(make_shape, count=12)`` → a small basis of those shapes."""
     return _fit_toy_basis
+
+
+def toy_calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
+    """A valid calibration for bundle ``bundle_hash`` with ``changes`` applied."""
+    base = FusionCalibration(
+        k=8,
+        prune_ratio=1.6,
+        bias_log10_points=(2.5, 3.0, 3.5),
+        bias=(0.98, 1.01, 1.02),
+        gate=(0.5, -1.0, -2.0, -10.0),
+        mesh_bias=1.04,
+        bundle_hash=bundle_hash,
+        fitted_on={"shapes": {"toy": 3}},
+    )
+    return dataclasses.replace(base, **changes)

@@ -8,7 +8,7 @@ import shutil
 
 from litege_core.learned.bundle import SHIPPED_DIR
 from litege_core.learned.cards import SIDECARS_TITLE, sidecar_section, write_sidecar_section
-from litege_core.learned.fusion import FUSION_CONFIG
+from litege_core.learned.fusion_calibration import FUSION_CONFIG
 from litege_core.learned.small_head import SMALL_HEAD_CONFIG
 
 CARD = "# Model card: toy\n\n- facts\n\n## Evaluation\n\ntable\n\n## Limitations\n\nsmall\n"

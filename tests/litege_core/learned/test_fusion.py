@@ -1,11 +1,10 @@
-"""Graph fusion (issue 14): the calibration file, the network-pruned kNN graph of a cloud and
-the edge graph of a mesh, graph rows for indexed and free points, the blend, and
-``Predictor(bundle, fusion=...)`` checked against a graph built independently."""
+"""Graph fusion (issue 14): the network-pruned kNN graph of a cloud and the edge graph of a mesh,
+graph rows for indexed and free points, the blend, and ``Predictor(bundle, fusion=...)`` checked
+against a graph built independently (the calibration itself: ``test_fusion_calibration.py``)."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 
 import numpy as np
@@ -15,257 +14,16 @@ from scipy.sparse.csgraph import dijkstra
 from litege_core.engines.graph import arc_normals, knn_graph, mesh_ring_graph
 from litege_core.errors import ArtifactError, InputError
 from litege_core.learned import Predictor, load_bundle
-from litege_core.learned.fusion import (
+from litege_core.learned.fusion import MESH_RINGS, fuse, graph_rows, pruned_knn_graph
+from litege_core.learned.fusion_calibration import (
     DEFAULT_FUSION,
-    FUSION_CONFIG,
-    MESH_RINGS,
     FusionCalibration,
-    fuse,
-    graph_rows,
-    load_fusion,
-    pruned_knn_graph,
     resolve_fusion,
     save_fusion,
 )
 from litege_core.learned.paths import EDGE_FLIP, KNN_GRAPH, MESH_EDGES, SurfaceRouter
 from litege_core.shape import Shape
-
-
-def _calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration:
-    base = FusionCalibration(
-        k=8,
-        prune_ratio=1.6,
-        bias_log10_points=(2.5, 3.0, 3.5),
-        bias=(0.98, 1.01, 1.02),
-        gate=(0.5, -1.0, -2.0, -10.0),
-        mesh_bias=1.04,
-        bundle_hash=bundle_hash,
-        fitted_on={"shapes": {"toy": 3}},
-    )
-    return dataclasses.replace(base, **changes)
-
-
-# ------------------------------------------------------------------ the calibration
-
-
-@pytest.mark.parametrize(
-    "changes",
-    [
-        {"k": 0},
-        {"prune_ratio": 0.9},
-        {"prune_ratio": float("nan")},
-        {"bias_log10_points": (3.0, 2.5, 3.5)},
-        {"bias": (1.0, 1.0)},
-        {"bias": (1.0, -1.0, 1.0)},
-        {"gate": (0.0, float("inf"), 0.0, 0.0)},
-        {"gate": (0.0, 1.0, 0.0)},
-        {"mesh_bias": 0.0},
-        {"mesh_bias": float("nan")},
-        {"veto_head": "tiny"},
-        {"normal_cos": (0.7, 0.8)},
-        {"normal_cos": (0.7, 0.0, 0.8)},
-        {"normal_cos": (0.7, 1.2, 0.8)},
-        {"mutual_k": -1},
-        {"mutual_k": 1.5},
-        {"veto_max_z": float("inf")},
-        {"veto_max_z": float("nan")},
-        {"mesh_noise_knots": (0.02, 0.1), "mesh_noise_bias": (1.01,)},
-        {"mesh_noise_knots": (0.1, 0.02), "mesh_noise_bias": (1.01, 1.02)},
-        {"mesh_noise_knots": (0.02, 0.1), "mesh_noise_bias": (1.01, 0.0)},
-        {"mesh_noise_knots": (0.02, float("inf")), "mesh_noise_bias": (1.01, 1.02)},
-        {"mesh_cloud_noise": 0.0},
-        {"mesh_cloud_noise": float("nan")},
-        {"mesh_smooth_noise": -0.1},
-        {"mesh_smooth_noise": float("inf")},
-        {"mesh_smooth_noise": 0.08, "mesh_cloud_noise": 0.3},
-    ],
-)
-def test_inconsistent_calibrations_are_refused(changes) -> None:
-    with pytest.raises(ArtifactError):
-        _calibration(**changes)
-
-
-def test_bias_interpolates_in_log_points_and_clamps() -> None:
-    calibration = _calibration()
-    assert calibration.graph_bias(1000) == pytest.approx(1.01)
-    assert calibration.graph_bias(10**3.25) == pytest.approx(1.015)
-    assert calibration.graph_bias(50) == pytest.approx(0.98)
-    assert calibration.graph_bias(10**6) == pytest.approx(1.02)
-
-
-def test_normal_limit_interpolates_in_log_points_and_defaults_to_none() -> None:
-    assert _calibration().normal_limit(1000) == 1.0
-    calibration = _calibration(normal_cos=(0.9, 0.7, 0.6))
-    assert calibration.normal_limit(1000) == pytest.approx(0.7)
-    assert calibration.normal_limit(10**3.25) == pytest.approx(0.65)
-    assert calibration.normal_limit(50) == pytest.approx(0.9)
-
-
-def test_the_veto_runs_up_to_its_ood_limit() -> None:
-    assert all(_calibration().vetoes(z) for z in (-3.0, 0.0, 50.0))  # no limit: every cloud
-    limited = _calibration(veto_max_z=2.0)
-    assert limited.vetoes(-1.0) and limited.vetoes(2.0)
-    assert not limited.vetoes(2.01) and not limited.vetoes(float("nan"))
-
-
-def test_network_weight_is_the_gate_sigmoid() -> None:
-    calibration = _calibration()
-    assert calibration.network_weight(0.0, 1000, 0.0) == pytest.approx(1 / (1 + np.exp(-0.5)))
-    assert calibration.network_weight(0.0, 1000, 0.1) == pytest.approx(1 / (1 + np.exp(0.5)))
-    # the gate here trusts the network less on unusual shapes, dense and rough clouds
-    assert calibration.network_weight(3.0, 1000, 0.1) < calibration.network_weight(0.0, 1000, 0.1)
-    assert calibration.network_weight(0.0, 5000, 0.1) < calibration.network_weight(0.0, 300, 0.1)
-    assert 0.0 <= calibration.network_weight(1e9, 10**9, 0.1) < 1e-20
-    # a mesh is its graph's alone, with its own bias, whatever its z, size and roughness
-    for z, n in ((0.0, 300), (5.0, 10**5)):
-        assert calibration.network_weight(z, n, 0.3, mesh=True) == 0.0
-        assert calibration.graph_bias(n, mesh=True) == 1.04
-
-
-def test_roughness_grows_with_noise_and_ignores_scale(monkeypatch) -> None:
-    from litege_core.engines.graph import knn_neighbours
-    from litege_core.learned import fusion
-    from litege_core.learned.fusion import surface_roughness
-
-    rng = np.random.default_rng(0)
-    directions = rng.normal(size=(3000, 3))
-    sphere = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    clean = surface_roughness(sphere)
-    noisy = surface_roughness(sphere + rng.normal(0.0, 0.03, sphere.shape))
-    assert clean < 0.1 < noisy
-    assert surface_roughness(7.0 * sphere) == pytest.approx(clean)
-    nearest = knn_neighbours(sphere, 16)[1]
-    assert surface_roughness(sphere, nearest=nearest) == clean
-    monkeypatch.setattr(fusion, "ROUGHNESS_CHUNK", 1000)
-    assert surface_roughness(sphere) == pytest.approx(clean)
-    assert surface_roughness(sphere[:3]) == 0.0
-
-
-def test_mesh_bias_follows_the_noise_knots() -> None:
-    """Without knots a mesh's bias is ``mesh_bias`` at any noise; with them it is interpolated,
-    the first knot's below them, the last segment extended (never down) beyond them; a cloud's
-    bias ignores them."""
-    plain = _calibration()
-    assert plain.graph_bias(5000, mesh=True, noise=0.3) == 1.04
-    knotted = _calibration(mesh_noise_knots=(0.02, 0.1, 0.2), mesh_noise_bias=(1.01, 1.02, 1.06))
-    assert knotted.graph_bias(5000, mesh=True, noise=0.0) == pytest.approx(1.01)
-    assert knotted.graph_bias(5000, mesh=True, noise=0.06) == pytest.approx(1.015)
-    assert knotted.graph_bias(5000, mesh=True, noise=0.15) == pytest.approx(1.04)
-    assert knotted.graph_bias(5000, mesh=True, noise=0.3) == pytest.approx(1.10)
-    falling = _calibration(mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.02, 1.01))
-    assert falling.graph_bias(5000, mesh=True, noise=0.5) == pytest.approx(1.01)
-    assert knotted.graph_bias(1000, noise=0.3) == plain.graph_bias(1000) == pytest.approx(1.01)
-
-
-def test_closed_form_eigenpairs_equal_the_eigh_reference() -> None:
-    from litege_core.learned.fusion import _extreme_eigenpairs, _extreme_eigenpairs_reference
-
-    rng = np.random.default_rng(3)
-    spreads = [(1.0, 0.5, 0.02), (1.0, 1.0, 1.0), (1.0, 0.3, 0.0), (1.0, 0.0, 0.0), (0, 0, 0)]
-    clouds = []
-    for spread in spreads:  # flat, round, exactly planar, a line, one spot
-        local = rng.normal(size=(200, 16, 3)) * spread
-        turn = np.linalg.qr(rng.normal(size=(200, 3, 3)))[0]
-        clouds.append(np.einsum("nij,nkj->nki", turn, local))
-    local = np.concatenate(clouds)
-    local -= local.mean(axis=1, keepdims=True)
-    matrices = np.matmul(local.transpose(0, 2, 1), local)
-    smallest, largest, normal = _extreme_eigenpairs(matrices)
-    low, high, reference = _extreme_eigenpairs_reference(matrices)
-    scale = np.maximum(high, 1e-300)
-    np.testing.assert_allclose(smallest / scale, low / scale, atol=1e-7)
-    np.testing.assert_allclose(largest, high, rtol=1e-9, atol=1e-12)
-    defined = (low < 0.9 * high) & (high > 0)  # a unique smallest eigenvector
-    defined &= np.r_[np.ones(600, bool), np.zeros(400, bool)]  # not a line or a spot
-    cosines = np.abs(np.einsum("ni,ni->n", normal, reference))
-    assert np.all(cosines[defined] > 1.0 - 1e-9)
-    np.testing.assert_allclose(np.linalg.norm(normal[high > 0], axis=1), 1.0)
-
-
-def test_local_normals_are_perpendicular_to_the_surface() -> None:
-    from litege_core.learned.fusion import local_surface
-
-    rng = np.random.default_rng(1)
-    directions = rng.normal(size=(2000, 3))
-    sphere = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    flatness, normals = local_surface(sphere)
-    assert flatness.shape == (2000,) and normals.shape == (2000, 3)
-    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
-    # unoriented: along the radius up to sign
-    assert np.quantile(np.abs(np.einsum("ni,ni->n", normals, sphere)), 0.01) > 0.99
-    flatness, normals = local_surface(sphere[:3])
-    assert not flatness.any() and not normals.any()
-
-
-def test_json_roundtrip_and_sidecar(tmp_path) -> None:
-    calibration = _calibration("a" * 64)
-    assert FusionCalibration.from_json(json.loads(json.dumps(calibration.to_json()))) == (
-        calibration
-    )
-    # a format-4 file (a mesh gate, since dropped) reads as the same calibration
-    older = {**calibration.to_json(), "format_version": 4, "mesh_gate": -5.5}
-    assert FusionCalibration.from_json(older) == calibration
-    assert "mesh_gate" not in calibration.to_json()
-    # a format-5 file (no mutual_k) reads as the symmetric k-NN graph; mutual_k round-trips
-    del older["mutual_k"]
-    assert FusionCalibration.from_json({**older, "format_version": 5}).mutual_k == 0
-    mutual = dataclasses.replace(calibration, mutual_k=24)
-    assert FusionCalibration.from_json(json.loads(json.dumps(mutual.to_json()))) == mutual
-    assert (calibration.reach, mutual.reach) == (calibration.k, 24)  # what the graph searches
-    # a format-6 file (no veto_max_z) vetoes every cloud; veto_max_z round-trips
-    del older["veto_max_z"]
-    assert FusionCalibration.from_json({**older, "format_version": 6}).veto_max_z is None
-    limited = dataclasses.replace(calibration, veto_max_z=4.5)
-    assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
-    # a format-7 file (no mesh_arcs) reads as plain chords; mesh_arcs round-trips, as a boolean
-    del older["mesh_arcs"]
-    assert FusionCalibration.from_json({**older, "format_version": 7}).mesh_arcs is False
-    arcs = dataclasses.replace(calibration, mesh_arcs=True)
-    assert FusionCalibration.from_json(json.loads(json.dumps(arcs.to_json()))) == arcs
-    with pytest.raises(ArtifactError):
-        FusionCalibration.from_json({**arcs.to_json(), "mesh_arcs": 1})
-    # a format-8 file (no noise knots) reads as one mesh bias; the knots round-trip
-    del older["mesh_noise_knots"], older["mesh_noise_bias"]
-    assert FusionCalibration.from_json({**older, "format_version": 8}) == calibration
-    noisy = dataclasses.replace(
-        calibration, mesh_noise_knots=(0.02, 0.1), mesh_noise_bias=(1.01, 1.03)
-    )
-    assert FusionCalibration.from_json(json.loads(json.dumps(noisy.to_json()))) == noisy
-    assert FusionCalibration.from_json(noisy.to_json()).mesh_cloud_noise is None
-    limited = dataclasses.replace(noisy, mesh_cloud_noise=0.45)
-    assert FusionCalibration.from_json(json.loads(json.dumps(limited.to_json()))) == limited
-    assert limited.answers_as_cloud(0.5) and not limited.answers_as_cloud(0.45)
-    assert not noisy.answers_as_cloud(10.0)
-    # a format-9 file (no smoothing limit) reads as meshes on their own vertices; it round-trips
-    del older["mesh_smooth_noise"]
-    assert FusionCalibration.from_json({**older, "format_version": 9}) == calibration
-    smoothed = dataclasses.replace(noisy, mesh_smooth_noise=0.08)
-    assert FusionCalibration.from_json(json.loads(json.dumps(smoothed.to_json()))) == smoothed
-    path = save_fusion(tmp_path, calibration)
-    assert path.name == FUSION_CONFIG
-    loaded = load_fusion(tmp_path, "a" * 64, "toy")
-    assert loaded == calibration and loaded.fitted_on == calibration.fitted_on
-
-
-def test_missing_foreign_and_damaged_sidecars(tmp_path) -> None:
-    with pytest.raises(InputError, match="no graph-fusion"):
-        load_fusion(tmp_path, "a" * 64, "toy")
-    with pytest.raises(InputError, match="no graph-fusion"):
-        load_fusion(None, "a" * 64, "toy")
-    save_fusion(tmp_path, _calibration("b" * 64))
-    with pytest.raises(InputError, match="fitted for bundle"):
-        load_fusion(tmp_path, "a" * 64, "toy")
-    data = json.loads((tmp_path / FUSION_CONFIG).read_text())
-    (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "format_version": 99}))
-    with pytest.raises(ArtifactError, match="format"):
-        load_fusion(tmp_path, "b" * 64, "toy")
-    (tmp_path / FUSION_CONFIG).write_text(json.dumps({**data, "bias": [1.0]}))
-    with pytest.raises(ArtifactError):
-        load_fusion(tmp_path, "b" * 64, "toy")
-    (tmp_path / FUSION_CONFIG).write_text("{not json")
-    with pytest.raises(ArtifactError, match="JSON"):
-        load_fusion(tmp_path, "b" * 64, "toy")
-
+from tests.litege_core.learned.conftest import toy_calibration as _calibration
 
 # ------------------------------------------------------------------ graph and blend
 
@@ -338,7 +96,7 @@ def _sheets(gap: float = 0.04, spacing: float = 0.05) -> np.ndarray:
 
 
 def test_the_normal_limit_cuts_the_chords_between_two_sheets() -> None:
-    from litege_core.learned.fusion import local_surface
+    from litege_core.learned.cloud_surface import local_surface
 
     points = _sheets()
     n = points.shape[0] // 2
@@ -530,7 +288,7 @@ def test_graph_only_fusion_reads_the_mutual_knn_graph(bundle_dir, blob) -> None:
 
 
 def test_graph_only_fusion_applies_the_normal_limit(bundle_dir, blob) -> None:
-    from litege_core.learned.fusion import local_surface
+    from litege_core.learned.cloud_surface import local_surface
 
     bundle = load_bundle(bundle_dir)
     calibration = _graph_only(bundle.content_hash, prune_ratio=1e9)
