@@ -40,7 +40,7 @@ from litege_core.train.distill import (
     distill_small_head,
     measure_agreement,
 )
-from litege_core.train.tnet import collection_shape_set
+from litege_core.train.tnet.shapes import collection_shape_set
 
 
 def main() -> None:

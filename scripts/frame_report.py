@@ -453,7 +453,7 @@ def main() -> None:
     # ------------------------------------------------------------------ rigged animals
     if args.rigged and model.category == "quadruped":
         from litege_core.datasets.factories import train_data_root
-        from litege_core.train.tnet import collection_shape_set
+        from litege_core.train.tnet.shapes import collection_shape_set
 
         if Path(train_data_root(None)).is_dir():
             rigged = collection_shape_set("rigged", "val", args.rigged, None, args.cache)

@@ -36,7 +36,8 @@ import torch
 
 from litege_core.learned.router import SHIPPED_ROUTER, CategoryRouter
 from litege_core.train.router import RouterTrainConfig, train_router
-from litege_core.train.tnet import collection_shape_set, generate_shape_set
+from litege_core.train.tnet import generate_shape_set
+from litege_core.train.tnet.shapes import collection_shape_set
 
 CATEGORIES = ("quadruped", "biped")  # the bundles' categories (quadrupeds, humans)
 SOURCES = (  # (label, kind, name): procedural category or collection source

@@ -41,14 +41,9 @@ from litege_core.nets import load_state, state_to_tensors
 from litege_core.nets.orientation import OrientationNet
 from litege_core.nets.tnet import CUBE_ROTATIONS, pca_frames
 from litege_core.train.config import ConfigRoot, _check, run_log
-from litege_core.train.tnet import (
-    FAILURE_THRESHOLD,
-    ShapeSet,
-    TNetAugmentConfig,
-    TNetDataConfig,
-    _item_cloud,
-    training_shape_sets,
-)
+from litege_core.train.tnet import FAILURE_THRESHOLD, ShapeSet, TNetAugmentConfig, TNetDataConfig
+from litege_core.train.tnet.batches import augmented_cloud
+from litege_core.train.tnet.shapes import training_shape_sets
 from litege_core.variants import small_rotation
 
 LOG = logging.getLogger("litege.train.orientation")
@@ -185,7 +180,7 @@ def sample_items(
     cube = CUBE_ROTATIONS.numpy()
     for i in range(count):
         k = int(rng.integers(len(shapes.vertices)))
-        cloud = _item_cloud(shapes.vertices[k], shapes.faces[k], n_points, augment, rng)
+        cloud = augmented_cloud(shapes.vertices[k], shapes.faces[k], n_points, augment, rng)
         if rng.random() < opt.pca_probability:
             base = pca_frames(torch.from_numpy(cloud)[None])[0].numpy()
         else:

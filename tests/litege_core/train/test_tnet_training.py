@@ -12,6 +12,8 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import litege_core.train.tnet as tnet_module
+import litege_core.train.tnet.evaluation as tnet_evaluation
+import litege_core.train.tnet.training as tnet_training
 from litege_core.cli.train import add_train_parser
 from litege_core.errors import ArtifactError, InputError
 from litege_core.nets import TNet, state_to_tensors
@@ -24,7 +26,6 @@ from litege_core.train.tnet import (
     alignment_report,
     angle_statistics,
     canonical_shape_set,
-    collection_shape_set,
     cosine_lr,
     generate_shape_set,
     load_tnet,
@@ -36,9 +37,9 @@ from litege_core.train.tnet import (
     save_tnet,
     train_step,
     train_tnet,
-    training_shape_sets,
     validation_set,
 )
+from litege_core.train.tnet.shapes import collection_shape_set, training_shape_sets
 from litege_core.validate import triangle_areas
 
 REPO = Path(__file__).resolve().parents[3]
@@ -499,7 +500,7 @@ def test_report_against_a_ground_truth_oracle(toy_shapes, monkeypatch) -> None:
         assert np.abs(np.abs(np.sum(axes * ref, axis=0)) - 1.0).max() < 0.1
         return R
 
-    monkeypatch.setattr(tnet_module, "predict_rotation", oracle)
+    monkeypatch.setattr(tnet_evaluation, "predict_rotation", oracle)
     report = alignment_report(TNet((8,), ()), train, val, settings)
     for name in ("train", "val", "val_cloud500", "val_broken"):
         assert report[name]["max"] < 1e-6 and report[name]["failures"] == []
@@ -578,15 +579,15 @@ def test_training_with_loader_processes_is_the_same_run(toy_shapes, tmp_path) ->
 def test_time_budget_plans_the_steps_that_fit() -> None:
     opt = TNetTrainConfig.from_dict({"train": {"steps": 10_000, "time_budget_minutes": 1.0}}).train
     # 100 steps in 6 s: 54 s left at ~16.7 steps/s → 900 more
-    assert tnet_module._planned_steps(opt, 100, 6.0) == 1000
-    assert tnet_module._planned_steps(opt, 100, 0.01) == 10_000  # capped at train.steps
-    assert tnet_module._planned_steps(opt, 100, 90.0) == 100  # already over: stop now
+    assert tnet_training._planned_steps(opt, 100, 6.0) == 1000
+    assert tnet_training._planned_steps(opt, 100, 0.01) == 10_000  # capped at train.steps
+    assert tnet_training._planned_steps(opt, 100, 90.0) == 100  # already over: stop now
 
 
 def test_time_budget_run_records_the_steps_it_ran(toy_shapes, tmp_path, monkeypatch) -> None:
     train, val = toy_shapes
-    monkeypatch.setattr(tnet_module, "PLAN_AFTER_STEPS", 2)
-    monkeypatch.setattr(tnet_module, "_planned_steps", lambda opt, done, elapsed: 4)
+    monkeypatch.setattr(tnet_training, "PLAN_AFTER_STEPS", 2)
+    monkeypatch.setattr(tnet_training, "_planned_steps", lambda opt, done, elapsed: 4)
     config = tiny_config(tmp_path, train={"steps": 50, "time_budget_minutes": 5.0})
     result = train_tnet(config, train_shapes=train, val_shapes=val, make_report=False)
     assert result.steps == 4
