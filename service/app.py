@@ -25,6 +25,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from litege_core import __version__
 from litege_core.errors import LiteGEError
+from service.answers import GeodesicAnswer, ShapeInfo
 from service.errors import (
     AuthenticationError,
     OutOfMemoryError,
@@ -36,7 +37,7 @@ from service.errors import (
     UnsupportedMediaTypeError,
 )
 from service.problems import PROBLEM_BASE_URI, problem_detail, problem_for
-from service.runtime import GeodesicAnswer, Runtime, ShapeInfo, is_out_of_memory
+from service.runtime import Runtime, is_out_of_memory
 from service.schemas import (
     CorrespondenceRequest,
     CorrespondenceResponse,
@@ -193,7 +194,7 @@ class GuardMiddleware:
        client before the 401 does), a longer one is never read and its connection closed;
     2. the body, read in full under ``LITEGE_BODY_READ_TIMEOUT_S`` (408) and the size limit
        (413), so a slow or huge upload holds no concurrency slot;
-    3. a concurrency slot of :class:`service.runtime.Admission`, shared with gRPC (429);
+    3. a concurrency slot of :class:`service.admission.Admission`, shared with gRPC (429);
     4. the app; an exception escaping it becomes a 500 problem here (an out-of-memory one a
        503), so the connection stays open (Starlette's last-resort handler re-raises, and the
        server then drops the keep-alive connection);

@@ -4,7 +4,7 @@ and server reflection.
 
 Every LiteGE RPC goes through one wrapper that checks the API key (metadata ``x-api-key``, when
 the settings have one), takes a slot of the concurrency limit shared with REST
-(:class:`service.runtime.Admission`: RESOURCE_EXHAUSTED when full), records metrics, and maps
+(:class:`service.admission.Admission`: RESOURCE_EXHAUSTED when full), records metrics, and maps
 errors: a :class:`~litege_core.errors.LiteGEError` aborts with the status code of
 :func:`service.problems.problem_for` and its message, with trailing metadata
 ``litege-problem-type`` (the RFC 9457 type URI) and, for a retry-later problem (overload, out
@@ -41,6 +41,7 @@ from grpc_reflection.v1alpha import reflection
 
 from litege_core.errors import ArrayShapeError, LiteGEError
 from litege_core.shape import Shape
+from service.answers import ShapeInfo
 from service.errors import (
     AuthenticationError,
     OutOfMemoryError,
@@ -52,7 +53,7 @@ from service.errors import (
 )
 from service.grpc_stubs import load_stubs
 from service.problems import bounded, problem_detail, problem_for
-from service.runtime import Runtime, ShapeInfo, is_out_of_memory
+from service.runtime import Runtime, is_out_of_memory
 from service.schemas import check_shape_id
 
 log = logging.getLogger("litege.grpc")
@@ -158,7 +159,7 @@ class LiteGEServicer:
         return max(0.0, remaining - DEADLINE_MARGIN_S)
 
     def _info(self, info: ShapeInfo) -> Any:
-        """``service.runtime.ShapeInfo`` → ``litege.v1.ShapeInfo``."""
+        """``service.answers.ShapeInfo`` → ``litege.v1.ShapeInfo``."""
         message = self.pb2.ShapeInfo(
             shape_id=info.shape_id,
             kind=info.kind,

@@ -12,33 +12,50 @@ import functools
 import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, TypeVar
 
 import numpy as np
 import torch
 
 from litege_core.device import resolve_device
-from litege_core.engines import ClassicalPath
 from litege_core.errors import LiteGEError, MethodNotApplicableError, ShapeTooLargeError
 from litege_core.io import SUPPORTED_FORMATS, load_shape
-from litege_core.learned import GeodesicPath, Predictor, load_shipped, shipped_bundles
+from litege_core.learned import Predictor, load_shipped, shipped_bundles
 from litege_core.learned.router import CategoryRouter, first_of_each_category, load_router
 from litege_core.matching.model import MatchingModel
 from litege_core.matching.refine import REFINE_METHODS
 from litege_core.query import PointQuery, QueryLike, parse_query
 from litege_core.shape import Shape
 from litege_core.validate import ShapeLimits
+from service.admission import Admission, Deadline
+from service.answers import (
+    LEARNED,
+    NO_REFINEMENT,
+    Correspondence,
+    GeodesicAnswer,
+    PathResult,
+    Readiness,
+    ShapeInfo,
+)
 from service.batcher import CancelToken, MicroBatcher
 from service.classical import METHODS, SolverCache
 from service.errors import (
     DeadlineExceededError,
     OutOfMemoryError,
-    OverloadedError,
     PayloadTooLargeError,
     RequestError,
     TooManyQueriesError,
     UnknownModelError,
+)
+from service.jobs import (
+    ClassicalGeodesicJob,
+    ClassicalPathJob,
+    CorrespondJob,
+    GeodesicJob,
+    PathJob,
+    PrepareJob,
+    Split,
 )
 from service.matching import MatchingRepository
 from service.metrics import ServiceMetrics
@@ -56,8 +73,6 @@ requests interleave with it and a timed-out or cancelled one stops after the cur
 A refined request (``refine`` other than ``"none"``) runs in the same chunks: its first chunk
 computes the refined map of the pair (seconds), which the library keeps on the prepared source
 shape, and every later chunk (and stream batch) maps its queries through that map."""
-NO_REFINEMENT = "none"
-"""The default ``refine`` of a correspondence: LiteGE's matches as they are."""
 GEODESIC_CHUNK_PAIRS = 1 << 18
 """Most source × target pairs per geodesic compute job (larger requests run in row blocks)."""
 INLINE_PARSE_VALUES = 4096
@@ -65,286 +80,6 @@ INLINE_PARSE_VALUES = 4096
 CLASSICAL_CHUNK_SOURCES = {"exact": 4, "heat": 64, "graph": 256}
 """Most sources per classical geodesic compute job (one solve each: exact ~0.1-1 s, heat and
 graph ~1 ms at 5K-20K vertices), so that other requests interleave with a large one."""
-LEARNED = "learned"
-"""The default ``method``: the model's prediction (engine ``"learned"``)."""
-
-
-@dataclass(frozen=True)
-class ShapeInfo:
-    """What the API returns about a registered shape."""
-
-    shape_id: str
-    kind: str
-    n_points: int
-    n_faces: int
-    model: str
-    bundle_hash: str
-    ood_score: float
-    ood_calibrated: bool
-    out_of_distribution: bool | None
-    created: bool
-    model_scores: dict[str, float] | None = None
-    """Every loaded model's OOD score of the shape when ``model`` was chosen automatically
-    (``auto``: the lowest wins); ``None`` when a model was named."""
-
-    @classmethod
-    def of(cls, registered: Registered) -> ShapeInfo:
-        state = registered.state
-        scores = registered.scores
-        return cls(
-            shape_id=state.shape_id,
-            kind=state.kind.value,
-            n_points=state.n_points,
-            n_faces=0 if state.faces is None else int(state.faces.shape[0]),
-            model=registered.model,
-            bundle_hash=state.bundle_hash,
-            ood_score=float(state.ood_score),
-            ood_calibrated=state.ood_calibrated,
-            out_of_distribution=state.is_out_of_distribution,
-            created=registered.created,
-            model_scores=None if scores is None else dict(scores),
-        )
-
-
-@dataclass(frozen=True)
-class GeodesicAnswer:
-    """Who answered a geodesic request.
-
-    Attributes:
-        shape_id: the shape.
-        method: the requested method (``learned``, ``heat``, ``exact``, ``graph``).
-        engine: what ran: ``learned``, or the classical engine (``heat``,
-            ``pointcloud-heat``, ``exact-mmp``, ``knn-graph``).
-        info: the shape's registration under the model that answered (``learned``);
-            ``None`` for classical methods (no model involved).
-    """
-
-    shape_id: str
-    method: str
-    engine: str
-    info: ShapeInfo | None = None
-
-    @property
-    def model(self) -> str | None:
-        return None if self.info is None else self.info.model
-
-
-@dataclass(frozen=True)
-class PathResult:
-    """A geodesic path, from source to target.
-
-    Attributes:
-        points: ``(L, 3)`` float64 polyline in the user's frame, ``points[0]`` the source.
-        length: polyline length (user units).
-        method: the requested method; ``engine``: what ran (see :class:`GeodesicAnswer`).
-        distance: the method's distance between the end points (user units): the model's
-            answer (``learned``: as :meth:`Runtime.geodesic` gives it, fused where the model
-            fuses) or the engine's distance (exact: the exact geodesic).
-        segments: ``(start_index, how)`` per part of the polyline, in order (which method
-            produced which part: ``learned``, ``edge-flip``, ``mesh-edges``, ``knn-graph``,
-            ``straight``, ``heat-descent``, ``exact-mmp``).
-        model: the model that answered (``learned``), else ``None``.
-        predicted_distance: the network's distance of a learned path, else ``None``.
-        n_steps: accepted gradient steps of a learned walk (0: a surface route), else ``None``.
-        converged: whether a learned walk reached the source (a surface route: whether it
-            joins the two points), else ``None``.
-    """
-
-    points: np.ndarray
-    length: float
-    method: str
-    engine: str
-    distance: float
-    segments: tuple[tuple[int, str], ...]
-    model: str | None = None
-    predicted_distance: float | None = None
-    n_steps: int | None = None
-    converged: bool | None = None
-
-    @classmethod
-    def of(cls, path: GeodesicPath, model: str, distance: float) -> PathResult:
-        """A learned path; ``distance``: the model's answer for its end points."""
-        return cls(
-            points=np.ascontiguousarray(path.points),  # the library gives source → target
-            length=float(path.length),
-            method=LEARNED,
-            engine=LEARNED,
-            distance=float(distance),
-            segments=tuple((int(i), str(how)) for i, how in path.segments),
-            model=model,
-            predicted_distance=float(path.predicted_distance),
-            n_steps=int(path.n_steps),
-            converged=bool(path.converged),
-        )
-
-    @classmethod
-    def of_classical(cls, path: ClassicalPath, method: str) -> PathResult:
-        return cls(
-            points=np.ascontiguousarray(path.points),
-            length=float(path.length),
-            method=method,
-            engine=path.engine,
-            distance=float(path.distance),
-            segments=tuple((int(i), str(how)) for i, how in path.segments),
-        )
-
-
-@dataclass(frozen=True)
-class Readiness:
-    ready: bool
-    degraded: bool
-    detail: dict[str, Any]
-
-
-@dataclass(frozen=True)
-class _GeodesicJob:
-    """Distances ``sources × targets`` on one shape. With ``max_pairs`` set, a job larger than
-    that answers :class:`_Split` instead of computing (the caller then sends row blocks)."""
-
-    shape_id: str
-    model: str | None
-    sources: PointQuery
-    targets: PointQuery
-    token: CancelToken
-    max_pairs: int | None = None
-
-
-@dataclass(frozen=True)
-class _ClassicalGeodesicJob:
-    """Distances ``sources × targets`` by a classical method. With ``max_rows`` set, a job of
-    more sources than that or more pairs than ``max_pairs`` answers :class:`_Split`."""
-
-    shape_id: str
-    method: str
-    sources: PointQuery
-    targets: PointQuery
-    token: CancelToken
-    max_rows: int | None = None
-    max_pairs: int | None = None
-
-
-@dataclass(frozen=True)
-class _Split:
-    """The answer of a geodesic job too large for one compute job: its target count."""
-
-    n_targets: int
-
-
-@dataclass(frozen=True)
-class _PathJob:
-    shape_id: str
-    model: str | None
-    source: PointQuery
-    target: PointQuery
-
-
-@dataclass(frozen=True)
-class _ClassicalPathJob:
-    shape_id: str
-    method: str
-    source: PointQuery
-    target: PointQuery
-    token: CancelToken
-
-
-@dataclass(frozen=True)
-class _PrepareJob:
-    """Prepare both shapes of a correspondence; answers the source's point count."""
-
-    source_id: str
-    target_id: str
-    model: str
-    token: CancelToken
-
-
-@dataclass(frozen=True)
-class _CorrespondJob:
-    source_id: str
-    target_id: str
-    model: str
-    queries: PointQuery
-    token: CancelToken
-    refine: str = NO_REFINEMENT
-
-
-@dataclass(frozen=True)
-class Correspondence:
-    """Matches of query points of a source shape on a target shape.
-
-    Attributes:
-        source_shape_id, target_shape_id: the two shapes.
-        model: the matching model that answered.
-        matches: ``(K,)`` int64 matched target vertex / point indices.
-        distances: ``(K,)`` float32 predicted cross-shape geodesic at each match in the
-            target's input units (``distances_unit_area`` scaled back by the target's
-            unit-area scale).
-        distances_unit_area: ``(K,)`` float32 the same in unit-area units (both shapes
-            scaled to unit surface area): what the matching network predicts.
-        evaluations: network pair evaluations used.
-        refinement: how the matches were refined (:attr:`MatchResult.refinement
-            <litege_core.matching.model.MatchResult>`): ``"none"``, ``"zoomout"``, or
-            ``"zoomout:<seed>"`` for ``refine="zoomout-hybrid"`` (the start of the kept map).
-    """
-
-    source_shape_id: str
-    target_shape_id: str
-    model: str
-    matches: np.ndarray
-    distances: np.ndarray
-    distances_unit_area: np.ndarray
-    evaluations: int
-    refinement: str = NO_REFINEMENT
-
-    @property
-    def n_queries(self) -> int:
-        return int(self.matches.shape[0])
-
-
-class Admission:
-    """The concurrency limit (``LITEGE_MAX_CONCURRENCY``) shared by REST and gRPC: requests
-    being served at once, over both protocols. Used on the event loop only."""
-
-    def __init__(
-        self, limit: int, metrics: ServiceMetrics, retry_after_s: Callable[[], float]
-    ) -> None:
-        self.limit = int(limit)
-        self.in_flight = 0
-        self._metrics = metrics
-        self._retry_after_s = retry_after_s
-
-    @contextlib.contextmanager
-    def slot(self) -> Iterator[None]:
-        """Hold one slot while the block runs.
-
-        Raises:
-            OverloadedError: (status 429) every slot is taken.
-        """
-        if self.in_flight >= self.limit:
-            self._metrics.rejected.labels("concurrency").inc()
-            raise OverloadedError(
-                f"more than {self.limit} concurrent requests; retry later",
-                retry_after_s=self._retry_after_s(),
-                status=429,
-            )
-        self.in_flight += 1
-        try:
-            yield
-        finally:
-            self.in_flight -= 1
-
-
-class _Deadline:
-    """The end of one request's time budget, shared by all of its compute jobs."""
-
-    def __init__(self, timeout_s: float) -> None:
-        self.timeout_s = timeout_s
-        self.at = time.monotonic() + timeout_s
-
-    def remaining(self) -> float:
-        left = self.at - time.monotonic()
-        if left <= 0:
-            raise DeadlineExceededError(f"no result within {self.timeout_s:.3g} s")
-        return left
 
 
 def is_out_of_memory(exc: BaseException) -> bool:
@@ -695,13 +430,13 @@ class Runtime:
         dst = await self.parse_query(targets, "targets")
         if method == "exact":
             self._check_exact_sources(src.count(0))
-        deadline = _Deadline(self._timeout(timeout_s))
+        deadline = Deadline(self._timeout(timeout_s))
         with _cancel_on_exit() as token:
             if method != LEARNED:
                 return await self._classical_geodesic(shape_id, method, src, dst, deadline, token)
-            job = _GeodesicJob(shape_id, model, src, dst, token, self.geodesic_chunk_pairs)
+            job = GeodesicJob(shape_id, model, src, dst, token, self.geodesic_chunk_pairs)
             answer = await self._submit("geodesic", job, deadline, token)
-            if not isinstance(answer, _Split):
+            if not isinstance(answer, Split):
                 info, distances = answer
                 return GeodesicAnswer(shape_id, LEARNED, LEARNED, info), distances
             rows = max(1, self.geodesic_chunk_pairs // max(1, answer.n_targets))
@@ -719,15 +454,15 @@ class Runtime:
         method: str,
         src: PointQuery,
         dst: PointQuery,
-        deadline: _Deadline,
+        deadline: Deadline,
         token: CancelToken,
     ) -> tuple[GeodesicAnswer, np.ndarray]:
         max_rows = self.classical_chunk_sources[method]
-        job = _ClassicalGeodesicJob(
+        job = ClassicalGeodesicJob(
             shape_id, method, src, dst, token, max_rows, self.geodesic_chunk_pairs
         )
         answer = await self._submit("classical_geodesic", job, deadline, token)
-        if not isinstance(answer, _Split):
+        if not isinstance(answer, Split):
             engine, distances = answer
             return GeodesicAnswer(shape_id, method, engine), distances
         rows = max(1, min(max_rows, self.geodesic_chunk_pairs // max(1, answer.n_targets)))
@@ -756,10 +491,10 @@ class Runtime:
         dst = await self.parse_query(target, "target", allow_all=False, single=True)
         timeout = self._timeout(timeout_s)
         if method == LEARNED:
-            job = _PathJob(shape_id, model, src, dst)
+            job = PathJob(shape_id, model, src, dst)
             return await self.batcher.submit("path", job, timeout_s=timeout)
         with _cancel_on_exit() as token:
-            classical = _ClassicalPathJob(shape_id, method, src, dst, token)
+            classical = ClassicalPathJob(shape_id, method, src, dst, token)
             return await self.batcher.submit(
                 "classical_path", classical, timeout_s=timeout, token=token
             )
@@ -799,16 +534,16 @@ class Runtime:
         query = await self.parse_query(queries, "queries")
         if not query.is_all:
             self._check_match_count(query.count(0))
-        deadline = _Deadline(self._timeout(timeout_s))
+        deadline = Deadline(self._timeout(timeout_s))
         with _cancel_on_exit() as token:
             if query.is_all:
-                prepare = _PrepareJob(source_shape_id, target_shape_id, name, token)
+                prepare = PrepareJob(source_shape_id, target_shape_id, name, token)
                 n_points = await self._submit("prepare_pair", prepare, deadline, token)
                 self._check_match_count(n_points)
                 query = PointQuery(indices=np.arange(n_points, dtype=np.int64))
             parts: list[Correspondence] = []
             for block in _blocks(query, self.correspond_chunk):
-                job = _CorrespondJob(
+                job = CorrespondJob(
                     source_shape_id, target_shape_id, name, block, token, refine=refine
                 )
                 parts.append(await self._submit("correspond", job, deadline, token))
@@ -839,7 +574,7 @@ class Runtime:
         routed = self.repository.router.route([shape], by_category)[0]
         return routed or self.matching.model_name(None)
 
-    async def _submit(self, kind: str, job: Any, deadline: _Deadline, token: CancelToken) -> Any:
+    async def _submit(self, kind: str, job: Any, deadline: Deadline, token: CancelToken) -> Any:
         return await self.batcher.submit(kind, job, timeout_s=deadline.remaining(), token=token)
 
     @staticmethod
@@ -925,18 +660,18 @@ class Runtime:
         solvers = self.solvers.delete(shape_id)
         return self.repository.delete(shape_id) or prepared or solvers
 
-    def _handle_prepare(self, jobs: list[_PrepareJob]) -> list[Any]:
+    def _handle_prepare(self, jobs: list[PrepareJob]) -> list[Any]:
         return [self._capture(functools.partial(self._prepare, j), token=j.token) for j in jobs]
 
-    def _prepare(self, job: _PrepareJob) -> int:
+    def _prepare(self, job: PrepareJob) -> int:
         source = self.matching.get(job.source_id, job.model)
         self.matching.get(job.target_id, job.model)
         return source.n_points
 
-    def _handle_correspond(self, jobs: list[_CorrespondJob]) -> list[Any]:
+    def _handle_correspond(self, jobs: list[CorrespondJob]) -> list[Any]:
         return [self._capture(functools.partial(self._correspond, j), token=j.token) for j in jobs]
 
-    def _correspond(self, job: _CorrespondJob) -> Correspondence:
+    def _correspond(self, job: CorrespondJob) -> Correspondence:
         source = self.matching.get(job.source_id, job.model)
         target = self.matching.get(job.target_id, job.model)
         if job.refine != NO_REFINEMENT:
@@ -966,7 +701,7 @@ class Runtime:
             refinement=result.refinement,
         )
 
-    def _handle_geodesic(self, jobs: list[_GeodesicJob]) -> list[Any]:
+    def _handle_geodesic(self, jobs: list[GeodesicJob]) -> list[Any]:
         results: list[Any] = [None] * len(jobs)
         ready: dict[str, list[tuple[int, Registered]]] = {}
         for i, job in enumerate(jobs):
@@ -981,7 +716,7 @@ class Runtime:
                 results[i] = exc
                 continue
             if job.max_pairs is not None and job.sources.count(0) * n_targets > job.max_pairs:
-                results[i] = _Split(n_targets)
+                results[i] = Split(n_targets)
                 continue
             ready.setdefault(registered.model, []).append((i, registered))
         for model, items in ready.items():
@@ -1007,7 +742,7 @@ class Runtime:
                 f"exceeds the limit of {self.settings.max_queries} per request"
             )
 
-    def _handle_path(self, jobs: list[_PathJob]) -> list[Any]:
+    def _handle_path(self, jobs: list[PathJob]) -> list[Any]:
         results: list[Any] = [None] * len(jobs)
         groups: dict[tuple[str, str], list[int]] = {}
         found: dict[tuple[str, str], Registered] = {}
@@ -1062,13 +797,13 @@ class Runtime:
             for path, distance in zip(paths, distances, strict=True)
         ]
 
-    def _handle_classical_geodesic(self, jobs: list[_ClassicalGeodesicJob]) -> list[Any]:
+    def _handle_classical_geodesic(self, jobs: list[ClassicalGeodesicJob]) -> list[Any]:
         return [
             self._capture(functools.partial(self._classical_distances, j), token=j.token)
             for j in jobs
         ]
 
-    def _classical_distances(self, job: _ClassicalGeodesicJob) -> tuple[str, np.ndarray] | _Split:
+    def _classical_distances(self, job: ClassicalGeodesicJob) -> tuple[str, np.ndarray] | Split:
         solver = self.solvers.get(job.shape_id, job.method)
         n_sources = job.sources.count(0)
         n_targets = job.targets.count(solver.shape.n_points)
@@ -1077,15 +812,15 @@ class Runtime:
             n_sources > job.max_rows
             or (job.max_pairs is not None and n_sources * n_targets > job.max_pairs)
         ):
-            return _Split(n_targets)
+            return Split(n_targets)
         return solver.engine, solver.distances(job.sources, job.targets)
 
-    def _handle_classical_path(self, jobs: list[_ClassicalPathJob]) -> list[Any]:
+    def _handle_classical_path(self, jobs: list[ClassicalPathJob]) -> list[Any]:
         return [
             self._capture(functools.partial(self._classical_path, j), token=j.token) for j in jobs
         ]
 
-    def _classical_path(self, job: _ClassicalPathJob) -> PathResult:
+    def _classical_path(self, job: ClassicalPathJob) -> PathResult:
         solver = self.solvers.get(job.shape_id, job.method)
         return PathResult.of_classical(solver.path(job.source, job.target), job.method)
 

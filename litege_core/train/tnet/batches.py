@@ -205,3 +205,13 @@ def validation_set(shapes: ShapeSet, config: TNetTrainConfig) -> ValidationSet:
         rotations = Rotation.random(len(shapes), random_state=rng).as_matrix()
         batches[mode] = _make_batch(np.stack(clouds), rotations)
     return ValidationSet(batches)
+
+
+__all__ = [
+    "BatchLoader",
+    "TNetBatch",
+    "ValidationSet",
+    "augmented_cloud",
+    "sample_batch",
+    "validation_set",
+]

@@ -215,3 +215,16 @@ class TNetTrainConfig(ConfigRoot):
 def load_tnet_config(path: str | Path) -> TNetTrainConfig:
     """Read a TOML T-Net training config (``configs/tnet-*.toml``)."""
     return TNetTrainConfig.load(path)
+
+
+__all__ = [
+    "FAILURE_THRESHOLD",
+    "TNetAugmentConfig",
+    "TNetDataConfig",
+    "TNetNetworkConfig",
+    "TNetOptimConfig",
+    "TNetOutputConfig",
+    "TNetReportConfig",
+    "TNetTrainConfig",
+    "load_tnet_config",
+]

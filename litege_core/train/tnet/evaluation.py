@@ -142,3 +142,12 @@ def alignment_report(
         )
     result["failed_train_indices"] = train["failures"]
     return result
+
+
+__all__ = [
+    "alignment_report",
+    "angle_statistics",
+    "batch_angles",
+    "device_of",
+    "validate",
+]

@@ -266,3 +266,13 @@ def training_shape_sets(data: TNetDataConfig) -> tuple[ShapeSet, ShapeSet]:
         LOG.info("%d %s shapes in %.1f s", len(shapes), split, time.perf_counter() - mark)
         sets.append(shapes)
     return sets[0], sets[1]
+
+
+__all__ = [
+    "ShapeSet",
+    "canonical_shape_set",
+    "collection_shape_set",
+    "concatenate_shape_sets",
+    "generate_shape_set",
+    "training_shape_sets",
+]

@@ -258,3 +258,13 @@ def run_tnet_training(
                 stats["threshold"], stats["n_failures"], stats["n"],
             )  # fmt: skip
         return report
+
+
+__all__ = [
+    "PLAN_AFTER_STEPS",
+    "TNetRunResult",
+    "cosine_lr",
+    "run_tnet_training",
+    "train_step",
+    "train_tnet",
+]

@@ -129,3 +129,14 @@ def predict_rotation(net: TNet, points: ArrayLike) -> NDArray:
     finally:
         net.train(was_training)
     return R_pred.double().cpu().numpy()
+
+
+__all__ = [
+    "PREDICT_MAX_POINTS",
+    "TNET_FORMAT",
+    "load_tnet",
+    "predict_rotation",
+    "read_tnet_metadata",
+    "save_tnet",
+    "start_from",
+]
