@@ -38,15 +38,15 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
-import dataclasses
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse.csgraph import dijkstra
 
-from litege_core.engines.graph import dijkstra_rows, knn_neighbours, mesh_ring_graph
+from litege_core.engines.graph import dijkstra_rows, knn_neighbours
+from litege_core.evaluation.cloud_edges import cloud_input, oracle_edges
+from litege_core.evaluation.cloud_edges import relative_error as error
 from litege_core.evaluation.geodesic import (
     REAL_SETS,
     EvalShape,
@@ -59,9 +59,7 @@ from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
 from litege_core.learned.cloud_surface import local_surface
 from litege_core.learned.fusion import fuse, pruned_knn_graph
-from litege_core.sampling import sample_surface
 from litege_core.shape import Shape
-from litege_core.variants import add_noise
 
 MID_LIMITS: list[float] = []
 VARIANTS = ["shipped", "shipped, best w", "no veto", "oracle", "oracle + net"]
@@ -69,50 +67,6 @@ EXTRA_RATIOS: list[float] = []
 PRUNE_RATIOS: list[float] = []
 WEIGHT_GRID = np.linspace(0.0, 1.0, 21)
 """Network weights :func:`best_weight_error` tries."""
-
-
-@dataclasses.dataclass
-class CloudInput:
-    points: NDArray  # (P, 3) input cloud (unit-area units)
-    faces: NDArray  # (P,) the mesh triangle each point was sampled on
-    sources: NDArray  # (R,) source indices into points
-    gt: NDArray  # (R, P)
-
-
-def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
-    """As :func:`~litege_core.evaluation.geodesic.make_input` for clouds and noise, keeping
-    each point's triangle (a source keeps one of its vertex's triangles)."""
-    n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
-    n_sources = shape.sources.size
-    samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
-    corner_gt = shape.gt[:, shape.faces[samples.face_index]]
-    sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
-    points = np.concatenate([shape.vertices[shape.sources], samples.points])
-    gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
-    if setting.startswith("noise_"):
-        points = add_noise(points, float(setting[6:]), seed)
-    source_faces = np.array([np.flatnonzero((shape.faces == v).any(1))[0] for v in shape.sources])
-    faces = np.concatenate([source_faces, samples.face_index])
-    return CloudInput(points, faces, np.arange(n_sources), gt)
-
-
-def oracle_edges(shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float):
-    """``(i, j) → (E,)`` true-ish geodesics between cloud points (unit-area units, ``inf``
-    beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph."""
-    graph = mesh_ring_graph(shape.vertices, shape.faces, 2)
-    table = dijkstra(graph, directed=False, limit=reach).astype(np.float32)  # (V, V)
-    corners = shape.faces[cloud.faces]  # (P, 3)
-    to_corner = np.linalg.norm(shape.vertices[corners] - clean[:, None], axis=-1)  # (P, 3)
-
-    def geodesics(i: NDArray, j: NDArray) -> NDArray:
-        best = np.full(i.shape[0], np.inf)
-        for a in range(3):
-            for b in range(3):
-                d = to_corner[i, a] + table[corners[i, a], corners[j, b]] + to_corner[j, b]
-                best = np.minimum(best, d)
-        return best
-
-    return geodesics
 
 
 def facing_cut(points: NDArray, normals: NDArray, limit: float):
@@ -130,11 +84,6 @@ def facing_cut(points: NDArray, normals: NDArray, limit: float):
         return np.abs(np.einsum("ei,ei->e", mean, chord)) > limit
 
     return cut
-
-
-def error(rows: NDArray, gt: NDArray) -> float:
-    """Mean |rows − gt| with GT mean 100 (per shape)."""
-    return float(np.mean(np.abs(rows - gt)) / np.mean(gt) * 100.0)
 
 
 def best_weight_error(network: NDArray, graph: NDArray, gt: NDArray) -> float:

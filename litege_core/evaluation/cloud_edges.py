@@ -1,0 +1,94 @@
+"""Clouds sampled from an evaluation mesh, and the true geodesics of their graph edges (issue 14,
+diagnosis of the fusion's cloud graph: ``scripts/veto_ceiling.py``, ``scripts/shortcut_edges.py``).
+
+A cloud point keeps the mesh triangle it was sampled on, so an edge ``(i, j)`` between two cloud
+points has a true geodesic to compare its chord with: the shortest route from point ``i``
+through a corner of its triangle, the mesh's two-ring graph
+(:func:`~litege_core.engines.graph.mesh_ring_graph`) and a corner of point ``j``'s triangle (an
+upper bound, within a few percent of the exact value at cloud-edge lengths). An edge whose true
+geodesic is several times its chord is a *shortcut*: it joins parts that touch in space, or
+runs through a thin part."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litege_core.engines.graph import mesh_ring_graph
+from litege_core.evaluation.geodesic import EvalShape
+from litege_core.sampling import sample_surface
+from litege_core.variants import add_noise
+
+CLOUD_SETTINGS = ("cloud_N", "noise_S")
+"""The settings :func:`cloud_input` draws: ``cloud_N`` (``N`` area-weighted points) and
+``noise_S`` (2000 points with Gaussian noise of standard deviation ``S``, unit-area units)."""
+
+
+@dataclass
+class CloudInput:
+    """A cloud drawn from an :class:`~litege_core.evaluation.geodesic.EvalShape`.
+
+    Attributes:
+        points: ``(P, 3)`` the input cloud (unit-area units).
+        faces: ``(P,)`` the mesh triangle each point was sampled on.
+        sources: ``(R,)`` source indices into ``points`` (the shape's sources come first).
+        gt: ``(R, P)`` exact geodesics from each source to each point.
+    """
+
+    points: NDArray
+    faces: NDArray
+    sources: NDArray
+    gt: NDArray
+
+
+def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
+    """As :func:`~litege_core.evaluation.geodesic.make_input` for clouds and noise
+    (:data:`CLOUD_SETTINGS`), keeping each point's triangle (a source keeps one of its vertex's
+    triangles); the shape's sources are the cloud's first points."""
+    n_points = int(setting[6:]) if setting.startswith("cloud_") else 2000
+    n_sources = shape.sources.size
+    samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
+    corner_gt = shape.gt[:, shape.faces[samples.face_index]]
+    sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
+    points = np.concatenate([shape.vertices[shape.sources], samples.points])
+    gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
+    if setting.startswith("noise_"):
+        points = add_noise(points, float(setting[6:]), seed)
+    source_faces = np.array([np.flatnonzero((shape.faces == v).any(1))[0] for v in shape.sources])
+    faces = np.concatenate([source_faces, samples.face_index])
+    return CloudInput(points, faces, np.arange(n_sources), gt)
+
+
+def oracle_edges(
+    shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float
+) -> Callable[[NDArray, NDArray], NDArray]:
+    """``(i, j) → (E,)`` true-ish geodesics between cloud points (unit-area units, ``inf``
+    beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph.
+    ``clean``: ``(P, 3)`` the points before any noise (where they lie on their triangles)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    graph = mesh_ring_graph(shape.vertices, shape.faces, 2)
+    table = dijkstra(graph, directed=False, limit=reach).astype(np.float32)  # (V, V)
+    corners = shape.faces[cloud.faces]  # (P, 3)
+    to_corner = np.linalg.norm(shape.vertices[corners] - clean[:, None], axis=-1)  # (P, 3)
+
+    def geodesics(i: NDArray, j: NDArray) -> NDArray:
+        best = np.full(i.shape[0], np.inf)
+        for a in range(3):
+            for b in range(3):
+                d = to_corner[i, a] + table[corners[i, a], corners[j, b]] + to_corner[j, b]
+                best = np.minimum(best, d)
+        return best
+
+    return geodesics
+
+
+def relative_error(rows: NDArray, gt: NDArray) -> float:
+    """Mean ``|rows − gt|`` with the ground truth's mean scaled to 100 (one shape's rows)."""
+    return float(np.mean(np.abs(rows - gt)) / np.mean(gt) * 100.0)
+
+
+__all__ = ["CLOUD_SETTINGS", "CloudInput", "cloud_input", "oracle_edges", "relative_error"]
