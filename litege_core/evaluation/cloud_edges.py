@@ -5,7 +5,9 @@ A cloud point keeps the mesh triangle it was sampled on, so an edge ``(i, j)`` b
 points has a true geodesic to compare its chord with: the shortest route from point ``i``
 through a corner of its triangle, the mesh's two-ring graph
 (:func:`~litege_core.engines.graph.mesh_ring_graph`) and a corner of point ``j``'s triangle (an
-upper bound, within a few percent of the exact value at cloud-edge lengths). An edge whose true
+upper bound, within a few percent of the exact value at cloud-edge lengths), or the chord itself
+where the two triangles share a corner (there the route through corners is far too long for a
+short edge). An edge whose true
 geodesic is several times its chord is a *shortcut*: it joins parts that touch in space, or
 runs through a thin part."""
 
@@ -63,11 +65,18 @@ def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
 
 
 def oracle_edges(
-    shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float
+    shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float, bound: str = "upper"
 ) -> Callable[[NDArray, NDArray], NDArray]:
     """``(i, j) → (E,)`` true-ish geodesics between cloud points (unit-area units, ``inf``
-    beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph.
-    ``clean``: ``(P, 3)`` the points before any noise (where they lie on their triangles)."""
+    beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph, or
+    the chord between points whose triangles share a corner.
+    ``clean``: ``(P, 3)`` the points before any noise (where they lie on their triangles).
+    ``bound="lower"``: instead, what the triangle inequality leaves at least between them, the
+    largest ``d(corner_i, corner_j) − |p_i − corner_i| − |p_j − corner_j|`` (at least the
+    chord): a short edge between triangles a few rings apart reads as a detour of several
+    chords by the upper route, but only a true detour does by this one."""
+    if bound not in ("upper", "lower"):
+        raise ValueError(f"bound must be 'upper' or 'lower', got {bound!r}")
     from scipy.sparse.csgraph import dijkstra
 
     graph = mesh_ring_graph(shape.vertices, shape.faces, 2)
@@ -76,11 +85,23 @@ def oracle_edges(
     to_corner = np.linalg.norm(shape.vertices[corners] - clean[:, None], axis=-1)  # (P, 3)
 
     def geodesics(i: NDArray, j: NDArray) -> NDArray:
+        chords = np.linalg.norm(clean[i] - clean[j], axis=1)
+        if bound == "lower":
+            best = chords.copy()
+            for a in range(3):
+                for b in range(3):
+                    d = table[corners[i, a], corners[j, b]] - to_corner[i, a] - to_corner[j, b]
+                    best = np.maximum(best, np.where(np.isfinite(d), d, np.inf))
+            return best
         best = np.full(i.shape[0], np.inf)
         for a in range(3):
             for b in range(3):
                 d = to_corner[i, a] + table[corners[i, a], corners[j, b]] + to_corner[j, b]
                 best = np.minimum(best, d)
+        # on one triangle or two that share a corner the route through corners is far too
+        # long for short edges; the chord is the geodesic there, up to the fold between them
+        near = (corners[i, :, None] == corners[j, None, :]).any(axis=(1, 2))
+        best[near] = chords[near]
         return best
 
     return geodesics

@@ -77,3 +77,20 @@ def test_relative_error_is_scaled_to_a_mean_of_100() -> None:
     gt = np.array([[10.0, 30.0]])
     assert relative_error(gt * 1.1, gt) == pytest.approx(10.0)
     assert relative_error(gt + 2.0, gt) == pytest.approx(10.0)
+
+
+def test_the_lower_bound_sits_between_the_chord_and_the_route(blob) -> None:
+    mesh = blob(2)
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    sources = np.array([0])
+    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)
+    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
+    cloud = cloud_input(shape, "cloud_300", seed=0)
+    i, j = np.repeat(np.arange(30), 10), np.tile(np.arange(100, 110), 30)
+    upper = oracle_edges(shape, cloud, cloud.points, reach=10.0)(i, j)
+    lower = oracle_edges(shape, cloud, cloud.points, reach=10.0, bound="lower")(i, j)
+    chords = np.linalg.norm(cloud.points[i] - cloud.points[j], axis=1)
+    assert np.all(lower >= chords - 1e-12) and np.all(lower <= upper + 1e-6)
+    assert np.mean(lower > 1.05 * chords) > 0.5  # far pairs on a curved blob: real detours
+    with pytest.raises(ValueError):
+        oracle_edges(shape, cloud, cloud.points, reach=1.0, bound="middle")

@@ -1,0 +1,66 @@
+"""scripts/shortcut_edges.py: the AUC, the orientation of the normals, one shape's kept edges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from litege_core.evaluation.geodesic import EvalShape
+from tests.scripts.conftest import load_script
+
+
+@pytest.fixture(scope="module")
+def shortcut_edges():
+    return load_script("shortcut_edges")
+
+
+def test_auc_ranks_positives_above_negatives(shortcut_edges) -> None:
+    positive = np.array([True, True, False, False])
+    assert shortcut_edges.auc(np.array([3.0, 4.0, 1.0, 2.0]), positive) == 1.0
+    assert shortcut_edges.auc(np.array([1.0, 2.0, 3.0, 4.0]), positive) == 0.0
+    assert shortcut_edges.auc(np.ones(4), positive) == 0.5  # ties: half
+    assert np.isnan(shortcut_edges.auc(np.ones(4), np.zeros(4, bool)))
+
+
+def test_normals_of_a_sphere_are_oriented_one_way(shortcut_edges) -> None:
+    from litege_core.engines.graph import knn_neighbours
+
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(800, 3))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    normals = points * rng.choice([-1.0, 1.0], size=(800, 1))  # unoriented: random signs
+    signs = shortcut_edges.oriented_signs(points, normals, knn_neighbours(points, 16)[1][:, 1:])
+    outward = np.einsum("ij,ij->i", signs[:, None] * normals, points)
+    assert np.all(outward > 0) or np.all(outward < 0)
+
+
+def test_one_shapes_kept_edges_and_their_errors(
+    shortcut_edges, toy_bundle_dir_with_ood, blob
+) -> None:
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.learned.fusion_calibration import FusionCalibration
+
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    calibration = FusionCalibration(
+        k=8,
+        prune_ratio=1.6,
+        bias_log10_points=(2.0, 3.0),
+        bias=(1.0, 1.0),
+        gate=(0.0, 0.0, 0.0, 0.0),
+        mesh_bias=1.0,
+        bundle_hash=bundle.content_hash,
+    )
+    predictor = Predictor(bundle, fusion=calibration)
+    mesh = blob(2)
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    sources = np.array([0, 5])
+    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)
+    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
+    result = shortcut_edges.shape_edges(predictor, shape, "cloud_200", 3.0, frustration=True)
+    n_edges = result.shortcut.size
+    assert n_edges > 200 and result.features.shape == (n_edges, len(shortcut_edges.FEATURES))
+    assert result.frustrated is not None and result.frustrated.shape == (n_edges,)
+    assert set(result.errors) == {"shipped", "oracle", "frustration"}
+    assert all(np.isfinite(v) and v >= 0 for v in result.errors.values())
+    assert result.counts.sum() == 2 * result.shortcut.sum()
+    assert np.all(result.features[:, 0] > 0)  # chords over the spacing
