@@ -57,7 +57,7 @@ from litege_core.learned.cloud_surface import local_surface, normal_cosines
 from litege_core.learned.fusion import pruned_knn_graph
 from litege_core.shape import Shape
 
-FEATURES = ("chord / spacing", "thickness", "|n·ĉ|", "veto ratio")
+FEATURES = ("chord / spacing", "thickness", "normal cosine", "veto ratio")
 ORIENTATION_NEIGHBOURS = 16
 
 
