@@ -377,10 +377,13 @@ def mesh_ring_graph(
     copies = np.flatnonzero(first != np.arange(n))
     faces = first[faces]  # welded: a position's first copy
     half = np.concatenate([half_edges(faces), np.stack([first[copies], copies], 1)])
-    ones = np.ones(len(half))  # repeated pairs add up: only membership matters
-    step = sp.coo_array((ones, (half[:, 0], half[:, 1])), shape=(n, n)).tocsr()
-    step = step + step.T + sp.eye_array(n, format="csr")  # one ring, the vertex itself included
-    step.data[:] = 1.0  # membership only
+    own = np.arange(n)  # one ring, the vertex itself included, both directions of every edge
+    starts, ends = (
+        np.concatenate([half[:, 0], half[:, 1], own]),
+        np.concatenate([half[:, 1], half[:, 0], own]),
+    )
+    step = sp.coo_array((np.ones(starts.size), (starts, ends)), shape=(n, n)).tocsr()
+    step.data[:] = 1.0  # membership only (repeated pairs added up)
     reach = step
     for _ in range(rings - 1):
         reach = reach @ step
@@ -393,11 +396,19 @@ def mesh_ring_graph(
     above = reach.indices > rows  # the upper triangle, each row's columns still sorted
     rows, cols, marks = rows[above], reach.indices[above].astype(np.int64), reach.data[above]
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
-    lengths = np.linalg.norm(points[rows] - points[cols], axis=1)  # zeros stay entries
+    axes = np.ascontiguousarray(points.T)  # (3, N): np.take along rows beats fancy indexing
+    chord = np.take(axes, rows, axis=1)
+    chord -= np.take(axes, cols, axis=1)
+    lengths = np.sqrt(np.einsum("ie,ie->e", chord, chord))  # zeros stay entries
     if arcs:
         assert normals is not None  # arcs says so
-        chords = marks < 1.5
-        lengths[chords] *= arc_factors(normals[rows[chords]], normals[cols[chords]])
+        chords = np.flatnonzero(marks < 1.5)
+        normal_axes = np.ascontiguousarray(normals.T)
+        ends_a = np.take(normal_axes, rows[chords], axis=1)
+        ends_b = np.take(normal_axes, cols[chords], axis=1)
+        cos = np.einsum("ie,ie->e", ends_a, ends_b)
+        known = np.einsum("ie,ie->e", ends_a, ends_a) * np.einsum("ie,ie->e", ends_b, ends_b)
+        lengths[chords] *= _arc_factors(cos, known)
     return sp.csr_array((lengths, cols, indptr), shape=(n, n))
 
 
@@ -407,10 +418,16 @@ def arc_factors(normals_a: NDArray, normals_b: NDArray) -> NDArray:
     parallel normals, π/2 for opposite ones, as across a thin part; 1 where either normal is
     zero: an unreferenced vertex)."""
     cos = np.einsum("ij,ij->i", normals_a, normals_b)
-    half_sine = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))  # sin(θ/2)
     known = np.einsum("ij,ij->i", normals_a, normals_a) * np.einsum(
         "ij,ij->i", normals_b, normals_b
     )
+    return _arc_factors(cos, known)
+
+
+def _arc_factors(cos: NDArray, known: NDArray) -> NDArray:
+    """:func:`arc_factors` from the normals' ``(M,)`` dot products and the products of their
+    squared lengths (0: a zero normal)."""
+    half_sine = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))  # sin(θ/2)
     bent = (half_sine > 1e-8) & (known > 0)
     return np.where(bent, np.arcsin(half_sine) / np.where(bent, half_sine, 1.0), 1.0)
 
