@@ -43,13 +43,7 @@ from numpy.typing import NDArray
 
 from litege_core.engines.graph import dijkstra_rows, knn_neighbours
 from litege_core.evaluation.cloud_edges import cloud_input, oracle_edges, relative_error
-from litege_core.evaluation.geodesic import (
-    REAL_SETS,
-    EvalShape,
-    dataset_eval_shapes,
-    real_eval_shapes,
-    real_shape_paths,
-)
+from litege_core.evaluation.geodesic import EvalShape, named_eval_set
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
@@ -245,15 +239,8 @@ def main() -> None:
     parser.add_argument("--render", default=None, help="folder for PNGs of the worst shapes")
     args = parser.parse_args()
     for key in args.sets.split(","):
-        if "@" in key:  # a calibration dataset's test split
-            directory, model = key.split("@")
-            shapes = dataset_eval_shapes(directory, "test", args.limit)
-            group = f"{Path(directory).name} (test, calibration data)"
-        else:
-            real = REAL_SETS[key]
-            model, group = real.model, real.group
-            paths = real_shape_paths(args.eval_root, key, args.limit)
-            shapes = real_eval_shapes(paths, real.group, args.sources, args.cache)
+        named = named_eval_set(key, args.eval_root, args.sources, args.cache, args.limit)
+        shapes, model, group = named.shapes, named.model, named.group
         predictor = Predictor(load_model(model))  # the shipped defaults: fused
         print(f"\n### {group}, `{model}`: the shortcuts its cloud graph keeps\n")
         print(

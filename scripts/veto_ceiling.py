@@ -39,7 +39,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 from datetime import UTC, datetime
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,13 +46,7 @@ from numpy.typing import NDArray
 from litege_core.engines.graph import dijkstra_rows, knn_neighbours
 from litege_core.evaluation.cloud_edges import cloud_input, oracle_edges
 from litege_core.evaluation.cloud_edges import relative_error as error
-from litege_core.evaluation.geodesic import (
-    REAL_SETS,
-    EvalShape,
-    dataset_eval_shapes,
-    real_eval_shapes,
-    real_shape_paths,
-)
+from litege_core.evaluation.geodesic import EvalShape, named_eval_set
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
@@ -204,15 +197,8 @@ def main() -> None:
         MID_LIMITS.append(float(limit))
         VARIANTS.extend([f"mean normal {float(limit)}", f"mean normal {float(limit)} + net"])
     for key in args.sets.split(","):
-        if "@" in key:  # a calibration dataset's test split
-            directory, model = key.split("@")
-            shapes = dataset_eval_shapes(directory, "test", args.limit)
-            group = f"{Path(directory).name} (test, calibration data)"
-        else:
-            real = REAL_SETS[key]
-            model, group = real.model, real.group
-            paths = real_shape_paths(args.eval_root, key, args.limit)
-            shapes = real_eval_shapes(paths, real.group, args.sources, args.cache)
+        named = named_eval_set(key, args.eval_root, args.sources, args.cache, args.limit)
+        shapes, model, group = named.shapes, named.model, named.group
         bundle = load_model(model)
         predictor = Predictor(bundle)  # the shipped defaults: fused
         network_only = Predictor(bundle, fusion="none")

@@ -550,6 +550,39 @@ def dataset_eval_shapes(
     return synthetic_eval_shapes(dataset_dir, limit, split, label)
 
 
+@dataclass(frozen=True)
+class NamedEvalSet:
+    """The shapes of one ``--sets`` entry of the fusion diagnoses (:func:`named_eval_set`), the
+    shipped model of their category and the group label of the results."""
+
+    shapes: list[EvalShape]
+    model: str
+    group: str
+
+
+def named_eval_set(
+    key: str,
+    eval_root: str | Path,
+    n_sources: int,
+    cache_dir: str | Path | None,
+    limit: int | None = None,
+) -> NamedEvalSet:
+    """A real dev set by its key (:data:`REAL_SETS`: exact rows from ``n_sources`` FPS
+    sources, cached in ``cache_dir``) or ``DIR@MODEL``: the test split of a calibration dataset
+    we build, answered by model ``MODEL`` (its stored rows and sources)."""
+    if "@" in key:
+        directory, model = key.split("@", 1)
+        group = f"{Path(directory).name} (test, calibration data)"
+        return NamedEvalSet(dataset_eval_shapes(directory, "test", limit), model, group)
+    if key not in REAL_SETS:
+        raise InputError(f"unknown set {key!r}; expected one of {sorted(REAL_SETS)} or DIR@MODEL")
+    real = REAL_SETS[key]
+    paths = real_shape_paths(eval_root, key, limit)
+    return NamedEvalSet(
+        real_eval_shapes(paths, real.group, n_sources, cache_dir), real.model, real.group
+    )
+
+
 def collection_eval_shapes(
     dataset_dir: str | Path,
     split: str = "test",
@@ -736,6 +769,7 @@ __all__ = [
     "EvalInput",
     "EvalShape",
     "Method",
+    "NamedEvalSet",
     "RealSet",
     "SettingResult",
     "baseline_method",
@@ -751,6 +785,7 @@ __all__ = [
     "make_input",
     "mean_by_method",
     "methods_for",
+    "named_eval_set",
     "parse_setting",
     "parse_settings",
     "real_eval_shapes",

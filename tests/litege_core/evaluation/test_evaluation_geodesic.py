@@ -395,6 +395,20 @@ def test_dataset_eval_shapes_reads_either_kind_of_dataset_at_unit_area(tmp_path,
         np.testing.assert_allclose(shape.gt, expected, rtol=1e-4, atol=1e-6)
     if kind == "collection":  # each shape its own triangulation
         assert len({s.faces.shape for s in shapes}) == 2
+    from litege_core.evaluation.geodesic import named_eval_set
+
+    named = named_eval_set(f"{tmp_path}@quadrupeds", tmp_path / "no-eval-data", 12, None, 2)
+    assert (named.model, named.group) == ("quadrupeds", f"{tmp_path.name} (test, calibration data)")
+    assert [s.name for s in named.shapes] == [s.name for s in shapes[:2]]
+
+
+def test_a_named_set_is_a_real_set_or_a_dataset(tmp_path) -> None:
+    from litege_core.evaluation.geodesic import named_eval_set
+
+    empty = named_eval_set("faust", tmp_path, 12, None)  # no eval data here: no shapes
+    assert (empty.shapes, empty.model, empty.group) == ([], "humans", "FAUST humans (real)")
+    with pytest.raises(InputError, match="unknown set"):
+        named_eval_set("scape", tmp_path, 12, None)
 
 
 def test_a_decimated_mesh_is_scored_against_its_own_exact_geodesics(eval_shape):
