@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litege_core.evaluation.geodesic import EvalShape
 from tests.scripts.conftest import load_script
 
 
@@ -34,28 +33,8 @@ def test_normals_of_a_sphere_are_oriented_one_way(shortcut_edges) -> None:
     assert np.all(outward > 0) or np.all(outward < 0)
 
 
-def test_one_shapes_kept_edges_and_their_errors(
-    shortcut_edges, toy_bundle_dir_with_ood, blob
-) -> None:
-    from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion_calibration import FusionCalibration
-
-    bundle = load_bundle(toy_bundle_dir_with_ood)
-    calibration = FusionCalibration(
-        k=8,
-        prune_ratio=1.6,
-        bias_log10_points=(2.0, 3.0),
-        bias=(1.0, 1.0),
-        gate=(0.0, 0.0, 0.0, 0.0),
-        mesh_bias=1.0,
-        bundle_hash=bundle.content_hash,
-    )
-    predictor = Predictor(bundle, fusion=calibration)
-    mesh = blob(2)
-    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
-    sources = np.array([0, 5])
-    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)
-    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
+def test_one_shapes_kept_edges_and_their_errors(shortcut_edges, toy_fusion) -> None:
+    _, predictor, shape = toy_fusion
     result = shortcut_edges.shape_edges(predictor, shape, "cloud_200", 3.0, frustration=True)
     n_edges = result.shortcut.size
     assert n_edges > 200 and result.features.shape == (n_edges, len(shortcut_edges.FEATURES))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litege_core.evaluation.geodesic import EvalShape
 from tests.scripts.conftest import load_script
 
 
@@ -34,30 +33,14 @@ def test_best_weight_error_finds_the_blend_that_cancels_opposite_errors(veto_cei
 
 
 def test_extra_oracle_and_veto_ratios_reproduce_the_base_variants(
-    veto_ceiling, toy_bundle_dir_with_ood, blob, monkeypatch
+    veto_ceiling, toy_fusion, monkeypatch
 ) -> None:
     """``oracle R`` at the oracle's own ratio is the oracle, ``net veto R`` at the calibration's
     ratio is the shipped graph."""
-    from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion_calibration import FusionCalibration
+    from litege_core.learned import Predictor
 
-    bundle = load_bundle(toy_bundle_dir_with_ood)
-    calibration = FusionCalibration(
-        k=8,
-        prune_ratio=1.6,
-        bias_log10_points=(2.0, 3.0),
-        bias=(1.0, 1.0),
-        gate=(0.0, 0.0, 0.0, 0.0),
-        mesh_bias=1.0,
-        bundle_hash=bundle.content_hash,
-    )
-    predictor = Predictor(bundle, fusion=calibration)
+    bundle, predictor, shape = toy_fusion
     network_only = Predictor(bundle, fusion="none")
-    mesh = blob(2)
-    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
-    sources = np.array([0, 5])
-    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)  # any positive rows
-    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
     monkeypatch.setattr(veto_ceiling, "EXTRA_RATIOS", [3.0])
     monkeypatch.setattr(veto_ceiling, "PRUNE_RATIOS", [1.6, 1.05])
     out, _ = veto_ceiling.evaluate_shape(predictor, network_only, shape, "cloud_200", 3.0)

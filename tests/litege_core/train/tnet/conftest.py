@@ -36,15 +36,6 @@ TINY = {
 }
 
 
-TINY = {
-    "data": {"n_train": 4, "n_val": 2},
-    "augment": {"min_points": 32, "max_points": 64},
-    "network": {"conv_widths": [8, 16], "fc_widths": [8]},
-    "train": {"batch_size": 4, "steps": 6, "val_every": 3, "val_points": 48, "log_every": 2},
-    "report": {"samples": 64},
-}
-
-
 def tiny_config(tmp_path: Path, **overrides) -> TNetTrainConfig:
     config = TNetTrainConfig.from_dict({**TINY, "output": {"dir": str(tmp_path / "run")}})
     return config.replace(**overrides) if overrides else config
