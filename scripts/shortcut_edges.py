@@ -1,11 +1,11 @@
 """The shortcuts the fused cloud graph keeps, and what could tell them apart (issue 14, diagnosis).
 
 For every shape of a set and cloud setting this script builds the shipped fusion's cloud graph
-(the mutual k-NN graph, normal cut, network veto) and measures every kept edge against its true
-geodesic (:func:`~litege_core.evaluation.cloud_edges.oracle_edges`, its lower bound: what the
-triangle inequality leaves at least). A kept edge whose geodesic surely exceeds ``--stretch`` ×
-its chord is a *shortcut* (parts that touch, or a thin part crossed).
-It reports, per set and setting:
+(the mutual k-NN graph, normal cut, network veto where the calibration's OOD limit lets it run)
+and measures every kept edge against its true geodesic
+(:func:`~litege_core.evaluation.cloud_edges.oracle_edges`, its lower bound: what the triangle
+inequality leaves at least). A kept edge whose geodesic surely exceeds ``--stretch`` × its chord
+is a *shortcut* (parts that touch, or a thin part crossed). It reports, per set and setting:
 
 * how many kept edges are shortcuts, and the graph error (``graph / b``, GT mean 100) with them
   and with them removed (an oracle: what a veto that saw them would give);
@@ -115,8 +115,10 @@ def shape_edges(
         calibration.mutual_k,
     ).tocoo()
     i, j, chord = candidate.row, candidate.col, candidate.data
-    predicted = veto(i, j)
+    predicted = veto(i, j)  # read as a feature even where the shipped graph has no veto
     kept = predicted <= calibration.prune_ratio * chord
+    if not calibration.vetoes(state.ood_score):  # beyond the calibration's OOD limit
+        kept[:] = True
     i, j, chord, predicted = i[kept], j[kept], chord[kept], predicted[kept]
     reach = 8.0 * float(neighbours[0][:, -1].max()) / scale
     truth = oracle_edges(shape, cloud, clean, reach, bound="lower")  # sure detours only
@@ -136,7 +138,9 @@ def shape_edges(
         graph = sp.csr_array((chord[keep], (i[keep], j[keep])), shape=(n, n))
         rows = dijkstra_rows(graph, cloud.sources) / scale / bias
         finite = np.isfinite(rows)  # pairs the graph no longer joins: left out
-        return relative_error(rows[finite], cloud.gt[finite]) if finite.any() else float("nan")
+        if not np.any(cloud.gt[finite] > 0):  # it joins no source to another point
+            return float("nan")
+        return relative_error(rows[finite], cloud.gt[finite])
 
     errors = {"shipped": graph_error(np.ones(chord.size, bool)), "oracle": graph_error(~shortcut)}
     frustrated = None

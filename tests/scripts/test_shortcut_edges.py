@@ -43,3 +43,23 @@ def test_one_shapes_kept_edges_and_their_errors(shortcut_edges, toy_fusion) -> N
     assert all(np.isfinite(v) and v >= 0 for v in result.errors.values())
     assert result.counts.sum() == 2 * result.shortcut.sum()
     assert np.all(result.features[:, 0] > 0)  # chords over the spacing
+
+
+def test_beyond_the_ood_limit_the_graph_keeps_every_candidate_edge(
+    shortcut_edges, toy_fusion
+) -> None:
+    import dataclasses
+
+    from litege_core.learned import Predictor
+
+    bundle, predictor, shape = toy_fusion
+    strict = dataclasses.replace(predictor.fusion, prune_ratio=1.0)  # the veto cuts a lot
+    vetoed = shortcut_edges.shape_edges(
+        Predictor(bundle, fusion=strict), shape, "cloud_200", 3.0, frustration=False
+    )
+    off = dataclasses.replace(strict, veto_max_z=-1e9)  # every shape beyond the limit
+    unvetoed = shortcut_edges.shape_edges(
+        Predictor(bundle, fusion=off), shape, "cloud_200", 3.0, frustration=False
+    )
+    assert unvetoed.shortcut.size > vetoed.shortcut.size
+    assert unvetoed.frustrated is None and set(unvetoed.errors) == {"shipped", "oracle"}
