@@ -95,9 +95,6 @@ def shape_edges(
     calibration = predictor.fusion
     assert calibration is not None
     cloud = cloud_input(shape, setting, seed=0)
-    clean = cloud.points
-    if setting.startswith("noise_"):  # the points lie on their triangles before the noise
-        clean = cloud_input(shape, "cloud_2000", seed=0).points
     state = predictor.register(Shape.from_arrays(cloud.points))
     points, scale = state.canonical_points, state.transform.scale
     n = points.shape[0]
@@ -121,7 +118,7 @@ def shape_edges(
         kept[:] = True
     i, j, chord, predicted = i[kept], j[kept], chord[kept], predicted[kept]
     reach = 8.0 * float(neighbours[0][:, -1].max()) / scale
-    truth = oracle_edges(shape, cloud, clean, reach, bound="lower")  # sure detours only
+    truth = oracle_edges(shape, cloud, reach, bound="lower")  # sure detours only
     shortcut = truth(i, j) * scale > stretch * chord
     spacing = float(np.median(neighbours[0][:, 8]))
     features = np.column_stack(

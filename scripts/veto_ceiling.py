@@ -87,9 +87,6 @@ def best_weight_error(network: NDArray, graph: NDArray, gt: NDArray) -> float:
 
 def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, oracle_ratio: float):
     cloud = cloud_input(shape, setting, seed=0)
-    clean = cloud.points
-    if setting.startswith("noise_"):  # the corners are the clean sample's
-        clean = cloud_input(shape, "cloud_2000", seed=0).points
     state = predictor.register(Shape.from_arrays(cloud.points))
     calibration = predictor.fusion
     points, scale = state.canonical_points, state.transform.scale
@@ -101,7 +98,7 @@ def evaluate_shape(predictor, network_only, shape: EvalShape, setting: str, orac
     normal_cos = calibration.normal_limit(n)
     network = network_only.distances(state, cloud.sources).astype(np.float64)  # user units
     reach = 8.0 * float(neighbours[0][:, -1].max()) / scale
-    truth = oracle_edges(shape, cloud, clean, reach)
+    truth = oracle_edges(shape, cloud, reach)
     network_veto = predictor._edge_geodesics(state)
 
     def oracle_at(cut: float):

@@ -35,6 +35,8 @@ class CloudInput:
 
     Attributes:
         points: ``(P, 3)`` the input cloud (unit-area units).
+        clean: ``(P, 3)`` the same points before any noise (where they lie on their
+            triangles; ``points`` itself when the setting adds none).
         faces: ``(P,)`` the mesh triangle each point was sampled on.
         sources: ``(R,)`` source indices into ``points`` (the shape's sources come first).
         gt: ``(R, P)`` exact geodesics from each source to each point.
@@ -44,6 +46,7 @@ class CloudInput:
     faces: NDArray
     sources: NDArray
     gt: NDArray
+    clean: NDArray
 
 
 def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
@@ -55,22 +58,23 @@ def cloud_input(shape: EvalShape, setting: str, seed: int) -> CloudInput:
     samples = sample_surface(shape.vertices, shape.faces, n_points - n_sources, seed)
     corner_gt = shape.gt[:, shape.faces[samples.face_index]]
     sample_gt = np.einsum("rnk,nk->rn", corner_gt, samples.barycentric)
-    points = np.concatenate([shape.vertices[shape.sources], samples.points])
+    clean = np.concatenate([shape.vertices[shape.sources], samples.points])
     gt = np.concatenate([shape.gt[:, shape.sources], sample_gt], axis=1)
+    points = clean
     if setting.startswith("noise_"):
-        points = add_noise(points, float(setting[6:]), seed)
+        points = add_noise(clean, float(setting[6:]), seed)
     source_faces = np.array([np.flatnonzero((shape.faces == v).any(1))[0] for v in shape.sources])
     faces = np.concatenate([source_faces, samples.face_index])
-    return CloudInput(points, faces, np.arange(n_sources), gt)
+    return CloudInput(points, faces, np.arange(n_sources), gt, clean)
 
 
 def oracle_edges(
-    shape: EvalShape, cloud: CloudInput, clean: NDArray, reach: float, bound: str = "upper"
+    shape: EvalShape, cloud: CloudInput, reach: float, bound: str = "upper"
 ) -> Callable[[NDArray, NDArray], NDArray]:
     """``(i, j) → (E,)`` true-ish geodesics between cloud points (unit-area units, ``inf``
     beyond ``reach``), through the corners of their triangles on the mesh's two-ring graph, or
-    the chord between points whose triangles share a corner.
-    ``clean``: ``(P, 3)`` the points before any noise (where they lie on their triangles).
+    the chord between points whose triangles share a corner, both read on the points before
+    any noise (``cloud.clean``, where they lie on their triangles).
     ``bound="lower"``: instead, what the triangle inequality leaves at least between them, the
     largest ``d(corner_i, corner_j) − |p_i − corner_i| − |p_j − corner_j|`` (at least the
     chord): a short edge between triangles a few rings apart reads as a detour of several
@@ -81,7 +85,7 @@ def oracle_edges(
 
     graph = mesh_ring_graph(shape.vertices, shape.faces, 2)
     table = dijkstra(graph, directed=False, limit=reach).astype(np.float32)  # (V, V)
-    corners = shape.faces[cloud.faces]  # (P, 3)
+    clean, corners = cloud.clean, shape.faces[cloud.faces]  # (P, 3) each
     to_corner = np.linalg.norm(shape.vertices[corners] - clean[:, None], axis=-1)  # (P, 3)
 
     def geodesics(i: NDArray, j: NDArray) -> NDArray:

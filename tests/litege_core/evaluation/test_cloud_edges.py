@@ -46,13 +46,13 @@ def test_route_geodesics_follow_the_surface_around_a_fold() -> None:
     # triangles that hold them
     points = vertices[[0, n]]
     point_faces = np.array([0, len(low_faces)])
-    cloud = CloudInput(points, point_faces, np.array([0]), np.zeros((1, 2)))
-    truth = oracle_edges(shape, cloud, points, reach=10.0)
+    cloud = CloudInput(points, point_faces, np.array([0]), np.zeros((1, 2)), points)
+    truth = oracle_edges(shape, cloud, reach=10.0)
     geodesic = truth(np.array([0]), np.array([1]))[0]
     assert geodesic == pytest.approx(2.02, abs=0.05)  # out to x = 1, up, and back
     assert truth(np.array([0]), np.array([0]))[0] == pytest.approx(0.0)
     # beyond the reach the route is not measured: infinite
-    assert np.isinf(oracle_edges(shape, cloud, points, reach=0.5)(np.array([0]), np.array([1]))[0])
+    assert np.isinf(oracle_edges(shape, cloud, reach=0.5)(np.array([0]), np.array([1]))[0])
 
 
 def test_a_cloud_keeps_the_sources_first_and_their_rows(blob) -> None:
@@ -70,6 +70,8 @@ def test_a_cloud_keeps_the_sources_first_and_their_rows(blob) -> None:
     assert noisy.points.shape == (2000, 3)
     clean = cloud_input(shape, "cloud_2000", seed=0)
     np.testing.assert_array_equal(noisy.faces, clean.faces)  # the same samples, moved
+    np.testing.assert_array_equal(noisy.clean, clean.points)  # and kept as they were
+    assert cloud.clean is cloud.points  # no noise: the points themselves
     assert 0.005 < np.std(noisy.points - clean.points) < 0.02
 
 
@@ -87,10 +89,10 @@ def test_the_lower_bound_sits_between_the_chord_and_the_route(blob) -> None:
     shape = EvalShape("blob", "test", vertices, faces, sources, gt)
     cloud = cloud_input(shape, "cloud_300", seed=0)
     i, j = np.repeat(np.arange(30), 10), np.tile(np.arange(100, 110), 30)
-    upper = oracle_edges(shape, cloud, cloud.points, reach=10.0)(i, j)
-    lower = oracle_edges(shape, cloud, cloud.points, reach=10.0, bound="lower")(i, j)
+    upper = oracle_edges(shape, cloud, reach=10.0)(i, j)
+    lower = oracle_edges(shape, cloud, reach=10.0, bound="lower")(i, j)
     chords = np.linalg.norm(cloud.points[i] - cloud.points[j], axis=1)
     assert np.all(lower >= chords - 1e-12) and np.all(lower <= upper + 1e-6)
     assert np.mean(lower > 1.05 * chords) > 0.5  # far pairs on a curved blob: real detours
     with pytest.raises(ValueError):
-        oracle_edges(shape, cloud, cloud.points, reach=1.0, bound="middle")
+        oracle_edges(shape, cloud, reach=1.0, bound="middle")
