@@ -87,8 +87,8 @@ class PathResult:
         length: polyline length (user units).
         method: the requested method; ``engine``: what ran (see :class:`GeodesicAnswer`).
         distance: the method's distance between the end points (user units): the model's
-            answer (``learned``: as :meth:`Runtime.geodesic` gives it, fused where the model
-            fuses) or the engine's distance (exact: the exact geodesic).
+            answer (``learned``: as :meth:`~service.runtime.Runtime.geodesic` gives it, fused
+            where the model fuses) or the engine's distance (exact: the exact geodesic).
         segments: ``(start_index, how)`` per part of the polyline, in order (which method
             produced which part: ``learned``, ``edge-flip``, ``mesh-edges``, ``knn-graph``,
             ``straight``, ``heat-descent``, ``exact-mmp``).
