@@ -98,6 +98,7 @@ class MicroBatcher:
         self._task: asyncio.Task[None] | None = None
         self._closing = False
         self._batch_seconds = 0.01  # running mean of a gathered batch, for Retry-After
+        self._waiting = 0
 
     def start(self) -> None:
         if self._task is None:
@@ -110,7 +111,13 @@ class MicroBatcher:
 
     @property
     def depth(self) -> int:
+        """Jobs queued and not yet taken into a batch."""
         return self._queue.qsize()
+
+    @property
+    def waiting(self) -> int:
+        """Callers of :meth:`submit` waiting for their job (queued or computing)."""
+        return self._waiting
 
     async def submit(
         self,
@@ -141,6 +148,7 @@ class MicroBatcher:
                 retry_after_s=self.retry_after_s(),
             ) from None
         self.metrics.queue_depth.set(self._queue.qsize())
+        self._waiting += 1
         try:
             return await asyncio.wait_for(future, timeout_s)
         except TimeoutError:
@@ -153,6 +161,8 @@ class MicroBatcher:
             if token is not None:
                 token.cancel()
             raise
+        finally:
+            self._waiting -= 1
 
     def retry_after_s(self) -> float:
         """A Retry-After estimate in whole seconds: the time to work off the queued batches

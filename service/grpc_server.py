@@ -278,7 +278,12 @@ class LiteGEServicer:
     ) -> AsyncIterator[Any]:
         """Bidirectional stream: ``CorrespondRequest`` batches → ``CorrespondResponse``s, one
         per batch, in order (see the module docstring and the .proto). Each batch holds a
-        concurrency slot while it computes (not while the stream waits for the client)."""
+        concurrency slot while it computes (not while the stream waits for the client).
+
+        A client that cancels while a batch computes stops it (``CANCELLED``). One that
+        cancels while the server waits for its next batch ends the request stream as a
+        half-close would: grpcio's asyncio server shows both as the end of the iterator and
+        ``context.cancelled()`` stays false, so that stream is counted ``OK``."""
         metrics = self.runtime.metrics
         started = time.perf_counter()
         code = grpc.StatusCode.OK
@@ -288,8 +293,6 @@ class LiteGEServicer:
             self._authenticate(context)
             pair = _Pair()
             async for message in request_iterator:  # one batch at a time: back-pressure
-                if _cancelled(context):
-                    break
                 batch_id = int(message.batch_id)
                 pair = pair.updated(message)
                 with self.runtime.admission.slot():
@@ -306,8 +309,6 @@ class LiteGEServicer:
             code = _status_of(exc)
             await self._fail("Correspond", exc, context, extra)
         finally:
-            if code == grpc.StatusCode.OK and _cancelled(context):
-                code = grpc.StatusCode.CANCELLED  # the stream ended because the client left
             metrics.in_flight.labels("grpc").dec()
             metrics.grpc_latency.labels("Correspond", code.name).observe(
                 time.perf_counter() - started
@@ -541,11 +542,6 @@ def _problem_of(exc: Exception) -> LiteGEError | None:
 def _status_of(exc: Exception) -> grpc.StatusCode:
     problem = _problem_of(exc)
     return grpc.StatusCode.INTERNAL if problem is None else problem_for(problem).grpc_status
-
-
-def _cancelled(context: grpc.aio.ServicerContext) -> bool:
-    cancelled = getattr(context, "cancelled", None)
-    return bool(cancelled()) if cancelled is not None else False
 
 
 @dataclass(frozen=True)

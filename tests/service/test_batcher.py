@@ -66,10 +66,12 @@ def test_a_job_abandoned_by_its_caller_is_not_run():
         gone = asyncio.ensure_future(batcher.submit("work", "cancelled", token=cancelled))
         kept = asyncio.ensure_future(batcher.submit("work", "kept"))
         await _until(lambda: batcher.depth == 3)
+        assert batcher.waiting == 3  # the first, the cancelled and the kept job's callers
         gate.opened.set()
         assert await running == "first" and await kept == "kept"
         with pytest.raises(DeadlineExceededError):
             await gone  # answered, not left waiting
+        assert batcher.waiting == 0
         await batcher.close()
         return gate.ran
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -366,38 +367,71 @@ def _wait_stable(read: Callable[[], float], settle_s: float = 0.6, limit_s: floa
     raise AssertionError("the counter kept changing")
 
 
+def _until(condition: Callable[[], bool], limit_s: float = 10) -> None:
+    deadline = time.monotonic() + limit_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("the condition did not hold in time")
+        time.sleep(0.002)
+
+
+def _stream_codes(service) -> dict[str, float]:
+    return {
+        code: counter(
+            service,
+            "litege_grpc_request_duration_seconds_count",
+            method="Correspond",
+            code=code,
+        )
+        for code in ("OK", "CANCELLED")
+    }
+
+
 def test_cancellation_stops_the_stream(slow, test_shape):
+    """Cancelled while batch 2 computes (the slow batcher holds it ≥ SLOW_WAIT_MS): the
+    server stops, computes nothing further and counts the stream CANCELLED."""
     n_batches = 40  # ≥ 6 s of work at SLOW_WAIT_MS per batch
     with GrpcClient(slow.grpc_target, timeout_s=60) as client:
         ids = _register_pair(client, test_shape)
-        before = computed(slow)
+        before, codes_before = computed(slow), _stream_codes(slow)
         answers = client.correspond(*ids, ([i] for i in range(n_batches)))
         received = [next(answers), next(answers)]
+        _until(lambda: slow.runtime.batcher.waiting == 1)  # batch 2 submitted
         answers.close()  # cancels the call
         assert [a["batch_id"] for a in received] == [0, 1]
         done = _wait_stable(lambda: computed(slow)) - before
         assert 2 <= done <= 3, f"{done} batches computed after cancelling at 2"
-
-        def cancelled() -> float:
-            return counter(
-                slow,
-                "litege_grpc_request_duration_seconds_count",
-                method="Correspond",
-                code="CANCELLED",
-            )
-
-        codes = {
-            code: counter(
-                slow,
-                "litege_grpc_request_duration_seconds_count",
-                method="Correspond",
-                code=code,
-            )
-            for code in ("OK", "CANCELLED")
-        }
-        assert _wait_stable(cancelled) == 1, codes
+        cancelled = _wait_stable(lambda: _stream_codes(slow)["CANCELLED"])
+        codes = _stream_codes(slow)
+        assert cancelled - codes_before["CANCELLED"] == 1, codes
+        assert codes["OK"] == codes_before["OK"], codes
         (answer,) = client.correspond(*ids, [[0, 1]])  # later calls work
         assert answer["n_queries"] == 2
+
+
+def test_cancellation_between_batches_ends_the_stream(slow, test_shape):
+    """Cancelled while the server waits for the next batch: the stream ends, once, with no
+    batch computed after it (gRPC shows the server an end of stream: OK or CANCELLED)."""
+    hold = threading.Event()
+
+    def batches() -> Iterator[list[int]]:
+        yield [0]
+        yield [1]
+        hold.wait(30)  # the client sends nothing more until the test has cancelled
+        yield [2]
+
+    with GrpcClient(slow.grpc_target, timeout_s=60) as client:
+        ids = _register_pair(client, test_shape)
+        before, codes_before = computed(slow), _stream_codes(slow)
+        answers = client.correspond(*ids, batches())
+        received = [next(answers), next(answers)]
+        assert [a["batch_id"] for a in received] == [0, 1]
+        answers.close()
+        hold.set()
+        assert _wait_stable(lambda: computed(slow)) - before == 2
+        codes = _wait_stable(lambda: sum(_stream_codes(slow).values()))
+        assert codes - sum(codes_before.values()) == 1, _stream_codes(slow)
+        assert slow.runtime.batcher.waiting == 0
 
 
 def test_server_reads_one_batch_at_a_time(slow, test_shape):
