@@ -70,7 +70,7 @@ from litege_core.arrays import distinct_indices
 from litege_core.errors import InputError
 from litege_core.learned.cloud_surface import ROUGHNESS_NEIGHBOURS, local_surface, normal_cosines
 from litege_core.learned.fusion_calibration import FusionCalibration
-from litege_core.learned.mesh_noise import denoised_mesh, mesh_noise
+from litege_core.learned.mesh_noise import MeshEdges, denoised_mesh, mesh_edges, mesh_noise
 from litege_core.learned.veto_graph import (
     LAZY_SOURCES,
     MAX_ROUNDS,
@@ -210,8 +210,17 @@ def kept_mesh_noise(
         return 0.0
     if "fusion.mesh_noise" not in kept:
         normals = kept_arc_normals(points, faces, kept)
-        kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals)
+        edges = kept_mesh_edges(points, faces, kept)
+        kept["fusion.mesh_noise"] = mesh_noise(points, faces, normals, edges)
     return float(kept["fusion.mesh_noise"])
+
+
+def kept_mesh_edges(points: NDArray, faces: NDArray, kept: dict[str, Any]) -> MeshEdges:
+    """A mesh's :func:`~litege_core.learned.mesh_noise.mesh_edges` (its vertex noise and its
+    smoothing read the same edges), kept in ``kept`` as ``fusion.mesh_edges``."""
+    if "fusion.mesh_edges" not in kept:
+        kept["fusion.mesh_edges"] = mesh_edges(points, faces)
+    return kept["fusion.mesh_edges"]
 
 
 def kept_graph_mesh(
@@ -230,7 +239,8 @@ def kept_graph_mesh(
         return points, None
     key = f"fusion.mesh_denoised.{limit}"
     if key not in kept:
-        kept[key] = denoised_mesh(points, faces, limit, noise)
+        edges = kept_mesh_edges(points, faces, kept)
+        kept[key] = denoised_mesh(points, faces, limit, noise, edges)
     return kept[key].points, limit
 
 
@@ -560,6 +570,7 @@ __all__ = [
     "graph_rows",
     "kept_arc_normals",
     "kept_graph_mesh",
+    "kept_mesh_edges",
     "kept_mesh_noise",
     "pruned_knn_graph",
     "route_trees",

@@ -104,7 +104,12 @@ def mesh_edges(points: NDArray, faces: NDArray) -> MeshEdges:
     return MeshEdges(a, b, degree, welds, mean, faces)
 
 
-def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) -> float:
+def mesh_noise(
+    points: NDArray,
+    faces: NDArray,
+    normals: NDArray | None = None,
+    edges: MeshEdges | None = None,
+) -> float:
     """How noisy a mesh's vertices are, as a fraction of its edge length: the part of each
     vertex's normal displacement from its neighbours' mean (umbrella Laplacian ``h_i``) that
     its neighbours do not share, ``sqrt(median_i(h_i² − h_i · mean_{j∼i} h_j))``, over the
@@ -116,9 +121,10 @@ def mesh_noise(points: NDArray, faces: NDArray, normals: NDArray | None = None) 
     ~0.65); scale-free. ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``, seams welded
     here (:func:`~litege_core.seams.seam_welds`); ``normals``: ``(N, 3)``
     :func:`~litege_core.engines.graph.arc_normals` if already known (else computed; a
-    non-orientable mesh uses its unoriented vertex normals). 0 for a mesh without edges.
+    non-orientable mesh uses its unoriented vertex normals); ``edges``: its
+    :func:`mesh_edges` if already known. 0 for a mesh without edges.
     """
-    edges = mesh_edges(points, faces)
+    edges = mesh_edges(points, faces) if edges is None else edges
     return _noise(points, edges.normals(points) if normals is None else normals, edges)
 
 
@@ -185,7 +191,11 @@ class DenoisedMesh(NamedTuple):
 
 
 def denoised_mesh(
-    points: NDArray, faces: NDArray, limit: float, noise: float | None = None
+    points: NDArray,
+    faces: NDArray,
+    limit: float,
+    noise: float | None = None,
+    edges: MeshEdges | None = None,
 ) -> DenoisedMesh:
     """The mesh's vertices smoothed (:func:`taubin_smooth`, :data:`DENOISE_PAIRS_PER_CHECK`
     pairs at a time) until their :func:`mesh_noise` is at most ``limit``, at most
@@ -196,13 +206,12 @@ def denoised_mesh(
     error at every noise level, and its bias falls from 1.06–1.2 to 1.02–1.04 on 5K meshes and
     from 1.4–2.1 to 1.06–1.14 on a 50K scan (σ = 0.008, 0.016), so one bias carries across
     densities. A denser mesh takes more steps (its noise spans fewer edges per unit of
-    smoothing). ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``; ``noise``: the mesh's
-    :func:`mesh_noise` if already known.
+    smoothing). ``points``: ``(N, 3)`` float64; ``faces``: ``(F, 3)``; ``noise``, ``edges``: the
+    mesh's :func:`mesh_noise` and :func:`mesh_edges` if already known.
     """
     points = np.asarray(points, dtype=np.float64)
-    edges = None
     if noise is None:
-        edges = mesh_edges(points, faces)
+        edges = mesh_edges(points, faces) if edges is None else edges
         noise = _noise(points, edges.normals(points), edges)
     if noise <= limit:
         return DenoisedMesh(points, float(noise), 0)

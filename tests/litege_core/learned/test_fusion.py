@@ -516,13 +516,24 @@ def test_a_noisy_mesh_takes_the_bias_of_its_noise(bundle_dir, blob) -> None:
     assert biases[0] < 1.05 < 1.1 < biases[1] < 1.5  # the noisy mesh's well above the clean
 
 
-def test_a_noisy_mesh_is_smoothed_before_its_graph(bundle_dir, blob) -> None:
+def test_a_noisy_mesh_is_smoothed_before_its_graph(bundle_dir, blob, monkeypatch) -> None:
     """With ``mesh_smooth_noise`` a mesh noisier than the limit is answered by the ring graph of
     its denoised vertices (kept with the state); its rows come closer to the clean mesh's than
     the unsmoothed graph's do (one constant bias here: the noise knots are fitted on smoothed
     graphs, their bias read at the noise of the mesh as given). A mesh no noisier than the
-    limit is answered exactly as without it."""
-    from litege_core.learned.mesh_noise import denoised_mesh
+    limit is answered exactly as without it. Its noise and its smoothing read one
+    :func:`mesh_edges`."""
+    from litege_core.learned import fusion, mesh_noise
+    from litege_core.learned.mesh_noise import denoised_mesh, mesh_edges
+
+    built: list[int] = []
+
+    def counted(points: np.ndarray, faces: np.ndarray):
+        built.append(points.shape[0])
+        return mesh_edges(points, faces)
+
+    for module in (fusion, mesh_noise):
+        monkeypatch.setattr(module, "mesh_edges", counted)
 
     predictor, calibration = _graph_only_predictor(bundle_dir)
     plain = predictor
@@ -533,8 +544,10 @@ def test_a_noisy_mesh_is_smoothed_before_its_graph(bundle_dir, blob) -> None:
     sources = np.array([0, 17, 200])
     clean = plain.distances(plain.register(shape), sources)
     np.testing.assert_array_equal(smoothing.distances(smoothing.register(shape), sources), clean)
+    built.clear()
     state = smoothing.register(noisy)
     rows = smoothing.distances(state, sources)
+    assert len(built) == 1
     denoised = state._lazy["fusion.mesh_denoised.0.08"]
     expected = denoised_mesh(state.canonical_points, np.asarray(noisy.faces), 0.08)
     np.testing.assert_array_equal(denoised.points, expected.points)
