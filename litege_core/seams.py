@@ -8,10 +8,15 @@ router, the boundary test of matching) welds them first, by one rule: :func:`sea
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from litege_core.sampling import first_copies
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_array
 
 
 def half_edges(faces: NDArray) -> NDArray:
@@ -31,12 +36,24 @@ def unique_edges(faces: NDArray) -> tuple[NDArray, NDArray]:
         ``edges (E, 2)`` int64 with ``edges[:, 0] < edges[:, 1]``, sorted lexicographically,
         and ``counts (E,)`` int64, the number of faces incident to each edge.
     """
-    half = np.sort(half_edges(faces), axis=1)
+    half = half_edges(faces)
     if half.size == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    base = int(half.max()) + 1  # one int64 key per edge: a 1-D unique is ~15x faster
-    keys, counts = np.unique(half[:, 0] * base + half[:, 1], return_counts=True)
-    return np.stack([keys // base, keys % base], axis=1), counts.astype(np.int64)
+    low, high = np.minimum(half[:, 0], half[:, 1]), np.maximum(half[:, 0], half[:, 1])
+    counted = _pair_counts(low, high, int(high.max()) + 1)
+    rows = np.repeat(np.arange(counted.shape[0], dtype=np.int64), np.diff(counted.indptr))
+    return np.stack([rows, counted.indices.astype(np.int64)], axis=1), counted.data
+
+
+def _pair_counts(rows: NDArray, cols: NDArray, n: int) -> csr_array:
+    """How often each ``(row, col)`` pair occurs: an ``(n, n)`` CSR of int64 counts, its column
+    indices sorted in each row (a counting sort by row: ~3x faster than a sort of pair keys on
+    a 5K-vertex mesh's 30K half-edges)."""
+    from scipy.sparse import csr_array
+
+    counted = csr_array((np.ones(rows.size, np.int64), (rows, cols)), shape=(n, n))
+    counted.sum_duplicates()  # sorts each row's columns and adds up repeated pairs
+    return counted
 
 
 def boundary_vertices(faces: NDArray, n: int) -> NDArray:
@@ -82,8 +99,7 @@ def consistently_wound(faces: NDArray) -> bool:
     half = half_edges(faces)
     if half.shape[0] < 2:
         return True
-    keys = np.sort(half[:, 0] * (int(half.max()) + 1) + half[:, 1])  # one int per directed edge
-    return bool((np.diff(keys) != 0).all())
+    return bool(_pair_counts(half[:, 0], half[:, 1], int(half.max()) + 1).data.max() == 1)
 
 
 def oriented_faces(faces: NDArray) -> NDArray | None:
