@@ -41,15 +41,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litege_core.engines.graph import dijkstra_rows, knn_neighbours
-from litege_core.evaluation.cloud_edges import cloud_input, oracle_edges, relative_error
+from litege_core.evaluation.cloud_edges import kept_edges
 from litege_core.evaluation.geodesic import EvalShape, named_eval_set
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
-from litege_core.learned.cloud_surface import local_surface, normal_cosines
-from litege_core.learned.fusion import pruned_knn_graph
-from litege_core.shape import Shape
+from litege_core.learned.cloud_surface import normal_cosines
 
 FEATURES = ("chord / spacing", "thickness", "normal cosine", "veto ratio")
 ORIENTATION_NEIGHBOURS = 16
@@ -90,65 +87,28 @@ def shape_edges(
     predictor: Predictor, shape: EvalShape, setting: str, stretch: float, frustration: bool
 ) -> ShapeEdges:
     """Build the shipped cloud graph of one shape and measure its kept edges."""
-    import scipy.sparse as sp
-
-    calibration = predictor.fusion
-    assert calibration is not None
-    cloud = cloud_input(shape, setting, seed=0)
-    state = predictor.register(Shape.from_arrays(cloud.points))
-    points, scale = state.canonical_points, state.transform.scale
-    n = points.shape[0]
-    neighbours = knn_neighbours(points, max(calibration.reach, ORIENTATION_NEIGHBOURS))
-    thickness, normals = local_surface(points, nearest=neighbours[1])
-    veto = predictor._edge_geodesics(state)
-    candidate = pruned_knn_graph(
-        points,
-        calibration.k,
-        calibration.prune_ratio,
-        None,
-        neighbours,
-        normals,
-        calibration.normal_limit(n),
-        calibration.mutual_k,
-    ).tocoo()
-    i, j, chord = candidate.row, candidate.col, candidate.data
-    predicted = veto(i, j)  # read as a feature even where the shipped graph has no veto
-    kept = predicted <= calibration.prune_ratio * chord
-    if not calibration.vetoes(state.ood_score):  # beyond the calibration's OOD limit
-        kept[:] = True
-    i, j, chord, predicted = i[kept], j[kept], chord[kept], predicted[kept]
-    reach = 8.0 * float(neighbours[0][:, -1].max()) / scale
-    truth = oracle_edges(shape, cloud, reach, bound="lower")  # sure detours only
-    shortcut = truth(i, j) * scale > stretch * chord
-    spacing = float(np.median(neighbours[0][:, 8]))
+    edges = kept_edges(predictor, shape, setting, stretch, neighbours=ORIENTATION_NEIGHBOURS)
+    i, j, chord, shortcut = edges.i, edges.j, edges.chord, edges.shortcut
     features = np.column_stack(
         [
-            chord / spacing,
-            np.maximum(thickness[i], thickness[j]),
-            normal_cosines(points, normals, i, j, chord),
-            predicted / np.maximum(chord, 1e-12),
+            chord / edges.spacing,
+            np.maximum(edges.thickness[i], edges.thickness[j]),
+            normal_cosines(edges.points, edges.normals, i, j, chord),
+            edges.predicted / np.maximum(chord, 1e-12),
         ]
     )
-    bias = calibration.graph_bias(n)
-
-    def graph_error(keep: NDArray) -> float:
-        graph = sp.csr_array((chord[keep], (i[keep], j[keep])), shape=(n, n))
-        rows = dijkstra_rows(graph, cloud.sources) / scale / bias
-        finite = np.isfinite(rows)  # pairs the graph no longer joins: left out
-        if not np.any(cloud.gt[finite] > 0):  # it joins no source to another point
-            return float("nan")
-        return relative_error(rows[finite], cloud.gt[finite])
-
-    errors = {"shipped": graph_error(np.ones(chord.size, bool)), "oracle": graph_error(~shortcut)}
+    errors = {"shipped": edges.graph_error(), "oracle": edges.graph_error(~shortcut)}
     frustrated = None
     if frustration:
-        signs = oriented_signs(points, normals, neighbours[1][:, 1 : ORIENTATION_NEIGHBOURS + 1])
-        agreement = signs[i] * signs[j] * np.einsum("ij,ij->i", normals[i], normals[j])
+        nearest = edges.nearest[:, :ORIENTATION_NEIGHBOURS]
+        signs = oriented_signs(edges.points, edges.normals, nearest)
+        agreement = signs[i] * signs[j] * np.einsum("ij,ij->i", edges.normals[i], edges.normals[j])
         frustrated = agreement < 0.0
-        errors["frustration"] = graph_error(~frustrated)
+        errors["frustration"] = edges.graph_error(~frustrated)
+    n = edges.points.shape[0]
     counts = np.bincount(i[shortcut], minlength=n) + np.bincount(j[shortcut], minlength=n)
     return ShapeEdges(
-        shape.name, features, shortcut, frustrated, errors, counts, cloud.points.copy()
+        shape.name, features, shortcut, frustrated, errors, counts, edges.cloud.points.copy()
     )
 
 

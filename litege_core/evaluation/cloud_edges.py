@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +24,9 @@ from litege_core.engines.graph import mesh_ring_graph
 from litege_core.evaluation.geodesic import EvalShape
 from litege_core.sampling import sample_surface
 from litege_core.variants import add_noise
+
+if TYPE_CHECKING:
+    from litege_core.learned import Predictor
 
 CLOUD_SETTINGS = ("cloud_N", "noise_S")
 """The settings :func:`cloud_input` draws: ``cloud_N`` (``N`` area-weighted points) and
@@ -111,9 +115,140 @@ def oracle_edges(
     return geodesics
 
 
+SURFACE_NEIGHBOURS = 16
+"""Neighbours of a cloud point :func:`kept_edges` keeps at least (the normals' and thickness's
+k-NN covariance reads 16, itself included)."""
+
+
+@dataclass
+class KeptEdges:
+    """The edges the shipped fusion keeps in one evaluation cloud's graph (the mutual k-NN graph,
+    normal cut, network veto where the calibration's OOD limit lets it run), measured against
+    the mesh: :func:`kept_edges`.
+
+    Attributes:
+        cloud: the input cloud.
+        points: ``(P, 3)`` its points in the canonical frame (canonical units).
+        scale: canonical units per unit-area unit.
+        nearest: ``(P, K)`` each point's nearest other points, nearest first (``K`` ≥ 16).
+        spacing: the median distance to the 8th nearest point (canonical units).
+        thickness: ``(P,)`` ``sqrt(λ_min / λ_max)`` of each point's 16-NN covariance.
+        normals: ``(P, 3)`` the unoriented normals of that covariance.
+        i, j: ``(E,)`` the kept edges' end points; chord: ``(E,)`` their lengths (canonical).
+        predicted: ``(E,)`` the veto head's geodesic of each (canonical; read even where the
+            shipped graph runs no veto).
+        shortcut: ``(E,)`` whether the edge's true geodesic surely exceeds ``stretch`` × its
+            chord (:func:`oracle_edges`, its lower bound).
+        bias: the calibration's graph bias ``b(P)``.
+    """
+
+    cloud: CloudInput
+    points: NDArray
+    scale: float
+    nearest: NDArray
+    spacing: float
+    thickness: NDArray
+    normals: NDArray
+    i: NDArray
+    j: NDArray
+    chord: NDArray
+    predicted: NDArray
+    shortcut: NDArray
+    bias: float
+
+    def graph_error(self, keep: NDArray | None = None) -> float:
+        """The error (GT mean 100) of Dijkstra rows from the cloud's sources over the ``keep``
+        ``(E,)`` edges (default all) over the bias; pairs the graph no longer joins are left
+        out (``nan`` when it joins no source to another point)."""
+        import scipy.sparse as sp
+
+        from litege_core.engines.graph import dijkstra_rows
+
+        keep = np.ones(self.chord.size, bool) if keep is None else keep
+        n = self.points.shape[0]
+        graph = sp.csr_array((self.chord[keep], (self.i[keep], self.j[keep])), shape=(n, n))
+        rows = dijkstra_rows(graph, self.cloud.sources) / self.scale / self.bias
+        finite = np.isfinite(rows)
+        if not np.any(self.cloud.gt[finite] > 0):
+            return float("nan")
+        return relative_error(rows[finite], self.cloud.gt[finite])
+
+
+def kept_edges(
+    predictor: Predictor,
+    shape: EvalShape,
+    setting: str,
+    stretch: float = 3.0,
+    seed: int = 0,
+    neighbours: int = SURFACE_NEIGHBOURS,
+) -> KeptEdges:
+    """Build the fused cloud graph of ``shape`` in ``setting`` (:func:`cloud_input`) as
+    ``predictor``'s calibration does and measure its kept edges (:class:`KeptEdges`);
+    ``neighbours``: the most nearest points to keep per point (at least 16 and the
+    calibration's reach)."""
+    from litege_core.engines.graph import knn_neighbours
+    from litege_core.learned.cloud_surface import local_surface
+    from litege_core.learned.fusion import pruned_knn_graph
+    from litege_core.shape import Shape
+
+    calibration = predictor.fusion
+    if calibration is None:
+        raise ValueError("kept_edges needs a fused predictor")
+    cloud = cloud_input(shape, setting, seed=seed)
+    state = predictor.register(Shape.from_arrays(cloud.points))
+    points, scale = state.canonical_points, state.transform.scale
+    n = points.shape[0]
+    lengths, nearest = knn_neighbours(
+        points, max(calibration.reach, SURFACE_NEIGHBOURS, neighbours)
+    )
+    thickness, normals = local_surface(points, nearest=nearest)
+    reach = calibration.reach + 1
+    candidate = pruned_knn_graph(
+        points,
+        calibration.k,
+        calibration.prune_ratio,
+        None,
+        (lengths[:, :reach], nearest[:, :reach]),
+        normals,
+        calibration.normal_limit(n),
+        calibration.mutual_k,
+    ).tocoo()
+    i, j, chord = candidate.row, candidate.col, candidate.data
+    predicted = predictor._edge_geodesics(state)(i, j)
+    kept = predicted <= calibration.prune_ratio * chord
+    if not calibration.vetoes(state.ood_score):  # beyond the calibration's OOD limit
+        kept[:] = True
+    i, j, chord, predicted = i[kept], j[kept], chord[kept], predicted[kept]
+    truth = oracle_edges(shape, cloud, 8.0 * float(lengths[:, -1].max()) / scale, bound="lower")
+    return KeptEdges(
+        cloud=cloud,
+        points=points,
+        scale=float(scale),
+        nearest=nearest[:, 1:],
+        spacing=float(np.median(lengths[:, 8])),
+        thickness=thickness,
+        normals=normals,
+        i=i,
+        j=j,
+        chord=chord,
+        predicted=predicted,
+        shortcut=truth(i, j) * scale > stretch * chord,
+        bias=float(calibration.graph_bias(n)),
+    )
+
+
 def relative_error(rows: NDArray, gt: NDArray) -> float:
     """Mean ``|rows − gt|`` with the ground truth's mean scaled to 100 (one shape's rows)."""
     return float(np.mean(np.abs(rows - gt)) / np.mean(gt) * 100.0)
 
 
-__all__ = ["CLOUD_SETTINGS", "CloudInput", "cloud_input", "oracle_edges", "relative_error"]
+__all__ = [
+    "CLOUD_SETTINGS",
+    "SURFACE_NEIGHBOURS",
+    "CloudInput",
+    "KeptEdges",
+    "cloud_input",
+    "kept_edges",
+    "oracle_edges",
+    "relative_error",
+]
