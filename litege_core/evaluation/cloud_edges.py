@@ -184,8 +184,8 @@ def kept_edges(
 ) -> KeptEdges:
     """Build the fused cloud graph of ``shape`` in ``setting`` (:func:`cloud_input`) as
     ``predictor``'s calibration does and measure its kept edges (:class:`KeptEdges`);
-    ``neighbours``: the most nearest points to keep per point (at least 16 and the
-    calibration's reach)."""
+    ``neighbours``: how many nearest points :attr:`KeptEdges.nearest` holds per point at least
+    (it holds 16 and the calibration's reach in any case)."""
     from litege_core.engines.graph import knn_neighbours
     from litege_core.learned.cloud_surface import local_surface
     from litege_core.learned.fusion import pruned_knn_graph
