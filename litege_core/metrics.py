@@ -7,6 +7,8 @@
   predicted and the true point, ×100.
 * AUC: recall at ``n_thresholds`` thresholds ``linspace(0, max_threshold)``, integrated by the
   trapezoid rule, divided by ``max_threshold``, ×100 (0.1 for template pairs, 0.2 otherwise).
+* Ranking AUC (the diagnoses' detectors, not the paper's): the area under the ROC curve of a
+  score that should rank positives first.
 """
 
 from __future__ import annotations
@@ -133,6 +135,23 @@ def matching_report(errors: ArrayLike, max_threshold: float) -> MatchingReport:
     )
 
 
+def ranking_auc(scores: ArrayLike, positive: ArrayLike) -> float:
+    """The probability that a random positive scores above a random negative (ties: half), the
+    area under the ROC curve; ``nan`` without positives or without negatives.
+
+    Args:
+        scores: ``(E,)`` the scores; positive: ``(E,)`` bool, the labels.
+    """
+    from scipy.stats import rankdata
+
+    values, labels = np.asarray(scores, dtype=np.float64), np.asarray(positive, dtype=bool)
+    n_pos, n_neg = int(labels.sum()), int((~labels).sum())
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(values)
+    return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
 __all__ = [
     "AUC_THRESHOLDS",
     "GeodesicErrorReport",
@@ -141,4 +160,5 @@ __all__ = [
     "geodesic_error",
     "matching_errors",
     "matching_report",
+    "ranking_auc",
 ]

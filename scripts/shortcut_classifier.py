@@ -46,6 +46,7 @@ from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
 from litege_core.learned.cloud_surface import normal_cosines
+from litege_core.metrics import ranking_auc
 
 PATCH = 24
 """Nearest points of each end of an edge in its patch (``--patch``)."""
@@ -188,17 +189,6 @@ def shortcut_scores(
     return np.concatenate(scores) if scores else np.zeros(0)
 
 
-def auc(values: NDArray, positive: NDArray) -> float:
-    """The probability that a random positive ranks above a random negative (ties: half)."""
-    from scipy.stats import rankdata
-
-    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
-    if n_pos == 0 or n_neg == 0:
-        return float("nan")
-    ranks = rankdata(values)
-    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
-
-
 def report(
     label: str, shapes: list[KeptEdges], scores: list[NDArray], thresholds: tuple[float, ...]
 ) -> None:
@@ -218,8 +208,9 @@ def report(
     print(
         f"\n**{label}**: {len(shapes)} shapes, {shortcut.sum()} shortcuts among {shortcut.size} "
         f"kept edges ({100 * shortcut.mean():.2f} %); AUC: patch scorer "
-        f"{auc(score, shortcut):.3f}, thickness alone {auc(thickness, shortcut):.3f}; graph "
-        f"error {shipped:.2f} as shipped, {oracle:.2f} without the shortcuts (oracle)\n"
+        f"{ranking_auc(score, shortcut):.3f}, thickness alone "
+        f"{ranking_auc(thickness, shortcut):.3f}; graph error {shipped:.2f} as shipped, "
+        f"{oracle:.2f} without the shortcuts (oracle)\n"
     )
     print("| cut: score above | edges cut | recall | precision | graph error |")
     print("|---:|---:|---:|---:|---:|")

@@ -47,6 +47,7 @@ from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor
 from litege_core.learned.bundle import load_model
 from litege_core.learned.cloud_surface import normal_cosines
+from litege_core.metrics import ranking_auc
 
 FEATURES = ("chord / spacing", "thickness", "normal cosine", "veto ratio")
 ORIENTATION_NEIGHBOURS = 16
@@ -112,17 +113,6 @@ def shape_edges(
     )
 
 
-def auc(values: NDArray, positive: NDArray) -> float:
-    """The probability that a random positive ranks above a random negative (ties: half)."""
-    from scipy.stats import rankdata
-
-    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
-    if n_pos == 0 or n_neg == 0:
-        return float("nan")
-    ranks = rankdata(values)
-    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
-
-
 def print_setting(results: list[ShapeEdges], setting: str, frustration: bool, worst: int) -> None:
     features = np.concatenate([r.features for r in results])
     shortcut = np.concatenate([r.shortcut for r in results])
@@ -140,7 +130,7 @@ def print_setting(results: list[ShapeEdges], setting: str, frustration: bool, wo
         values = features[:, column]
         print(
             f"| {name} | {np.median(values[shortcut]):.2f} | {np.median(values[~shortcut]):.2f} "
-            f"| {auc(values, shortcut):.2f} |"
+            f"| {ranking_auc(values, shortcut):.2f} |"
         )
     if frustration:
         cut = np.concatenate([r.frustrated for r in results if r.frustrated is not None])

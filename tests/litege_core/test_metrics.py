@@ -90,3 +90,14 @@ def test_matching_errors_rejects_bad_indices():
         matching_errors(rows, np.array([0]))
     with pytest.raises(EmptyShapeError):
         matching_report(np.array([]), 0.1)
+
+
+def test_ranking_auc_ranks_positives_above_negatives() -> None:
+    from litege_core.metrics import ranking_auc
+
+    positive = np.array([True, True, False, False])
+    assert ranking_auc(np.array([3.0, 4.0, 1.0, 2.0]), positive) == 1.0
+    assert ranking_auc(np.array([1.0, 2.0, 3.0, 4.0]), positive) == 0.0
+    assert ranking_auc(np.ones(4), positive) == 0.5  # ties: half
+    assert ranking_auc(np.array([1.0, 3.0, 2.0, 4.0]), positive) == 0.25
+    assert np.isnan(ranking_auc(np.ones(4), np.zeros(4, bool)))

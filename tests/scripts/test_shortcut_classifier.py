@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from litege_core.evaluation.cloud_edges import kept_edges
+from litege_core.metrics import ranking_auc
 from tests.scripts.conftest import load_script
 
 
@@ -82,7 +83,7 @@ def test_the_scorer_learns_a_separable_rule(classifier) -> None:
     )
     with torch.no_grad():
         logits = model(torch.from_numpy(patches), torch.from_numpy(features)).numpy()
-    assert classifier.auc(logits, labels) > 0.95
+    assert ranking_auc(logits, labels) > 0.95
 
 
 def test_report_on_one_shapes_kept_edges(classifier, edges, capsys) -> None:

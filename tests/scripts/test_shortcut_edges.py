@@ -1,4 +1,4 @@
-"""scripts/shortcut_edges.py: the AUC, the orientation of the normals, one shape's kept edges."""
+"""scripts/shortcut_edges.py: the orientation of the normals, one shape's kept edges."""
 
 from __future__ import annotations
 
@@ -11,14 +11,6 @@ from tests.scripts.conftest import load_script
 @pytest.fixture(scope="module")
 def shortcut_edges():
     return load_script("shortcut_edges")
-
-
-def test_auc_ranks_positives_above_negatives(shortcut_edges) -> None:
-    positive = np.array([True, True, False, False])
-    assert shortcut_edges.auc(np.array([3.0, 4.0, 1.0, 2.0]), positive) == 1.0
-    assert shortcut_edges.auc(np.array([1.0, 2.0, 3.0, 4.0]), positive) == 0.0
-    assert shortcut_edges.auc(np.ones(4), positive) == 0.5  # ties: half
-    assert np.isnan(shortcut_edges.auc(np.ones(4), np.zeros(4, bool)))
 
 
 def test_normals_of_a_sphere_are_oriented_one_way(shortcut_edges) -> None:
