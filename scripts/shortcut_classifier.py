@@ -196,7 +196,7 @@ def report(
     the graph error (mean over shapes) beside the shipped graph's and the oracle's."""
     shortcut = np.concatenate([s.shortcut for s in shapes])
     score = np.concatenate(scores)
-    thickness = np.concatenate([edge_features(s, np.arange(s.chord.size))[:, 1] for s in shapes])
+    thickness = np.concatenate([np.maximum(s.thickness[s.i], s.thickness[s.j]) for s in shapes])
 
     def mean_error(keeps: list[NDArray | None]) -> float:
         errors = [s.graph_error(k) for s, k in zip(shapes, keeps, strict=True)]
