@@ -25,6 +25,7 @@ Protocol (paper §7.1, with the reference code's bugs fixed, reference-spec §7 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -190,7 +191,9 @@ def _cached_rows(shape: Shape, sources: NDArray, cache_dir, name: str) -> NDArra
                 return stored["gt"]
     gt = compute_distances(shape, sources, method="exact").distances
     cache.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(cache, hash=shape.content_hash, sources=sources, gt=gt)
+    partial = cache.with_name(f"{cache.stem}.{os.getpid()}.partial.npz")
+    np.savez(partial, hash=shape.content_hash, sources=sources, gt=gt)
+    os.replace(partial, cache)  # atomic: a job reading the cache beside this one sees all or none
     return gt
 
 

@@ -270,7 +270,8 @@ def test_generated_held_out_shapes_and_row_cache(tmp_path):
     first = generated_eval_shapes("quadruped", 1, 3, cache_dir=tmp_path)
     assert first[0].name.endswith(str(HELD_OUT_SEED_OFFSET)) and first[0].gt.shape[0] == 3
     assert Shape.from_arrays(first[0].vertices, first[0].faces).area == pytest.approx(1.0)
-    assert len(list(tmp_path.glob("*.npz"))) == 1
+    assert len(list(tmp_path.glob("*.npz"))) == 1  # written atomically: no partial file left
+    assert not list(tmp_path.glob("*partial*"))
     again = generated_eval_shapes("quadruped", 1, 3, cache_dir=tmp_path)  # from the cache
     np.testing.assert_array_equal(first[0].gt, again[0].gt)
 
