@@ -57,11 +57,15 @@ from litege_core.evaluation.fusion import (
     MUTUAL_K_CANDIDATES,
     NORMAL_COS_CANDIDATES,
     PRUNE_RATIO_CANDIDATES,
+    SHORTCUT_CUT_CANDIDATES,
     VETO_MAX_Z_CANDIDATES,
+    choose_cut_roughness,
     choose_mesh_arcs,
     choose_mesh_cloud_noise,
     choose_normal_limits,
+    choose_shortcut_cuts,
     choose_veto_limit,
+    collect_cut_samples,
     collect_ood_samples,
     collect_samples,
     fit_fusion,
@@ -81,7 +85,8 @@ from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_model
 from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.fusion import MESH_RINGS
-from litege_core.learned.fusion_calibration import save_fusion
+from litege_core.learned.fusion_calibration import FusionCalibration, save_fusion
+from litege_core.learned.shortcuts import shortcut_scorer_sha256
 from litege_core.learned.small_head import small_head_config
 from litege_core.synth import CATEGORIES
 
@@ -171,6 +176,16 @@ def main() -> None:
         default="auto",
         help="head that prunes the graph (auto: the small head where the bundle ships one)",
     )
+    parser.add_argument(
+        "--shortcut-cut",
+        default=",".join(f"{c:g}" for c in SHORTCUT_CUT_CANDIDATES),
+        help="cuts of the shipped shortcut scorer to try per density (1: none)",
+    )
+    parser.add_argument(
+        "--shortcut-max-roughness",
+        default="none",
+        help="roughness limits of the cut to try ('none': every cloud is cut)",
+    )
     parser.add_argument("--settings", default=",".join(CALIBRATION_SETTINGS))
     parser.add_argument("--cache", default="out/diagnose/cache", help="exact-row cache")
     parser.add_argument("--write", action="store_true", help="write fusion.json into the bundle")
@@ -259,8 +274,48 @@ def main() -> None:
                 mesh_smooth_noise=smooth,
             )
             error = mean_fused_error(samples, calibration)
-            candidates.append((error, (prune_ratio, mutual), samples, calibration))
-    _, _, samples, calibration = min(candidates, key=lambda c: c[0])
+            candidates.append((error, (prune_ratio, mutual), samples, calibration, chosen))
+    _, _, samples, calibration, normal_limits = min(candidates, key=lambda c: c[0])
+    cuts = sorted(float(c) for c in args.shortcut_cut.split(","))
+    roughness_errors: dict = {}
+    chosen_cuts: dict[str, float] = {}
+    if any(c < 1.0 for c in cuts):
+        sha256 = shortcut_scorer_sha256()
+        cloud_settings = [s for s in settings if not is_mesh_setting(s)]
+        meshes = [s for s in samples if s.mesh]
+        by_cut = {
+            cut: [*meshes, *clouds]
+            for cut, clouds in collect_cut_samples(
+                predictor, shapes, calibration, [c for c in cuts if c < 1.0], sha256,
+                cloud_settings,
+            ).items()
+        }  # fmt: skip
+        by_cut[1.0] = samples
+        chosen_cuts, cut_samples = choose_shortcut_cuts(by_cut)
+        roughness = [
+            None if r == "none" else float(r) for r in args.shortcut_max_roughness.split(",")
+        ]
+
+        def refit(merged: list, limit: float | None) -> FusionCalibration:
+            return fit_fusion(
+                merged,
+                bundle.content_hash,
+                k=calibration.k,
+                prune_ratio=calibration.prune_ratio,
+                veto_head=veto_head,
+                fitted_on=fitted_on,
+                normal_cos=normal_limits if limits != [1.0] else None,
+                mutual_k=calibration.mutual_k,
+                mesh_arcs=mesh_arcs,
+                mesh_smooth_noise=smooth,
+                shortcut_cut=chosen_cuts,
+                shortcut_scorer=sha256,
+                shortcut_max_roughness=limit,
+            )
+
+        _, samples, calibration, roughness_errors = choose_cut_roughness(
+            samples, cut_samples, roughness, refit
+        )
     limits_tried = [float(z) for z in args.veto_max_z.split(",") if z.strip()]
     floor = max((s.z_score for s in samples if not s.mesh), default=-math.inf)
     n_kind = len(samples)
@@ -293,6 +348,8 @@ def main() -> None:
         + f" --normal-cos {args.normal_cos} --mutual-k {args.mutual_k}"
         + f" --mesh-arcs {args.mesh_arcs} --mesh-smooth-noise {args.mesh_smooth_noise}"
         + f" --veto-max-z {args.veto_max_z} --ood-gate-tolerance {args.ood_gate_tolerance:g}"
+        + f" --shortcut-cut {args.shortcut_cut}"
+        + f" --shortcut-max-roughness {args.shortcut_max_roughness}"
         + (f" --settings {args.settings}" if settings != CALIBRATION_SETTINGS else "")
         + "`"
     )
@@ -369,11 +426,25 @@ def main() -> None:
         print(f"- mesh graph candidates (mean bias-corrected error of the meshes): {tried}\n")
     if len(candidates) > 1:
         tried = ", ".join(
-            f"{ratio} / {mutual}: {error:.3f}" for error, (ratio, mutual), _, _ in candidates
+            f"{ratio} / {mutual}: {error:.3f}" for error, (ratio, mutual), *_ in candidates
         )
         print(
             "- prune ratio / mutual k candidates (mean fused error over all calibration "
             f"inputs): {tried}\n"
+        )
+    if chosen_cuts:
+        per_density = ", ".join(
+            f"{setting}: {cut:g}" for setting, cut in sorted(chosen_cuts.items())
+        )
+        tried = ", ".join(
+            f"{'none' if r is None else f'{r:g}'}: {error:.3f}"
+            for r, error in roughness_errors.items()
+        )
+        print(
+            f"- learned shortcut cut (scorer {calibration.shortcut_scorer[:12] or 'none'}; "
+            f"candidates {args.shortcut_cut}), chosen per clean-cloud density by the graph's "
+            f"error: {per_density}; roughness limit candidates (mean fused error over all "
+            f"calibration inputs): {tried}\n"
         )
     if veto_errors:
         tried = ", ".join(

@@ -40,13 +40,9 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from litege_core.evaluation.cloud_edges import KeptEdges, kept_edges
-from litege_core.evaluation.geodesic import named_eval_set
+from litege_core.evaluation.cloud_edges import KeptEdges, collect_kept_edges, shortcut_cut_table
 from litege_core.evaluation.speed import cpu_name
-from litege_core.learned import Predictor
-from litege_core.learned.bundle import load_model
 from litege_core.learned.cloud_surface import normal_cosines
-from litege_core.metrics import ranking_auc
 
 PATCH = 24
 """Nearest points of each end of an edge in its patch (``--patch``)."""
@@ -189,57 +185,6 @@ def shortcut_scores(
     return np.concatenate(scores) if scores else np.zeros(0)
 
 
-def report(
-    label: str, shapes: list[KeptEdges], scores: list[NDArray], thresholds: tuple[float, ...]
-) -> None:
-    """One set and setting: the AUCs, and per threshold the cut share, recall, precision and
-    the graph error (mean over shapes) beside the shipped graph's and the oracle's."""
-    shortcut = np.concatenate([s.shortcut for s in shapes])
-    score = np.concatenate(scores)
-    thickness = np.concatenate([np.maximum(s.thickness[s.i], s.thickness[s.j]) for s in shapes])
-
-    def mean_error(keeps: list[NDArray | None]) -> float:
-        errors = [s.graph_error(k) for s, k in zip(shapes, keeps, strict=True)]
-        finite = [e for e in errors if np.isfinite(e)]  # a graph that joins no source: left out
-        return float(np.mean(finite)) if finite else float("nan")
-
-    shipped = mean_error([None] * len(shapes))
-    oracle = mean_error([~s.shortcut for s in shapes])
-    print(
-        f"\n**{label}**: {len(shapes)} shapes, {shortcut.sum()} shortcuts among {shortcut.size} "
-        f"kept edges ({100 * shortcut.mean():.2f} %); AUC: patch scorer "
-        f"{ranking_auc(score, shortcut):.3f}, thickness alone "
-        f"{ranking_auc(thickness, shortcut):.3f}; graph error {shipped:.2f} as shipped, "
-        f"{oracle:.2f} without the shortcuts (oracle)\n"
-    )
-    print("| cut: score above | edges cut | recall | precision | graph error |")
-    print("|---:|---:|---:|---:|---:|")
-    for threshold in thresholds:
-        cut = score > threshold
-        hits = int(np.sum(cut & shortcut))
-        recall, precision = hits / max(int(shortcut.sum()), 1), hits / max(int(cut.sum()), 1)
-        error = mean_error([p <= threshold for p in scores])
-        print(
-            f"| {threshold:g} | {100 * cut.mean():.2f} % | {recall:.2f} | {precision:.2f} "
-            f"| {error:.2f} |"
-        )
-
-
-def collect(
-    key: str, settings: list[str], args: argparse.Namespace, seed: int
-) -> dict[str, list[KeptEdges]]:
-    """The kept edges of every shape of one set, per setting."""
-    named = named_eval_set(key, args.eval_root, args.sources, args.cache, args.limit)
-    predictor = Predictor(load_model(named.model))  # the shipped defaults: fused
-    return {
-        setting: [
-            kept_edges(predictor, shape, setting, args.stretch, seed, neighbours=args.patch)
-            for shape in named.shapes
-        ]
-        for setting in settings
-    }
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--train", default="data/quadruped-steep-train@quadrupeds")
@@ -261,10 +206,17 @@ def main() -> None:
     torch.set_num_threads(1)
     settings = args.settings.split(",")
     thresholds = tuple(float(t) for t in args.thresholds.split(","))
+
+    def collect(key: str, seed: int) -> dict[str, list[KeptEdges]]:
+        return collect_kept_edges(
+            key, settings, eval_root=args.eval_root, sources=args.sources, cache=args.cache,
+            limit=args.limit, stretch=args.stretch, seed=seed, neighbours=args.patch,
+        )  # fmt: skip
+
     training = [
         shape
         for key in args.train.split(",")
-        for shapes in collect(key, settings, args, 1).values()
+        for shapes in collect(key, 1).values()
         for shape in shapes
     ]
     patches, features, labels = training_set(training, args.negatives, args.patch)
@@ -284,9 +236,9 @@ def main() -> None:
     )
     model = train_scorer(patches, features, labels, args.steps, args.negatives, args.width)
     for key in args.eval.split(","):
-        for setting, shapes in collect(key, settings, args, 0).items():
+        for setting, shapes in collect(key, 0).items():
             scores = [shortcut_scores(model, s, args.patch) for s in shapes]
-            report(f"{key}, {setting}", shapes, scores, thresholds)
+            print(f"\n{shortcut_cut_table(f'{key}, {setting}', shapes, scores, thresholds)}")
 
 
 if __name__ == "__main__":

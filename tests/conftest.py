@@ -101,3 +101,53 @@ def toy_bundle_dir_with_ood(tmp_path_factory, toy_predictor):
         training={"residual_mean": 0.5, "residual_std": 0.25},
     )
     return directory
+
+
+@pytest.fixture
+def toy_fusion(toy_bundle_dir_with_ood, blob):
+    """The toy bundle with a fusion calibration of its own (no veto bias, gate 0) and the toy
+    blob as an evaluation shape (any positive rows: Euclidean distances from two sources):
+    ``(bundle, predictor, shape)`` for the fusion diagnoses."""
+    from litege_core.evaluation.geodesic import EvalShape
+    from litege_core.learned import Predictor, load_bundle
+    from litege_core.learned.fusion_calibration import FusionCalibration
+
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    calibration = FusionCalibration(
+        k=8,
+        prune_ratio=1.6,
+        bias_log10_points=(2.0, 3.0),
+        bias=(1.0, 1.0),
+        gate=(0.0, 0.0, 0.0, 0.0),
+        mesh_bias=1.0,
+        bundle_hash=bundle.content_hash,
+    )
+    mesh = blob(2)
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    sources = np.array([0, 5])
+    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)
+    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
+    return bundle, Predictor(bundle, fusion=calibration), shape
+
+
+@pytest.fixture
+def shipped_toy_scorer(tmp_path, monkeypatch) -> str:
+    """A scorer stood in for the shipped one that calls the chords longer than 1.2 × the
+    cloud's spacing shortcuts (logit = chord / spacing − 1.2); returns its weights' sha256."""
+    from litege_core.learned import shortcuts
+    from litege_core.learned.shortcuts import save_shortcut_scorer
+
+    width = 8
+    state = {
+        "point.0.weight": np.zeros((width, 3)), "point.0.bias": np.zeros(width),
+        "point.2.weight": np.zeros((2 * width, width)), "point.2.bias": np.zeros(2 * width),
+        "ends.weight": np.zeros((2 * width, 2 * width)),
+        "edge.weight": np.zeros((2 * width, 6)), "edge.bias": np.zeros(2 * width),
+        "head.1.weight": np.full((width, 2 * width), 1.0 / (2 * width)),
+        "head.1.bias": np.zeros(width),
+        "head.3.weight": np.full((1, width), 1.0 / width), "head.3.bias": np.full(1, -1.2),
+    }  # fmt: skip
+    state["edge.weight"][:, 0] = 1.0  # every hidden unit: the chord over the spacing
+    config = save_shortcut_scorer(tmp_path / "scorer", state, neighbours=8)
+    monkeypatch.setattr(shortcuts, "SHIPPED_SCORER_DIR", tmp_path / "scorer")
+    return str(config["weights_sha256"])

@@ -13,7 +13,7 @@ runs through a thin part."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -237,6 +237,77 @@ def kept_edges(
     )
 
 
+def collect_kept_edges(
+    key: str,
+    settings: Sequence[str],
+    *,
+    eval_root: str,
+    sources: int,
+    cache: str | None,
+    limit: int | None = None,
+    stretch: float = 3.0,
+    seed: int = 0,
+    neighbours: int = SURFACE_NEIGHBOURS,
+) -> dict[str, list[KeptEdges]]:
+    """The :func:`kept_edges` of every shape of one named set
+    (:func:`~litege_core.evaluation.geodesic.named_eval_set`: a real set or ``DATASET@MODEL``)
+    under its model's shipped fused predictor, per setting."""
+    from litege_core.evaluation.geodesic import named_eval_set
+    from litege_core.learned import Predictor
+    from litege_core.learned.bundle import load_model
+
+    named = named_eval_set(key, eval_root, sources, cache, limit)
+    predictor = Predictor(load_model(named.model))
+    return {
+        setting: [
+            kept_edges(predictor, shape, setting, stretch, seed, neighbours=neighbours)
+            for shape in named.shapes
+        ]
+        for setting in settings
+    }
+
+
+def shortcut_cut_table(
+    label: str, shapes: Sequence[KeptEdges], scores: Sequence[NDArray], thresholds: Sequence[float]
+) -> str:
+    """Markdown: a scorer's ranking of one set's shortcuts (its AUC beside the thickness's)
+    and, per threshold, the share of edges it cuts, recall, precision and the graph error
+    (mean over shapes; :meth:`KeptEdges.graph_error`) beside the uncut graph's and the
+    oracle's (no shortcut). ``scores``: ``(E,)`` per shape, higher: more likely a shortcut."""
+    from litege_core.metrics import ranking_auc
+
+    shortcut = np.concatenate([s.shortcut for s in shapes])
+    score = np.concatenate(scores)
+    thickness = np.concatenate([np.maximum(s.thickness[s.i], s.thickness[s.j]) for s in shapes])
+
+    def mean_error(keeps: list[NDArray | None]) -> float:
+        errors = [s.graph_error(k) for s, k in zip(shapes, keeps, strict=True)]
+        finite = [e for e in errors if np.isfinite(e)]  # a graph that joins no source: left out
+        return float(np.mean(finite)) if finite else float("nan")
+
+    lines = [
+        f"**{label}**: {len(shapes)} shapes, {shortcut.sum()} shortcuts among {shortcut.size} "
+        f"kept edges ({100 * shortcut.mean():.2f} %); AUC: scorer "
+        f"{ranking_auc(score, shortcut):.3f}, thickness alone "
+        f"{ranking_auc(thickness, shortcut):.3f}; graph error "
+        f"{mean_error([None] * len(shapes)):.2f} uncut, "
+        f"{mean_error([~s.shortcut for s in shapes]):.2f} without the shortcuts (oracle)",
+        "",
+        "| cut: score above | edges cut | recall | precision | graph error |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for threshold in thresholds:
+        cut = score > threshold
+        hits = int(np.sum(cut & shortcut))
+        recall, precision = hits / max(int(shortcut.sum()), 1), hits / max(int(cut.sum()), 1)
+        error = mean_error([p <= threshold for p in scores])
+        lines.append(
+            f"| {threshold:g} | {100 * cut.mean():.2f} % | {recall:.2f} | {precision:.2f} "
+            f"| {error:.2f} |"
+        )
+    return "\n".join(lines)
+
+
 def relative_error(rows: NDArray, gt: NDArray) -> float:
     """Mean ``|rows − gt|`` with the ground truth's mean scaled to 100 (one shape's rows)."""
     return float(np.mean(np.abs(rows - gt)) / np.mean(gt) * 100.0)
@@ -248,7 +319,9 @@ __all__ = [
     "CloudInput",
     "KeptEdges",
     "cloud_input",
+    "collect_kept_edges",
     "kept_edges",
     "oracle_edges",
     "relative_error",
+    "shortcut_cut_table",
 ]

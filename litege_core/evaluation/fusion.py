@@ -225,6 +225,72 @@ def collect_ood_samples(
     return _collect(predictor, shapes, settings, probes, seed)["fitted"]
 
 
+SHORTCUT_CUT_CANDIDATES = (1.0,)
+"""Cuts of the learned shortcut scorer ``scripts/calibrate_fusion.py`` tries by default (1:
+none; ``--shortcut-cut 1,0.5,0.3,0.2`` tries the scorer)."""
+
+
+def collect_cut_samples(
+    predictor,
+    shapes: Sequence[EvalShape],
+    calibration: FusionCalibration,
+    cuts: Sequence[float],
+    scorer_sha256: str,
+    settings: Sequence[str],
+    seed: int = 0,
+) -> dict[float, list[FusionSample]]:
+    """:func:`collect_samples` of the cloud ``settings`` with ``calibration``'s graph (its
+    neighbour rule, normal limits and veto threshold) cut by the learned shortcut scorer above
+    each of ``cuts`` at every size and roughness, with and without the veto: ``{cut:
+    samples}``, the samples in the order of :func:`collect_samples`."""
+    raw = replace(
+        calibration,
+        bias=(1.0,) * len(calibration.bias),
+        gate=(-60.0, 0.0, 0.0, 0.0),
+        shortcut_scorer=scorer_sha256,
+        shortcut_max_roughness=None,
+    )
+    probes = {}
+    for cut in cuts:
+        cutting = replace(raw, shortcut_cut=(float(cut),) * len(calibration.bias))
+        probes[cut] = (cutting, replace(cutting, veto_max_z=NEVER_VETO_Z))
+    return _collect(predictor, shapes, settings, probes, seed)
+
+
+def choose_shortcut_cuts(
+    by_cut: dict[float, Sequence[FusionSample]],
+) -> tuple[dict[str, float], list[FusionSample]]:
+    """Per clean-cloud setting, the cut whose bias-corrected graph errs least (the rule of
+    :func:`choose_normal_limits`, 1 being no cut), and the samples with their chosen graphs."""
+    return choose_normal_limits(by_cut)
+
+
+def choose_cut_roughness(
+    uncut: Sequence[FusionSample],
+    cut: Sequence[FusionSample],
+    candidates: Sequence[float | None],
+    fit: Callable[[list[FusionSample], float | None], FusionCalibration],
+) -> tuple[float | None, list[FusionSample], FusionCalibration, dict[float | None, float]]:
+    """The roughness above which a cloud is left uncut: of ``candidates`` (``None``: cut
+    every cloud), the one whose fusion, fitted by ``fit(samples, roughness)`` on the samples
+    with that rule, has the lowest mean fused error (the lower roughness on a tie); returns it,
+    its samples, its fit and each candidate's error.
+
+    ``uncut``, ``cut``: the same samples without and with the chosen cuts
+    (:func:`choose_shortcut_cuts`)."""
+    results: dict[float | None, tuple[float, list[FusionSample], FusionCalibration]] = {}
+    for limit in candidates:
+        merged = [
+            c if not c.mesh and (limit is None or c.roughness <= limit) else u
+            for u, c in zip(uncut, cut, strict=True)
+        ]
+        calibration = fit(merged, limit)
+        results[limit] = (mean_fused_error(merged, calibration), merged, calibration)
+    best = min(results, key=lambda r: (results[r][0], math.inf if r is None else r))
+    errors = {limit: error for limit, (error, _, _) in results.items()}
+    return best, results[best][1], results[best][2], errors
+
+
 def _collect(
     predictor,
     shapes: Sequence[EvalShape],
@@ -268,7 +334,7 @@ def _collect(
                 if not mesh:
                     c = unvetoed_reader.fusion
                     assert c is not None
-                    shared = (c.k, c.normal_cos, c.bias_log10_points, c.mutual_k)
+                    shared = (c.k, c.normal_cos, c.bias_log10_points, c.mutual_k, c.shortcut_cut)
                     if shared not in unvetoed_rows:
                         rows = unvetoed_reader.distances(state, item.source_index)
                         unvetoed_rows[shared] = rows.astype(np.float64)
@@ -524,42 +590,51 @@ def fit_fusion(
     mutual_k: int = 0,
     mesh_arcs: bool = False,
     mesh_smooth_noise: float | None = None,
+    shortcut_cut: dict[str, float] | None = None,
+    shortcut_scorer: str = "",
+    shortcut_max_roughness: float | None = None,
 ) -> FusionCalibration:
     """Bias knots and the cloud gate fitted on ``samples`` (see the module docstring); without
     mesh samples the mesh bias is 1.
     ``normal_cos``: the normal limit of each clean-cloud setting the samples' graphs were
     built with (:func:`choose_normal_limits`), or ``None``: no normal limit; ``mutual_k``:
     the neighbour rule they were built with; ``mesh_arcs``, ``mesh_smooth_noise``: the mesh
-    graph they were built with (:func:`choose_mesh_arcs`, :func:`collect_samples`)."""
+    graph they were built with (:func:`choose_mesh_arcs`, :func:`collect_samples`);
+    ``shortcut_cut``, ``shortcut_scorer``, ``shortcut_max_roughness``: the learned cut they
+    were built with (:func:`choose_shortcut_cuts`), or ``None``: none."""
     clouds = [s for s in samples if not s.mesh]
     meshes = [s for s in samples if s.mesh]
     clean = [s for s in meshes if is_clean_mesh(s)] or meshes
     noise_knots, noise_bias = mesh_noise_knots(meshes)
-    knots: dict[str, tuple[float, float, float]] = {}
+    knots: dict[str, tuple[float, float, float, float]] = {}
     for setting in sorted({s.setting for s in clouds if s.setting.startswith("cloud_")}):
         members = [s for s in clouds if s.setting == setting]
         knots[setting] = (
             float(np.log10(np.mean([s.n_points for s in members]))),
             _median_ratio(members),
             1.0 if normal_cos is None else normal_cos[setting],
+            1.0 if shortcut_cut is None else shortcut_cut[setting],
         )
     ordered = sorted(knots.values())
     base = FusionCalibration(
         k,
         prune_ratio,
-        tuple(x for x, _, _ in ordered),
-        tuple(b for _, b, _ in ordered),
+        tuple(x for x, _, _, _ in ordered),
+        tuple(b for _, b, _, _ in ordered),
         (0.0, 0.0, 0.0, 0.0),
         mesh_bias=_median_ratio(clean) if clean else 1.0,
         bundle_hash=bundle_hash,
         fitted_on=dict(fitted_on or {}),
         veto_head=veto_head,
-        normal_cos=() if normal_cos is None else tuple(c for _, _, c in ordered),
+        normal_cos=() if normal_cos is None else tuple(c for _, _, c, _ in ordered),
         mutual_k=mutual_k,
         mesh_arcs=mesh_arcs,
         mesh_noise_knots=noise_knots,
         mesh_noise_bias=noise_bias,
         mesh_smooth_noise=mesh_smooth_noise,
+        shortcut_cut=() if shortcut_cut is None else tuple(c for _, _, _, c in ordered),
+        shortcut_scorer=shortcut_scorer if shortcut_cut is not None else "",
+        shortcut_max_roughness=shortcut_max_roughness if shortcut_cut is not None else None,
     )
 
     if clouds:
@@ -739,13 +814,17 @@ __all__ = [
     "MESH_ARCS_CANDIDATES",
     "MUTUAL_K_CANDIDATES",
     "NORMAL_COS_CANDIDATES",
+    "SHORTCUT_CUT_CANDIDATES",
     "VETO_MAX_Z_CANDIDATES",
     "FusionSample",
     "GraphVariant",
+    "choose_cut_roughness",
     "choose_mesh_arcs",
     "choose_mesh_cloud_noise",
     "choose_normal_limits",
+    "choose_shortcut_cuts",
     "choose_veto_limit",
+    "collect_cut_samples",
     "collect_ood_samples",
     "collect_samples",
     "fit_fusion",

@@ -325,6 +325,21 @@ def sidecar_section(directory: str | os.PathLike) -> str | None:
                 if data.get("normal_cos")
                 else ""
             )
+            + (
+                ", and whose edges the learned shortcut scorer (`litege_core/models/"
+                "shortcut-scorer`, trained on our procedural animals in contact poses) calls "
+                "chords between touching parts are cut (above a probability of "
+                + ", ".join(f"{c:g}" for c in data["shortcut_cut"])
+                + " from sparse to dense clouds; 1 cuts none"
+                + (
+                    f"; not on a cloud rougher than {data['shortcut_max_roughness']:g}"
+                    if data.get("shortcut_max_roughness") is not None
+                    else ""
+                )
+                + ")"
+                if data.get("shortcut_cut") and any(c < 1 for c in data["shortcut_cut"])
+                else ""
+            )
             + "; the graphs' biases and the blend "
             "weight (a sigmoid of the cloud's OOD z-score, log10 of its point count "
             "and its surface roughness) were fitted by `scripts/calibrate_fusion.py` on "

@@ -174,12 +174,20 @@ def shape_graph(
         if surface is None:
             shared = calibration.reach >= ROUGHNESS_NEIGHBOURS  # the shipped calibrations
             flatness, normals = local_surface(base, nearest=neighbours[1] if shared else None)
-            surface = kept["fusion.surface"] = (float(np.median(flatness)), normals)
+            surface = kept["fusion.surface"] = (float(np.median(flatness)), normals, flatness)
         if graph is None:
             normal_cos = calibration.normal_limit(index.size)
             unvetoed = pruned_knn_graph(
                 base, k, ratio, None, neighbours, surface[1], normal_cos, mutual
             )
+            cut = calibration.shortcut_limit(index.size, surface[0])
+            if cut < 1.0:
+                from litege_core.learned.shortcuts import cut_shortcuts, load_shortcut_scorer
+
+                scorer = load_shortcut_scorer(sha256=calibration.shortcut_scorer)
+                unvetoed = cut_shortcuts(
+                    unvetoed, base, neighbours, surface[1], surface[2], cut, scorer
+                )
             if merged:
                 unvetoed = with_copies(unvetoed, points, index, first)
             graph = kept[key] = LazyVetoGraph(unvetoed, ratio) if vetoed else unvetoed
@@ -265,7 +273,11 @@ def cloud_graph_key(
     the neighbour rule), so predictors with other calibrations sharing a state keep apart."""
     c = calibration
     veto = f"{veto_key}.{c.prune_ratio}" if vetoed else "unvetoed"
-    return f"fusion.graph.{veto}.{c.k}.{c.normal_limit(n_points)}.{c.mutual_k}"
+    key = f"fusion.graph.{veto}.{c.k}.{c.normal_limit(n_points)}.{c.mutual_k}"
+    if c.shortcut_cut:  # the cut at this size (the roughness is the shape's own)
+        cut = c.shortcut_limit(n_points, 0.0)
+        key += f".cut.{c.shortcut_scorer[:16]}.{cut}.{c.shortcut_max_roughness}"
+    return key
 
 
 def fused_distances(

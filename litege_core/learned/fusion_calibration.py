@@ -19,7 +19,7 @@ from litege_core.files import read_json_object, write_json_atomic
 
 FUSION_CONFIG = "fusion.json"
 FUSION_KIND = "graph_fusion"
-FUSION_FORMAT = 10
+FUSION_FORMAT = 11
 """Format 3 added ``mesh_bias`` and ``mesh_gate`` (meshes use their own connectivity), format 4
 ``normal_cos`` (a format-3 file reads as one without normal limits), format 5 dropped
 ``mesh_gate`` (a mesh is answered by its graph alone; older files' gate is ignored), format 6
@@ -29,8 +29,9 @@ added ``mutual_k`` (older files read as 0: the symmetric k-NN graph), format 7
 ``mesh_noise_bias`` (older files read as empty: ``mesh_bias`` at every noise) and
 ``mesh_cloud_noise`` (older files read as ``None``: every mesh its ring graph), format 10
 ``mesh_smooth_noise`` (older files read as ``None``: every mesh's ring graph on its own
-vertices)."""
-READABLE_FORMATS = (3, 4, 5, 6, 7, 8, 9, FUSION_FORMAT)
+vertices), format 11 ``shortcut_cut``, ``shortcut_scorer`` and ``shortcut_max_roughness``
+(older files read as no cut)."""
+READABLE_FORMATS = (3, 4, 5, 6, 7, 8, 9, 10, FUSION_FORMAT)
 
 FUSIONS = ("auto", "none", "graph")
 """Values of the predictors' ``fusion``: ``auto`` (the default: ``graph`` where the bundle ships
@@ -76,6 +77,12 @@ class FusionCalibration:
             noise of the mesh as given: the noise knots were fitted on smoothed graphs);
             ``None``: the ring graph on the mesh's own vertices. Excludes
             ``mesh_cloud_noise``.
+        shortcut_cut: per bias knot, the probability above which the learned shortcut scorer
+            (:mod:`~litege_core.learned.shortcuts`) cuts a cloud edge (1: no cut), or empty:
+            no scorer.
+        shortcut_scorer: the sha256 of that scorer's weights (the shipped one must match).
+        shortcut_max_roughness: the scorer cuts only clouds whose roughness is at most this
+            (noisy clouds read as full of shortcuts); ``None``: any cloud.
     """
 
     k: int
@@ -95,6 +102,9 @@ class FusionCalibration:
     mesh_noise_bias: tuple[float, ...] = ()
     mesh_cloud_noise: float | None = None
     mesh_smooth_noise: float | None = None
+    shortcut_cut: tuple[float, ...] = ()
+    shortcut_scorer: str = ""
+    shortcut_max_roughness: float | None = None
 
     def __post_init__(self) -> None:
         knots, bias = np.asarray(self.bias_log10_points), np.asarray(self.bias)
@@ -131,6 +141,14 @@ class FusionCalibration:
             raise ArtifactError(f"fusion mesh_smooth_noise must be positive, got {smooth_noise!r}")
         if smooth_noise is not None and cloud_noise is not None:
             raise ArtifactError("fusion mesh_smooth_noise and mesh_cloud_noise exclude each other")
+        cuts = np.asarray(self.shortcut_cut, dtype=np.float64)
+        if cuts.size and not (cuts.shape == knots.shape and np.all((cuts > 0) & (cuts <= 1))):
+            raise ArtifactError("fusion shortcut_cut must be empty or one value in (0, 1] per knot")
+        if cuts.size and not self.shortcut_scorer:
+            raise ArtifactError("fusion shortcut_cut needs the sha256 of its shortcut_scorer")
+        rough = self.shortcut_max_roughness
+        if rough is not None and not (math.isfinite(rough) and rough > 0):
+            raise ArtifactError(f"fusion shortcut_max_roughness must be positive, got {rough!r}")
         if self.veto_max_z is not None and not math.isfinite(self.veto_max_z):
             raise ArtifactError(
                 f"fusion veto_max_z must be finite or None, got {self.veto_max_z!r}"
@@ -173,6 +191,15 @@ class FusionCalibration:
         if not self.normal_cos:
             return 1.0
         return float(np.interp(np.log10(n_points), self.bias_log10_points, self.normal_cos))
+
+    def shortcut_limit(self, n_points: int, roughness: float) -> float:
+        """The shortcut scorer's cut for a cloud of ``n_points`` and this roughness (clamped
+        to the knots; 1: no cut, also above ``shortcut_max_roughness``)."""
+        if not self.shortcut_cut:
+            return 1.0
+        if self.shortcut_max_roughness is not None and roughness > self.shortcut_max_roughness:
+            return 1.0
+        return float(np.interp(np.log10(n_points), self.bias_log10_points, self.shortcut_cut))
 
     def network_weight(
         self, z_score: float, n_points: int, roughness: float, mesh: bool = False
@@ -222,6 +249,13 @@ class FusionCalibration:
                     None
                     if data.get("mesh_smooth_noise") is None
                     else float(data["mesh_smooth_noise"])
+                ),
+                shortcut_cut=tuple(float(v) for v in data.get("shortcut_cut", ())),
+                shortcut_scorer=str(data.get("shortcut_scorer", "")),
+                shortcut_max_roughness=(
+                    None
+                    if data.get("shortcut_max_roughness") is None
+                    else float(data["shortcut_max_roughness"])
                 ),
             )
         except (KeyError, TypeError, ValueError) as exc:

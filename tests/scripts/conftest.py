@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-import numpy as np
 import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
@@ -66,30 +65,3 @@ def signed_error() -> ModuleType:
 @pytest.fixture(scope="module")
 def bench_workloads() -> ModuleType:
     return load_script("bench_workloads")
-
-
-@pytest.fixture
-def toy_fusion(toy_bundle_dir_with_ood, blob):
-    """The toy bundle with a fusion calibration of its own (no veto bias, gate 0) and the toy
-    blob as an evaluation shape (any positive rows: Euclidean distances from two sources):
-    ``(bundle, predictor, shape)`` for the fusion diagnoses."""
-    from litege_core.evaluation.geodesic import EvalShape
-    from litege_core.learned import Predictor, load_bundle
-    from litege_core.learned.fusion_calibration import FusionCalibration
-
-    bundle = load_bundle(toy_bundle_dir_with_ood)
-    calibration = FusionCalibration(
-        k=8,
-        prune_ratio=1.6,
-        bias_log10_points=(2.0, 3.0),
-        bias=(1.0, 1.0),
-        gate=(0.0, 0.0, 0.0, 0.0),
-        mesh_bias=1.0,
-        bundle_hash=bundle.content_hash,
-    )
-    mesh = blob(2)
-    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
-    sources = np.array([0, 5])
-    gt = np.linalg.norm(vertices[sources][:, None] - vertices[None], axis=-1)
-    shape = EvalShape("blob", "test", vertices, faces, sources, gt)
-    return bundle, Predictor(bundle, fusion=calibration), shape

@@ -96,3 +96,19 @@ def test_the_lower_bound_sits_between_the_chord_and_the_route(blob) -> None:
     assert np.mean(lower > 1.05 * chords) > 0.5  # far pairs on a curved blob: real detours
     with pytest.raises(ValueError):
         oracle_edges(shape, cloud, reach=1.0, bound="middle")
+
+
+def test_the_cut_table_reports_recall_precision_and_the_graph_error(toy_fusion) -> None:
+    from litege_core.evaluation.cloud_edges import kept_edges, shortcut_cut_table
+
+    _, predictor, shape = toy_fusion
+    edges = kept_edges(predictor, shape, "cloud_200")
+    edges.shortcut[:] = False
+    edges.shortcut[:4] = True
+    scores = np.where(edges.shortcut, 0.9, 0.1)  # a perfect scorer
+    table = shortcut_cut_table("toy", [edges], [scores], (0.5, 1.0))
+    assert table.startswith("**toy**: 1 shapes, 4 shortcuts") and "AUC: scorer 1.000" in table
+    assert "| 0.5 | " in table and "| 1.00 | 1.00 |" in table  # recall and precision 1
+    assert "| 1 | 0.00 % | 0.00 | 0.00 |" in table  # nothing scores above 1: nothing cut
+    uncut = edges.graph_error()
+    assert f"graph error {uncut:.2f} uncut" in table

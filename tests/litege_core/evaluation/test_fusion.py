@@ -497,3 +497,62 @@ def test_the_cloud_limit_sends_meshes_the_graph_fails_to_the_cloud_path() -> Non
     assert np.mean([sample_error(s, chosen, "fused") for s in noisiest]) == pytest.approx(2.0)
     lighter = [s for s in samples if s.setting == "meshnoise_0.004"]
     assert np.mean([sample_error(s, chosen, "fused") for s in lighter]) < 1.0
+
+
+def test_cut_samples_read_the_fitted_graph_cut_by_the_scorer(
+    blob, toy_bundle_dir_with_ood, shipped_toy_scorer
+) -> None:
+    from litege_core.evaluation.fusion import collect_cut_samples, probe_calibration
+    from litege_core.learned import Predictor, load_bundle
+
+    shapes = _blob_shapes(blob)
+    bundle = load_bundle(toy_bundle_dir_with_ood)
+    predictor = Predictor(bundle)
+    fitted = dataclasses.replace(
+        probe_calibration(bundle.content_hash, 8, 1e9), bias=(1.2,), gate=(0.0, 0.0, 0.0, 0.0)
+    )
+    by_cut = collect_cut_samples(predictor, shapes, fitted, (0.5, 1.0), shipped_toy_scorer,
+                                 ("cloud_300",))  # fmt: skip
+    (cut,), (uncut,) = by_cut[0.5], by_cut[1.0]
+    np.testing.assert_array_equal(cut.network, uncut.network)
+    # the raw graph (no bias, no blend): the cut only removes edges, so paths only lengthen
+    joined = (uncut.graph != uncut.network) & (cut.graph != cut.network)
+    assert joined.mean() > 0.3
+    assert np.all(cut.graph[joined] >= uncut.graph[joined] - 1e-9)
+    assert np.any(cut.graph[joined] > uncut.graph[joined] + 1e-6)
+    assert cut.unvetoed is not None and not np.array_equal(cut.unvetoed, uncut.unvetoed)
+
+
+def test_the_roughness_limit_keeps_the_cut_where_it_helps() -> None:
+    """Smooth clouds gain from the cut (their graph's scatter 10 % → 1 %), rough ones lose
+    (→ 30 %): the chosen limit separates them, and the samples follow it."""
+    from litege_core.evaluation.fusion import choose_cut_roughness
+
+    rng = np.random.default_rng(0)
+    uncut, cut = [], []
+    for i in range(8):
+        rough = i % 2 == 1
+        truth = rng.uniform(10.0, 200.0, size=(2, 40))
+        network = truth * rng.normal(1.0, 0.2, truth.shape)
+        before = truth * 1.15 * rng.normal(1.0, 0.1, truth.shape)
+        after = truth * 1.15 * rng.normal(1.0, 0.3 if rough else 0.01, truth.shape)
+        roughness = 0.4 if rough else 0.1
+        for rows, out in ((before, uncut), (after, cut)):
+            out.append(
+                FusionSample(f"s{i}", "toy", "cloud_2000", False, 2000, 0.0, roughness,
+                             network, rows, truth)
+            )  # fmt: skip
+
+    def fit(samples, limit):
+        return fit_fusion(samples, "h" * 64, shortcut_cut={"cloud_2000": 0.5},
+                          shortcut_scorer="s" * 64, shortcut_max_roughness=limit)  # fmt: skip
+
+    limit, samples, calibration, errors = choose_cut_roughness(uncut, cut, [None, 0.2, 0.05], fit)
+    assert limit == 0.2 and set(errors) == {None, 0.2, 0.05}
+    assert errors[0.2] < min(errors[None], errors[0.05])
+    assert [s.graph is c.graph for s, c in zip(samples, cut, strict=True)] == [
+        i % 2 == 0 for i in range(8)
+    ]
+    assert calibration.shortcut_cut == (0.5,) and calibration.shortcut_max_roughness == 0.2
+    assert calibration.shortcut_limit(2000, 0.1) == 0.5
+    assert calibration.shortcut_limit(2000, 0.4) == 1.0

@@ -53,3 +53,22 @@ def toy_calibration(bundle_hash: str = "h" * 64, **changes) -> FusionCalibration
         fitted_on={"shapes": {"toy": 3}},
     )
     return dataclasses.replace(base, **changes)
+
+
+def scorer_state(width: int = 8, seed: int = 0) -> dict[str, np.ndarray]:
+    """A random ``state_dict`` (numpy) of a shortcut scorer of ``width``: the layout of
+    :class:`~litege_core.train.shortcuts.ShortcutScorer`, its layers' default init scale."""
+    rng = np.random.default_rng(seed)
+    shapes = {
+        "point.0.weight": (width, 3), "point.0.bias": (width,),
+        "point.2.weight": (2 * width, width), "point.2.bias": (2 * width,),
+        "ends.weight": (2 * width, 2 * width), "edge.weight": (2 * width, 6),
+        "edge.bias": (2 * width,), "head.1.weight": (width, 2 * width), "head.1.bias": (width,),
+        "head.3.weight": (1, width), "head.3.bias": (1,),
+    }  # fmt: skip
+    fan_in = {key: shape[-1] if len(shape) == 2 else shapes[key.replace("bias", "weight")][-1]
+              for key, shape in shapes.items()}  # fmt: skip
+    return {
+        key: (rng.uniform(-1, 1, shape) / np.sqrt(fan_in[key])).astype(np.float32)
+        for key, shape in shapes.items()
+    }

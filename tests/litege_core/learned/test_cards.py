@@ -68,6 +68,14 @@ def test_the_section_follows_the_sidecar_files(tmp_path) -> None:
         (tmp_path / FUSION_CONFIG).write_text(json.dumps(noisy))
         named = "over-estimate at the mesh's vertex noise" in sidecar_section(tmp_path)
         assert named == bool(knots)
+    # and the learned shortcut cut, with its roughness limit
+    for cuts, rough in (([1.0, 1.0, 0.3, 0.2, 0.2], 0.25), ([1.0] * 5, None), ([], None)):
+        cutting = {**fusion, "shortcut_cut": cuts, "shortcut_max_roughness": rough}
+        (tmp_path / FUSION_CONFIG).write_text(json.dumps(cutting))
+        section = sidecar_section(tmp_path)
+        named = "probability of 1, 1, 0.3, 0.2, 0.2 from sparse to dense" in section
+        assert named == (0.3 in cuts)
+        assert ("not on a cloud rougher than 0.25" in section) == (0.3 in cuts)
     for limit in (0.45, None):
         (tmp_path / FUSION_CONFIG).write_text(json.dumps({**fusion, "mesh_cloud_noise": limit}))
         named = "noise exceeds 0.45 of its edge length" in sidecar_section(tmp_path)

@@ -306,6 +306,43 @@ def test_graph_only_fusion_applies_the_normal_limit(bundle_dir, blob) -> None:
     np.testing.assert_allclose(rows[finite], expected[finite], rtol=1e-5, atol=1e-5)
 
 
+def test_graph_only_fusion_applies_the_learned_shortcut_cut(
+    bundle_dir, blob, shipped_toy_scorer
+) -> None:
+    from litege_core.engines.graph import knn_neighbours
+    from litege_core.learned.cloud_surface import local_surface
+    from litege_core.learned.shortcuts import cut_shortcuts, load_shortcut_scorer
+
+    bundle = load_bundle(bundle_dir)
+    plain = _graph_only(bundle.content_hash)
+    cutting = dataclasses.replace(
+        plain, shortcut_cut=(0.5, 0.5, 0.5), shortcut_scorer=shipped_toy_scorer
+    )
+    shape, sources = _cloud(blob(3)), np.array([0, 17, 200])
+    state = Predictor(bundle, fusion=cutting).register(shape)
+    rows = Predictor(bundle, fusion=cutting).distances(state, sources)
+    points = state.canonical_points
+    neighbours = knn_neighbours(points, 8)
+    flatness, normals = local_surface(points)
+    whole = knn_graph(points, 8, neighbours)
+    graph = cut_shortcuts(whole, points, neighbours, normals, flatness, 0.5, load_shortcut_scorer())
+    assert 0 < graph.nnz < whole.nnz  # the toy scorer cuts the longest chords
+    expected = dijkstra(graph, directed=False, indices=sources)
+    expected /= cutting.graph_bias(state.n_points) * state.transform.scale
+    finite = np.isfinite(expected)
+    np.testing.assert_allclose(rows[finite], expected[finite], rtol=1e-5, atol=1e-5)
+    uncut = Predictor(bundle, fusion=plain).distances(state, sources)
+    assert np.all(rows[finite] >= uncut[finite] - 1e-6) and np.any(rows > uncut + 1e-4)
+    # above its roughness limit a cloud is not cut; a cut fitted with another scorer is refused
+    smooth_only = dataclasses.replace(cutting, shortcut_max_roughness=1e-6)
+    np.testing.assert_array_equal(
+        Predictor(bundle, fusion=smooth_only).distances(state, sources), uncut
+    )
+    foreign = dataclasses.replace(cutting, shortcut_scorer="0" * 64)
+    with pytest.raises(InputError, match="fit the fusion again"):
+        Predictor(bundle, fusion=foreign).distances(state, sources)
+
+
 def test_fusion_sits_between_the_network_and_the_graph(bundle_dir, blob) -> None:
     bundle = load_bundle(bundle_dir)
     half = _calibration(

@@ -49,6 +49,12 @@ from tests.litege_core.learned.conftest import toy_calibration as _calibration
         {"mesh_smooth_noise": -0.1},
         {"mesh_smooth_noise": float("inf")},
         {"mesh_smooth_noise": 0.08, "mesh_cloud_noise": 0.3},
+        {"shortcut_cut": (0.3, 0.3, 0.3)},  # no scorer named
+        {"shortcut_cut": (0.3, 0.3), "shortcut_scorer": "s" * 64},
+        {"shortcut_cut": (0.3, 0.0, 1.0), "shortcut_scorer": "s" * 64},
+        {"shortcut_cut": (0.3, 1.5, 1.0), "shortcut_scorer": "s" * 64},
+        {"shortcut_max_roughness": 0.0},
+        {"shortcut_max_roughness": float("nan")},
     ],
 )
 def test_inconsistent_calibrations_are_refused(changes) -> None:
@@ -77,6 +83,22 @@ def test_the_veto_runs_up_to_its_ood_limit() -> None:
     limited = _calibration(veto_max_z=2.0)
     assert limited.vetoes(-1.0) and limited.vetoes(2.0)
     assert not limited.vetoes(2.01) and not limited.vetoes(float("nan"))
+
+
+def test_shortcut_cut_interpolates_in_log_points_up_to_its_roughness_limit() -> None:
+    calibration = _calibration()
+    assert calibration.shortcut_limit(2000, 0.1) == 1.0  # no scorer: no cut
+    knots = calibration.bias_log10_points
+    cutting = dataclasses.replace(
+        calibration, shortcut_cut=(1.0,) + (0.3,) * (len(knots) - 1), shortcut_scorer="s" * 64
+    )
+    assert cutting.shortcut_limit(10, 0.9) == 1.0  # below the first knot: its value
+    assert cutting.shortcut_limit(10**6, 0.9) == pytest.approx(0.3)
+    middle = 10 ** ((knots[0] + knots[1]) / 2)
+    assert cutting.shortcut_limit(round(middle), 0.1) == pytest.approx(0.65, abs=0.01)
+    limited = dataclasses.replace(cutting, shortcut_max_roughness=0.25)
+    assert limited.shortcut_limit(10**6, 0.25) == pytest.approx(0.3)
+    assert limited.shortcut_limit(10**6, 0.26) == 1.0
 
 
 def test_network_weight_is_the_gate_sigmoid() -> None:
@@ -153,6 +175,14 @@ def test_json_roundtrip_and_sidecar(tmp_path) -> None:
     assert FusionCalibration.from_json({**older, "format_version": 9}) == calibration
     smoothed = dataclasses.replace(noisy, mesh_smooth_noise=0.08)
     assert FusionCalibration.from_json(json.loads(json.dumps(smoothed.to_json()))) == smoothed
+    # a format-10 file (no shortcut scorer) reads as no cut; a cut round-trips
+    del older["shortcut_cut"], older["shortcut_scorer"], older["shortcut_max_roughness"]
+    assert FusionCalibration.from_json({**older, "format_version": 10}) == calibration
+    cutting = dataclasses.replace(
+        smoothed, shortcut_cut=(1.0, 0.3, 0.2), shortcut_scorer="s" * 64,
+        shortcut_max_roughness=0.25,
+    )  # fmt: skip
+    assert FusionCalibration.from_json(json.loads(json.dumps(cutting.to_json()))) == cutting
     path = save_fusion(tmp_path, calibration)
     assert path.name == FUSION_CONFIG
     loaded = load_fusion(tmp_path, "a" * 64, "toy")
