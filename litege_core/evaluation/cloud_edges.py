@@ -123,8 +123,9 @@ k-NN covariance reads 16, itself included)."""
 @dataclass
 class KeptEdges:
     """The edges the shipped fusion keeps in one evaluation cloud's graph (the mutual k-NN graph,
-    normal cut, network veto where the calibration's OOD limit lets it run), measured against
-    the mesh: :func:`kept_edges`.
+    normal cut, network veto where the calibration's OOD limit lets it run) before any learned
+    shortcut cut (these are what :mod:`~litege_core.learned.shortcuts` scores), measured
+    against the mesh: :func:`kept_edges`.
 
     Attributes:
         cloud: the input cloud.
