@@ -249,7 +249,8 @@ def shortcut_probabilities(
     j: NDArray,
 ) -> NDArray:
     """``(E,)`` float32: the probability that each edge ``(i, j)`` of a cloud is a shortcut.
-    One embedding pass over the points the edges touch, one batched head pass over the edges.
+    One embedding pass over the points the edges touch (every point when there are at least as
+    many edges as points), one batched head pass over the edges.
 
     Args:
         scorer: the scorer (eval mode, CPU).
@@ -262,7 +263,10 @@ def shortcut_probabilities(
     """
     if i.size == 0:
         return np.zeros(0, dtype=np.float32)
-    used, inverse = np.unique(np.concatenate([i, j]), return_inverse=True)
+    if i.size >= points.shape[0]:  # a whole graph's edges: every point is an end, or nearly
+        used, inverse = np.arange(points.shape[0]), np.concatenate([i, j])
+    else:
+        used, inverse = np.unique(np.concatenate([i, j]), return_inverse=True)
     inputs = neighbour_inputs(points, nearest[:, : scorer.neighbours], normals, spacing, used)
     side_i, side_j, features = edge_inputs(points, normals, flatness, spacing, i, j)
     embedded = scorer.embed(inputs)

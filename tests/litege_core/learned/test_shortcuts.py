@@ -75,6 +75,9 @@ def test_batched_scores_match_the_reference_and_are_symmetric(cloud, scorer) -> 
     which = np.arange(0, i.size, 7)
     slow = shortcut_probabilities_reference(scorer, *args, i[which], j[which])
     np.testing.assert_allclose(fast[which], slow, rtol=1e-4, atol=1e-6)
+    assert which.size < points.shape[0] <= i.size  # a few edges embed only their ends
+    few = shortcut_probabilities(scorer, *args, i[which], j[which])
+    np.testing.assert_allclose(few, fast[which], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(shortcut_probabilities(scorer, *args, j, i), fast, atol=1e-6)
     flipped = shortcut_probabilities(
         scorer, points, nearest[:, 1:], spacing, -normals, flatness, i, j
