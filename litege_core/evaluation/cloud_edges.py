@@ -272,9 +272,11 @@ def shortcut_cut_table(
     label: str, shapes: Sequence[KeptEdges], scores: Sequence[NDArray], thresholds: Sequence[float]
 ) -> str:
     """Markdown: a scorer's ranking of one set's shortcuts (its AUC beside the thickness's)
-    and, per threshold, the share of edges it cuts, recall, precision and the graph error
-    (mean over shapes; :meth:`KeptEdges.graph_error`) beside the uncut graph's and the
-    oracle's (no shortcut). ``scores``: ``(E,)`` per shape, higher: more likely a shortcut."""
+    and, per threshold, the share of edges it scores above it, recall, precision and the graph
+    error with them cut as the fusion cuts them (the edges that rejoin what the cut would
+    split kept: :func:`~litege_core.learned.shortcuts.keep_connected`; mean over shapes,
+    :meth:`KeptEdges.graph_error`) beside the uncut graph's and the oracle's (no shortcut). ``scores``: ``(E,)`` per shape, higher: more likely a shortcut."""
+    from litege_core.learned.shortcuts import keep_connected
     from litege_core.metrics import ranking_auc
 
     shortcut = np.concatenate([s.shortcut for s in shapes])
@@ -301,7 +303,12 @@ def shortcut_cut_table(
         cut = score > threshold
         hits = int(np.sum(cut & shortcut))
         recall, precision = hits / max(int(shortcut.sum()), 1), hits / max(int(cut.sum()), 1)
-        error = mean_error([p <= threshold for p in scores])
+        error = mean_error(
+            [
+                keep_connected(p <= threshold, s.i, s.j, p, s.points.shape[0])
+                for s, p in zip(shapes, scores, strict=True)
+            ]
+        )
         lines.append(
             f"| {threshold:g} | {100 * cut.mean():.2f} % | {recall:.2f} | {precision:.2f} "
             f"| {error:.2f} |"

@@ -346,7 +346,7 @@ def cut_shortcuts(
     scorer: ScorerWeights,
 ) -> sp.csr_array:
     """``graph`` without the edges ``scorer`` calls shortcuts with a probability above
-    ``threshold``.
+    ``threshold``, except those it needs to stay joined (:func:`keep_connected`).
 
     Args:
         graph: ``(N, N)`` CSR of a cloud's edges (chord lengths; any triangle).
@@ -376,9 +376,31 @@ def cut_shortcuts(
         rows,
         graph.indices.astype(np.int64),
     )
-    keep = scores <= threshold
+    keep = keep_connected(scores <= threshold, rows, graph.indices, scores, graph.shape[0])
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
     return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
+
+
+def keep_connected(keep: NDArray, i: NDArray, j: NDArray, scores: NDArray, n: int) -> NDArray:
+    """``keep`` (``(E,)`` bool over the edges ``(i, j)`` of an ``n``-node graph) plus the cut
+    edges that rejoin what the cut split, lowest score first: the cut edges of a minimum
+    spanning forest in which kept edges cost nothing and a cut edge its rank by score. The kept
+    graph then has the connected components of the whole one: a cut never strands a point or a
+    part (whose distances would fall back to the network's)."""
+    cut = np.flatnonzero(~keep)
+    if cut.size == 0:
+        return keep
+    from scipy.sparse.csgraph import minimum_spanning_tree
+
+    order = cut[np.argsort(scores[cut], kind="stable")]
+    weight = np.full(keep.size, 1e-9)  # kept edges first (a zero would be no edge)
+    weight[order] = 1.0 + np.arange(1, order.size + 1) / (order.size + 1)
+    forest = minimum_spanning_tree(sp.csr_array((weight, (i, j)), shape=(n, n))).tocoo()
+    joins = forest.data > 0.5
+    rank = np.rint((forest.data[joins] - 1.0) * (order.size + 1)).astype(np.int64) - 1
+    rejoined = keep.copy()
+    rejoined[order[rank]] = True
+    return rejoined
 
 
 def save_shortcut_scorer(
@@ -481,6 +503,7 @@ __all__ = [
     "cloud_spacing",
     "cut_shortcuts",
     "edge_inputs",
+    "keep_connected",
     "load_shortcut_scorer",
     "neighbour_inputs",
     "save_shortcut_scorer",
