@@ -275,7 +275,8 @@ def shortcut_cut_table(
     and, per threshold, the share of edges it scores above it, recall, precision and the graph
     error with them cut as the fusion cuts them (the edges that rejoin what the cut would
     split kept: :func:`~litege_core.learned.shortcuts.keep_connected`; mean over shapes,
-    :meth:`KeptEdges.graph_error`) beside the uncut graph's and the oracle's (no shortcut). ``scores``: ``(E,)`` per shape, higher: more likely a shortcut."""
+    :meth:`KeptEdges.graph_error`) beside the uncut graph's and the oracle's (no shortcut).
+    ``scores``: ``(E,)`` per shape in ``[0, 1]``, higher: more likely a shortcut."""
     from litege_core.learned.shortcuts import keep_connected
     from litege_core.metrics import ranking_auc
 
