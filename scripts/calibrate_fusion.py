@@ -5,7 +5,8 @@ Usage: python scripts/calibrate_fusion.py --model quadrupeds [--synthetic 16]
     [--normal-cos 1.0,0.9,0.8,0.7,0.6] [--mutual-k 0,24] [--mesh-arcs 0,1]
     [--mesh-smooth-noise 0.08]
     [--ood-dataset data/primitives-cal]
-    [--veto-max-z 1,2,3,4,6,8] [--ood-gate-tolerance 0] [--write]
+    [--veto-max-z 1,2,3,4,6,8] [--ood-gate-tolerance 0]
+    [--shortcut-cut 1,0.7,0.5,0.3] [--shortcut-max-roughness none,0.2,0.3] [--write]
 
 Calibration shapes: ``--synthetic`` held-out procedural shapes of the bundle's category
 (generated on the fly, exact rows cached under ``--cache``) and the test split of every
@@ -31,6 +32,12 @@ gate is then refitted to lower their mean fused error while the other calibratio
 within that fraction of their own fit (:func:`~litege_core.evaluation.fusion.fit_gate_with_ood`;
 the default, 0, keeps the gate of the other shapes: the refit cost the real dev humans); every
 other constant is that of the ``--dataset`` and synthetic shapes);
+With ``--shortcut-cut`` candidates below 1, the learned shortcut scorer
+(:mod:`litege_core.learned.shortcuts`, the shipped weights) cuts the fitted cloud graph: per
+clean-cloud density the candidate whose graph errs least (1: no cut), then, of the
+``--shortcut-max-roughness`` candidates, the roughness above which clouds stay uncut whose
+refitted fusion has the lowest mean fused error (the other constants are those of the uncut
+fit; the veto limit is chosen after it);
 ``--write`` stores
 ``fusion.json`` beside the bundle files (``Predictor(bundle, fusion="graph")`` reads it) and
 rewrites the model card's sidecar section.
