@@ -32,6 +32,18 @@ from litege_core.shape import Shape
 DEFAULT_K = 8
 
 
+def edge_rows(graph: sp.csr_array) -> NDArray:
+    """``(E,)`` int64 the row of each stored edge of a CSR graph, in CSR order."""
+    return np.repeat(np.arange(graph.shape[0], dtype=np.int64), np.diff(graph.indptr))
+
+
+def edge_subgraph(graph: sp.csr_array, rows: NDArray, keep: NDArray) -> sp.csr_array:
+    """``graph`` with only its stored edges where ``keep`` (``(E,)`` bool in CSR order;
+    ``rows``: :func:`edge_rows`), order and shape kept."""
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
+    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
+
+
 def edge_graph(n: int, edges: NDArray, weights: NDArray) -> sp.csr_array:
     """Undirected weighted graph on ``n`` nodes as an upper-triangular CSR array.
 
@@ -480,6 +492,8 @@ __all__ = [
     "dijkstra_rows",
     "dijkstra_tree",
     "edge_graph",
+    "edge_rows",
+    "edge_subgraph",
     "graph_nodes",
     "knn_graph",
     "knn_neighbours",

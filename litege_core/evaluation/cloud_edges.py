@@ -190,6 +190,7 @@ def kept_edges(
     from litege_core.engines.graph import knn_neighbours
     from litege_core.learned.cloud_surface import local_surface
     from litege_core.learned.fusion import pruned_knn_graph
+    from litege_core.learned.shortcuts import cloud_spacing
     from litege_core.shape import Shape
 
     calibration = predictor.fusion
@@ -226,7 +227,7 @@ def kept_edges(
         points=points,
         scale=float(scale),
         nearest=nearest[:, 1:],
-        spacing=float(np.median(lengths[:, 8])),
+        spacing=cloud_spacing(lengths),
         thickness=thickness,
         normals=normals,
         i=i,

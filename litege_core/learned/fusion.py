@@ -374,9 +374,13 @@ def pruned_knn_graph(
         ``(N, N)`` upper-triangular CSR of chord lengths (:func:`~litege_core.engines.graph.
         edge_graph`).
     """
-    import scipy.sparse as sp
-
-    from litege_core.engines.graph import knn_graph, knn_neighbours, mutual_knn_graph
+    from litege_core.engines.graph import (
+        edge_rows,
+        edge_subgraph,
+        knn_graph,
+        knn_neighbours,
+        mutual_knn_graph,
+    )
 
     if neighbours is None:  # the plain lists (the fusion passes its nodes': shape_graph)
         neighbours = knn_neighbours(points, max(k, mutual_k))
@@ -387,7 +391,7 @@ def pruned_knn_graph(
     cut_normals = normals is not None and normal_cos < 1.0
     if (edge_geodesics is None and not cut_normals) or graph.nnz == 0:
         return graph
-    rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
+    rows = edge_rows(graph)
     keep = np.ones(graph.nnz, dtype=bool)
     if cut_normals:
         assert normals is not None
@@ -397,8 +401,7 @@ def pruned_knn_graph(
         keep[left] = edge_geodesics(rows[left], graph.indices[left]) <= (
             prune_ratio * graph.data[left]
         )
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
-    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
+    return edge_subgraph(graph, rows, keep)
 
 
 def graph_rows(

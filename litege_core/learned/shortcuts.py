@@ -361,11 +361,11 @@ def cut_shortcuts(
     reach = max(scorer.neighbours, SPACING_RANK)
     if graph.nnz == 0 or threshold >= 1.0 or points.shape[0] <= reach:
         return graph  # nothing to cut, or a cloud too small to score
-    if nearest.shape[1] <= reach:
-        from litege_core.engines.graph import knn_neighbours
+    from litege_core.engines.graph import edge_rows, edge_subgraph, knn_neighbours
 
+    if nearest.shape[1] <= reach:
         lengths, nearest = knn_neighbours(points, reach)
-    rows = np.repeat(np.arange(graph.shape[0]), np.diff(graph.indptr))  # CSR order
+    rows = edge_rows(graph)
     scores = shortcut_probabilities(
         scorer,
         points,
@@ -377,8 +377,7 @@ def cut_shortcuts(
         graph.indices.astype(np.int64),
     )
     keep = keep_connected(scores <= threshold, rows, graph.indices, scores, graph.shape[0])
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=graph.shape[0]))])
-    return sp.csr_array((graph.data[keep], graph.indices[keep], indptr), shape=graph.shape)
+    return edge_subgraph(graph, rows, keep)
 
 
 def keep_connected(keep: NDArray, i: NDArray, j: NDArray, scores: NDArray, n: int) -> NDArray:
