@@ -36,8 +36,6 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from litege_core.arrays import frozen
-from litege_core.canonical import Transform, canonicalize_bbox
 from litege_core.engines import compute_distances
 from litege_core.evaluation.geodesic import (
     KNN_NEIGHBOURS,
@@ -45,12 +43,11 @@ from litege_core.evaluation.geodesic import (
     generated_eval_shapes,
     make_input,
     named_eval_set,
+    register_turned,
 )
 from litege_core.evaluation.matching import machine_header
 from litege_core.learned import Predictor, load_shipped
-from litege_core.learned.describe import shape_samples
 from litege_core.learned.frame import candidate_rotations
-from litege_core.learned.state import ShapeRecord
 
 REPO = Path(__file__).resolve().parents[1]
 EVAL_DATA = REPO.parent / "shared" / "eval-data"
@@ -80,41 +77,21 @@ def error_sums(pred: NDArray, gt: NDArray) -> NDArray:
     return np.array([np.abs(pred[keep] - gt[keep]).sum(), gt[keep].sum()])
 
 
-def rows_in_frame(predictor: Predictor, shape, transform: Transform, descriptor, residual, sources):
-    """The predictor's ``(S, N)`` rows from ``sources`` with the shape registered in
-    ``transform`` (its descriptor computed there)."""
-    record = ShapeRecord(
-        shape.content_hash,
-        predictor.bundle.content_hash,
-        transform,
-        frozen(np.asarray(descriptor, np.float32)),
-        float(residual),
-        0,
-    )
-    return predictor.distances(predictor.restore(shape, record), sources).astype(np.float64)
-
-
 def run_case(
     shape: EvalShape, setting: str, seed: int, network: Predictor, fused: Predictor, reference: str
 ) -> dict:
     """Error sums of every rule, network alone and fused, and the frame each rule keeps."""
     item = make_input(shape, setting, seed)
-    points = shape_samples(item.shape, network.n_mesh_samples, 0)
-    base = canonicalize_bbox(points)
-    rotations = candidate_rotations("all")
-    described = network.bundle.basis.engine(network.device).describe_with_residual(
-        [base.apply(points) @ m.T for m in rotations]
-    )
-    frames = [Transform(m @ base.rotation, base.center, base.scale) for m in rotations]
-    descriptors = described.descriptors.detach().cpu().numpy()
-    residuals = described.residual.detach().cpu().numpy().astype(np.float64)
+    states = register_turned(network, item.shape, np.stack(candidate_rotations("all")))
+    residuals = np.array([state.record.residual for state in states])
 
     def rows(predictor: Predictor, f: int) -> NDArray:
-        return rows_in_frame(
-            predictor, item.shape, frames[f], descriptors[f], residuals[f], item.source_index
+        state = (
+            states[f] if predictor is network else predictor.restore(item.shape, states[f].record)
         )
+        return predictor.distances(state, item.source_index).astype(np.float64)
 
-    predictions = np.stack([rows(network, f) for f in range(len(frames))])
+    predictions = np.stack([rows(network, f) for f in range(len(states))])
     if reference == "fused":
         ref = rows(fused, 0)
     else:
