@@ -32,8 +32,6 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
-import sys
-import time
 from datetime import UTC, datetime
 
 import numpy as np
@@ -43,6 +41,7 @@ from numpy.typing import NDArray
 from litege_core.evaluation.cloud_edges import KeptEdges, collect_kept_edges, shortcut_cut_table
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.cloud_surface import normal_cosines
+from litege_core.train.shortcuts import fit_edge_scorer
 
 PATCH = 24
 """Nearest points of each end of an edge in its patch (``--patch``)."""
@@ -148,27 +147,20 @@ def train_scorer(
     seed: int = 0,
     log_every: int = 500,
 ) -> PatchScorer:
-    """Fit a :class:`PatchScorer` (BCE with the shortcuts weighted as in the full edge set)."""
-    torch.manual_seed(seed)
-    generator = torch.Generator().manual_seed(seed)
-    share = float(labels.mean())
-    weight = torch.tensor((1.0 - share) / max(share, 1e-9) * negatives)
-    loss_of = torch.nn.BCEWithLogitsLoss(pos_weight=weight)
-    model = PatchScorer(width)
-    optimiser = torch.optim.Adam(model.parameters(), lr=2e-3)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, max(steps, 1))
-    started = time.perf_counter()
-    for step in range(steps):
-        drawn = torch.randint(0, labels.shape[0], (batch,), generator=generator)
-        loss = loss_of(model(turned(patches[drawn], generator), features[drawn]), labels[drawn])
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        schedule.step()
-        if log_every and step % log_every == 0:
-            elapsed = time.perf_counter() - started
-            print(f"step {step}: loss {loss.item():.4f}, {elapsed:.0f} s", file=sys.stderr)
-    return model.eval()
+    """Fit a :class:`PatchScorer` (:func:`~litege_core.train.shortcuts.fit_edge_scorer`),
+    each batch's patches turned at random."""
+    model = fit_edge_scorer(
+        lambda: PatchScorer(width),
+        lambda m, drawn, generator: m(turned(patches[drawn], generator), features[drawn]),
+        labels,
+        negatives,
+        steps,
+        batch,
+        seed=seed,
+        log_every=log_every,
+    )
+    assert isinstance(model, PatchScorer)
+    return model
 
 
 def shortcut_scores(

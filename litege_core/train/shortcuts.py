@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -137,6 +137,49 @@ def scorer_examples(
     return ScorerExamples(**stacked, negatives=negatives)
 
 
+def fit_edge_scorer(
+    make_model: Callable[[], torch.nn.Module],
+    logits_of: Callable[[torch.nn.Module, torch.Tensor, torch.Generator], torch.Tensor],
+    labels: torch.Tensor,
+    negatives: float,
+    steps: int,
+    batch: int = 512,
+    learning_rate: float = 2e-3,
+    seed: int = 0,
+    log_every: int = 1000,
+) -> torch.nn.Module:
+    """The training loop of a binary edge scorer: BCE with the positives weighted as in the
+    full edge set (a share ``negatives`` of the negatives was kept), Adam with a cosine
+    schedule, ``steps`` batches of ``batch`` items drawn with replacement, seeded.
+
+    Args:
+        make_model: builds the model, after the global seed is set (its initial weights).
+        logits_of: ``(model, drawn (batch,) int64 items, generator) → (batch,)`` logits; the
+            generator is the loop's own (the draws), for any augmentation.
+        labels: ``(E,)`` float32, 1 for a positive.
+    """
+    torch.manual_seed(seed)
+    generator = torch.Generator().manual_seed(seed)
+    share = float(labels.mean())
+    weight = torch.tensor((1.0 - share) / max(share, 1e-9) * negatives)
+    loss_of = torch.nn.BCEWithLogitsLoss(pos_weight=weight)
+    model = make_model()
+    optimiser = torch.optim.Adam(model.parameters(), lr=learning_rate)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, max(steps, 1))
+    started = time.perf_counter()
+    for step in range(steps):
+        drawn = torch.randint(0, labels.shape[0], (batch,), generator=generator)
+        loss = loss_of(logits_of(model, drawn, generator), labels[drawn])
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        schedule.step()
+        if log_every and step % log_every == 0:
+            elapsed = time.perf_counter() - started
+            print(f"step {step}: loss {loss.item():.4f}, {elapsed:.0f} s", file=sys.stderr)
+    return model.eval()
+
+
 def train_shortcut_scorer(
     examples: ScorerExamples,
     steps: int,
@@ -146,42 +189,44 @@ def train_shortcut_scorer(
     seed: int = 0,
     log_every: int = 1000,
 ) -> ShortcutScorer:
-    """Fit a :class:`ShortcutScorer`: BCE with the shortcuts weighted as in the full edge
-    set, Adam with a cosine schedule, batches of ``batch`` edges (each embeds only its
-    ends), seeded."""
+    """Fit a :class:`ShortcutScorer` with :func:`fit_edge_scorer`; each batch of edges
+    embeds only its ends."""
     if not bool(examples.labels.any()):
         raise ValueError("the training clouds have no shortcuts: nothing to learn")
-    torch.manual_seed(seed)
-    generator = torch.Generator().manual_seed(seed)
-    share = float(examples.labels.mean())
-    weight = torch.tensor((1.0 - share) / share * examples.negatives)
-    loss_of = torch.nn.BCEWithLogitsLoss(pos_weight=weight)
-    scorer = ShortcutScorer(width, examples.inputs.shape[1])
-    optimiser = torch.optim.Adam(scorer.parameters(), lr=learning_rate)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, max(steps, 1))
-    started = time.perf_counter()
-    for step in range(steps):
-        drawn = torch.randint(0, examples.labels.shape[0], (batch,), generator=generator)
+
+    def logits_of(scorer: torch.nn.Module, drawn: torch.Tensor, _: torch.Generator):
+        assert isinstance(scorer, ShortcutScorer)
         ends, inverse = torch.unique(
             torch.cat([examples.i[drawn], examples.j[drawn]]), return_inverse=True
         )
-        logits = scorer.logits(
+        return scorer.logits(
             scorer.embed(examples.inputs[ends]),
-            inverse[:batch],
-            inverse[batch:],
+            inverse[: drawn.shape[0]],
+            inverse[drawn.shape[0] :],
             examples.side_i[drawn],
             examples.side_j[drawn],
             examples.features[drawn],
         )
-        loss = loss_of(logits, examples.labels[drawn])
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        schedule.step()
-        if log_every and step % log_every == 0:
-            elapsed = time.perf_counter() - started
-            print(f"step {step}: loss {loss.item():.4f}, {elapsed:.0f} s", file=sys.stderr)
-    return scorer.eval()
+
+    trained = fit_edge_scorer(
+        lambda: ShortcutScorer(width, examples.inputs.shape[1]),
+        logits_of,
+        examples.labels,
+        examples.negatives,
+        steps,
+        batch,
+        learning_rate,
+        seed,
+        log_every,
+    )
+    assert isinstance(trained, ShortcutScorer)
+    return trained
 
 
-__all__ = ["ScorerExamples", "ShortcutScorer", "scorer_examples", "train_shortcut_scorer"]
+__all__ = [
+    "ScorerExamples",
+    "ShortcutScorer",
+    "fit_edge_scorer",
+    "scorer_examples",
+    "train_shortcut_scorer",
+]
