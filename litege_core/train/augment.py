@@ -13,7 +13,9 @@ canonical frame* (spec §1.2, §3.3, §7.2).
   ``σ·√area`` (σ in unit-area units), optionally a uniform random rotation of everything.
   Corruptions are applied to the cloud before canonicalization and before the UDF. With
   ``frame_jitter_degrees`` the view also carries a small rotation that turns its canonical
-  frame (:attr:`View.frame`, applied by :func:`litege_core.train.data.build_view_tables`).
+  frame (:attr:`View.frame`, applied by :func:`litege_core.train.data.build_view_tables`);
+  with ``axis_turn_probability`` that frame is also turned by a multiple of a quarter turn
+  about the first canonical axis (:func:`axis_turn`).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ class View(NamedTuple):
         noise_sigma: the noise actually added, raw units (0 for none).
         cut_fraction: the fraction cut away (0 for none).
         frame: ``(3, 3)`` rotation applied after canonicalization (``p_canonical ↦ J
-            p_canonical``; frame jitter), ``None`` for none.
+            p_canonical``; frame jitter and axis turns), ``None`` for none.
     """
 
     points: NDArray
@@ -52,6 +54,13 @@ class View(NamedTuple):
     noise_sigma: float
     cut_fraction: float
     frame: NDArray | None = None
+
+
+def axis_turn(quarters: int) -> NDArray:
+    """``(3, 3)`` rotation by ``quarters`` quarter turns about the first axis (exact
+    integers): ``(x, y, z) ↦ (x, y cos θ − z sin θ, y sin θ + z cos θ)``, ``θ = quarters·90°``."""
+    cos, sin = ((1, 0), (0, 1), (-1, 0), (0, -1))[quarters % 4]
+    return np.array([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]])
 
 
 def clean_view(vertices: NDArray, faces: NDArray, n_samples: int, rng: np.random.Generator) -> View:
@@ -92,7 +101,10 @@ def augmented_view(
     frame = None  # drawn last: views without jitter keep their streams
     if settings.frame_jitter_degrees > 0:
         frame = small_rotation(math.radians(settings.frame_jitter_degrees), rng)
+    if settings.axis_turn_probability > 0 and rng.random() < settings.axis_turn_probability:
+        turn = axis_turn(int(rng.integers(1, 4)))
+        frame = turn if frame is None else turn @ frame
     return View(points @ rotation.T, rotation, AUGMENTED, sigma, cut, frame)
 
 
-__all__ = ["AUGMENTED", "CLEAN", "View", "augmented_view", "clean_view"]
+__all__ = ["AUGMENTED", "CLEAN", "View", "augmented_view", "axis_turn", "clean_view"]

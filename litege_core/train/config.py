@@ -117,6 +117,12 @@ class AugmentConfig:
     angle uniform in ``[0, max]``) after canonicalization: the network learns to tolerate the
     frame errors that PCA makes on real shapes (issue 14, step 2). The descriptor and the
     canonical vertices see the same turned frame; distances are unchanged.
+
+    ``axis_turn_probability`` (geodesic training only; 0 = off) turns the canonical frame of
+    that share of the augmented views by a quarter, half or three-quarter turn (uniform)
+    about the first principal axis, after any jitter: the frames PCA picks when a shape's
+    second and third extents nearly tie (a human with the arms in front is as deep as it is
+    wide), which swap those two axes (issue 14, step 2; BENCHMARKS "axis-turns").
     """
 
     min_points: int = 300
@@ -128,6 +134,7 @@ class AugmentConfig:
     cut_max: float = 0.15
     rotate: bool = True
     frame_jitter_degrees: float = 0.0
+    axis_turn_probability: float = 0.0
 
     def __post_init__(self) -> None:
         _check(4 <= self.min_points <= self.max_points, "need 4 ≤ min_points ≤ max_points")
@@ -135,7 +142,7 @@ class AugmentConfig:
             0.0 <= self.frame_jitter_degrees <= 90.0,
             "augment.frame_jitter_degrees must lie in [0, 90]",
         )
-        for name in ("noise_probability", "cut_probability"):
+        for name in ("noise_probability", "cut_probability", "axis_turn_probability"):
             _check(0.0 <= getattr(self, name) <= 1.0, f"augment.{name} must lie in [0, 1]")
         _check(self.noise_sigma >= 0.0, "augment.noise_sigma must be ≥ 0")
         _check(0.0 <= self.cut_min <= self.cut_max < 1.0, "need 0 ≤ cut_min ≤ cut_max < 1")

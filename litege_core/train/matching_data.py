@@ -108,10 +108,10 @@ def build_matching_tables(
     """
     if n_views < 1:
         raise InputError("n_views must be at least 1")
-    if augment.frame_jitter_degrees > 0:
+    if augment.frame_jitter_degrees > 0 or augment.axis_turn_probability > 0:
         raise InputError(
-            "augment.frame_jitter_degrees is for geodesic training: the matching network's "
-            "frames come from its T-Net"
+            "augment.frame_jitter_degrees and augment.axis_turn_probability are for geodesic "
+            "training: the matching network's frames come from its T-Net"
         )
     raw = np.asarray(arrays["vertices"], dtype=np.float64)
     n_shapes = raw.shape[0]

@@ -173,6 +173,9 @@ def test_rejection_filter_drops_misaligned_views(toy_dataset, tnet_path):
     jitter = AugmentConfig(min_points=200, max_points=400, frame_jitter_degrees=5.0)
     with pytest.raises(InputError, match="frame_jitter_degrees"):  # T-Net frames: no jitter
         build_matching_tables(*args, n_views=2, augment=jitter, seed=0)
+    turns = AugmentConfig(min_points=200, max_points=400, axis_turn_probability=0.5)
+    with pytest.raises(InputError, match="axis_turn_probability"):
+        build_matching_tables(*args, n_views=2, augment=turns, seed=0)
 
 
 def test_training_exports_a_bundle_that_matches(toy_dataset, tnet_path, tmp_path):

@@ -6,7 +6,7 @@ from litege_core.canonical import canonicalize_bbox
 from litege_core.datasets import GeodesicDataset
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import InputError
-from litege_core.train.augment import AUGMENTED, CLEAN, augmented_view, clean_view
+from litege_core.train.augment import AUGMENTED, CLEAN, augmented_view, axis_turn, clean_view
 from litege_core.train.config import AugmentConfig
 from litege_core.train.data import build_view_tables, load_split_arrays, make_views
 from litege_core.variants import random_rotation
@@ -155,8 +155,50 @@ def test_frame_jitter_turns_the_canonical_frame_of_augmented_views(train_split, 
     assert not np.allclose(turned.descriptors[1].numpy(), straight.descriptors[1].numpy())
 
 
+def test_axis_turn_is_a_quarter_turn_about_the_first_axis():
+    quarter = axis_turn(1)
+    np.testing.assert_array_equal(quarter @ [1.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(quarter @ [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(axis_turn(2), np.diag([1.0, -1.0, -1.0]))
+    np.testing.assert_array_equal(axis_turn(3) @ quarter, np.eye(3))
+    np.testing.assert_array_equal(axis_turn(4), np.eye(3))
+
+
+def test_axis_turns_turn_that_share_of_augmented_views(train_split):
+    dataset, arrays = train_split
+    vertices = arrays["vertices"][0].astype(np.float64)
+    area = float(arrays["area"][0])
+    plain = AugmentConfig(min_points=200, max_points=400)
+    turning = AugmentConfig(min_points=200, max_points=400, axis_turn_probability=0.5)
+    before = augmented_view(vertices, dataset.faces, area, plain, np.random.default_rng(3))
+    after = augmented_view(vertices, dataset.faces, area, turning, np.random.default_rng(3))
+    np.testing.assert_array_equal(after.points, before.points)  # drawn last: same cloud
+    quarters = []
+    for seed in range(80):
+        view = augmented_view(vertices, dataset.faces, area, turning, np.random.default_rng(seed))
+        if view.frame is None:
+            quarters.append(0)
+            continue
+        matches = [k for k in (1, 2, 3) if np.array_equal(view.frame, axis_turn(k))]
+        assert len(matches) == 1  # an exact quarter, half or three-quarter turn
+        quarters.append(matches[0])
+    counts = np.bincount(quarters, minlength=4)
+    assert 25 <= counts[0] <= 55 and all(counts[1:] >= 5)
+    # with jitter too: the turn follows the jitter
+    both = AugmentConfig(
+        min_points=200, max_points=400, frame_jitter_degrees=5.0, axis_turn_probability=1.0
+    )
+    view = augmented_view(vertices, dataset.faces, area, both, np.random.default_rng(0))
+    jitter_only = AugmentConfig(min_points=200, max_points=400, frame_jitter_degrees=5.0)
+    jitter = augmented_view(vertices, dataset.faces, area, jitter_only, np.random.default_rng(0))
+    turns = [axis_turn(k) @ jitter.frame for k in (1, 2, 3)]
+    assert any(np.allclose(view.frame, turn, atol=1e-12) for turn in turns)
+
+
 def test_frame_jitter_bounds():
     with pytest.raises(InputError, match="frame_jitter_degrees"):
         AugmentConfig(frame_jitter_degrees=-1.0)
     with pytest.raises(InputError, match="frame_jitter_degrees"):
         AugmentConfig(frame_jitter_degrees=120.0)
+    with pytest.raises(InputError, match="axis_turn_probability"):
+        AugmentConfig(axis_turn_probability=1.5)
