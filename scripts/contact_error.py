@@ -38,7 +38,6 @@ from litege_core.evaluation.geodesic import (
     make_input,
     real_eval_shapes,
     real_shape_paths,
-    register_turned,
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned.bundle import load_model
@@ -137,7 +136,7 @@ def main() -> None:
     rotations = np.stack(candidate_rotations("all"))
     for group, predictor, worst_shapes in details:
         for name, error, shape_bias, worst, share, item in worst_shapes:
-            states = register_turned(predictor, item.shape, rotations)
+            states = predictor.register_turned(item.shape, rotations)
             fields = predictor.distances_many(states, [item.source_index] * len(states))
             scale = float(item.gt.mean()) / 100.0
             best = min(float(np.abs(f - item.gt).mean()) / scale for f in fields)

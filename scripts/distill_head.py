@@ -3,7 +3,8 @@
 Usage::
 
     nice python scripts/distill_head.py --model quadrupeds --out out/distill/quadrupeds \
-        [--minutes 15] [--features 128] [--hidden 64] [--threads 1] [--seed 0] [--ship]
+        [--minutes 15] [--features 128] [--hidden 64] [--threads 1] [--seed 0] \
+        [--axis-turn-probability 0.3] [--ship]
 
 Trains a :class:`~litege_core.nets.small_head.SmallHead` on the teacher's head outputs over
 procedural shapes generated on the fly (:mod:`litege_core.train.distill`: seeds from
@@ -34,6 +35,7 @@ import torch
 from litege_core.learned import Predictor, load_bundle, load_model
 from litege_core.learned.cards import write_sidecar_section
 from litege_core.learned.small_head import SMALL_HEAD_CONFIG, SMALL_HEAD_WEIGHTS, save_small_head
+from litege_core.train.config import AugmentConfig
 from litege_core.train.distill import (
     DistillConfig,
     agreement_inputs,
@@ -63,6 +65,13 @@ def main() -> None:
     parser.add_argument(
         "--extra-cache", default="out/tnet-shapes", help="cache of the posed extra meshes"
     )
+    parser.add_argument(
+        "--axis-turn-probability",
+        type=float,
+        default=0.0,
+        help="share of cloud views whose canonical frame is turned about the long axis, as "
+        "in training (augment.axis_turn_probability of the teacher's config)",
+    )
     parser.add_argument("--ship", action="store_true", help="copy the sidecar into the bundle")
     args = parser.parse_args()
     torch.set_num_threads(max(1, args.threads))
@@ -86,6 +95,7 @@ def main() -> None:
         steps=args.steps,
         seed=args.seed,
         extra_fraction=args.extra_fraction if args.extra else 0.0,
+        augment=AugmentConfig(axis_turn_probability=args.axis_turn_probability),
     )
     extra: list = []
     if args.extra:  # the posed collection meshes the T-Net trainer uses (same seeds, cached)

@@ -2,8 +2,8 @@
 
 For every shape and setting the shipped network answers the sources' rows in each of the 24
 proper signed axis permutations of the shape's PCA frame (``candidate_rotations("all")``,
-registered by ``register_turned`` with the predictor's own descriptor; inputs as in ``litege
-eval geodesic``, so the default frame's columns are its figures). A frame is scored by
+registered by ``Predictor.register_turned`` with the predictor's own descriptor; inputs as in
+``litege eval geodesic``, so the default frame's columns are its figures). A frame is scored by
 
     log(UDF-PCA residual) + log(dispersion),
 
@@ -45,7 +45,6 @@ from litege_core.evaluation.geodesic import (
     generated_eval_shapes,
     make_input,
     named_eval_set,
-    register_turned,
 )
 from litege_core.evaluation.matching import machine_header
 from litege_core.learned import Predictor, load_shipped
@@ -84,7 +83,7 @@ def run_case(
 ) -> dict:
     """Error sums of every rule, network alone and fused, and the frame each rule keeps."""
     item = make_input(shape, setting, seed)
-    states = register_turned(network, item.shape, np.stack(candidate_rotations("all")))
+    states = network.register_turned(item.shape, np.stack(candidate_rotations("all")))
     residuals = np.array([state.record.residual for state in states])
 
     def rows(predictor: Predictor, f: int) -> NDArray:

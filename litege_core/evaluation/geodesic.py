@@ -437,19 +437,6 @@ def frame_turns(count: int, max_degrees: float, seed: int = 0) -> NDArray:
     return np.stack([np.eye(3), *turns])
 
 
-def register_turned(predictor, shape: Shape, turns: NDArray, *, seed: int = 0) -> list:
-    """One :class:`ShapeState` of ``shape`` per frame ``turns[i] @ R_pca``
-    (:func:`~litege_core.learned.frame.turned_frames`, restored like
-    :func:`register_in_frame`)."""
-    from litege_core.learned.describe import shape_samples
-    from litege_core.learned.frame import turned_frames
-
-    points = shape_samples(shape, predictor.n_mesh_samples, seed)
-    choices = turned_frames(points, predictor.engine, turns)
-    records = [_record(predictor, shape, choice, seed) for choice in choices]
-    return predictor.restore_many([shape] * len(records), records)
-
-
 def litege_method(
     predictor, frame: str = "pca", margin: float = 0.0, turns: NDArray | None = None
 ) -> Method:
@@ -460,7 +447,7 @@ def litege_method(
 
     def run(item: EvalInput) -> NDArray:
         if turns is not None:
-            states = register_turned(predictor, item.shape, turns)
+            states = predictor.register_turned(item.shape, turns)
             fields = predictor.distances_many(states, [item.source_index] * len(states))
             return np.mean(fields, axis=0)
         if frame == "pca":
@@ -794,7 +781,6 @@ __all__ = [
     "real_eval_shapes",
     "real_shape_paths",
     "register_in_frame",
-    "register_turned",
     "results_table",
     "spread_table",
     "synthetic_eval_shapes",

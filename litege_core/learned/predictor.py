@@ -76,6 +76,7 @@ from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
+from litege_core.learned.frame import turned_frames
 from litege_core.learned.fusion import cloud_graph_key, fused_distances, route_trees, shape_graph
 from litege_core.learned.fusion_calibration import DEFAULT_FUSION, FusionCalibration, resolve_fusion
 from litege_core.learned.manifest import (
@@ -332,6 +333,25 @@ class Predictor:
             for b, shape in enumerate(shapes)
         ]
         return self._states(shapes, records, codes)
+
+    def register_turned(self, shape: Shape, turns: ArrayLike, *, seed: int = 0) -> list[ShapeState]:
+        """One state of ``shape`` per canonical frame ``turns[i] @ R_pca``: the PCA frame
+        turned after canonicalization by each of ``turns`` ``(C, 3, 3)`` (proper rotations),
+        each described in its own frame (frame probes, test-time augmentation, distillation
+        views in the frames training turned). The identity gives :meth:`register`'s state."""
+        points = shape_samples(shape, self.n_mesh_samples, seed)
+        records = [
+            ShapeRecord(
+                shape_id=shape.content_hash,
+                bundle_hash=self.bundle.content_hash,
+                transform=choice.transform,
+                descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
+                residual=choice.residual,
+                seed=int(seed),
+            )
+            for choice in turned_frames(points, self.engine, turns)
+        ]
+        return self.restore_many([shape] * len(records), records)
 
     def restore(self, shape: Shape, record: ShapeRecord) -> ShapeState:
         """Rebuild a state from its :class:`ShapeRecord` without recomputing the descriptor."""

@@ -201,25 +201,28 @@ def _category_families(teacher: Predictor, category: str | None) -> tuple[str, t
 
 def view_shape(
     category: str, family: str, seed: int, rng: np.random.Generator, config: DistillConfig
-) -> tuple[Shape, str]:
+) -> tuple[Shape, str, NDArray | None]:
     """The input a user could send for procedural shape ``(category, family, seed)``: the
-    rotated mesh (probability ``mesh_fraction``) or an augmented cloud."""
+    rotated mesh (probability ``mesh_fraction``) or an augmented cloud (see
+    :func:`mesh_view`)."""
     generated = generate_shape(category, family, seed, reject=False)
     return mesh_view(generated.vertices, generated.faces, rng, config)
 
 
 def mesh_view(
     vertices: NDArray, faces: NDArray, rng: np.random.Generator, config: DistillConfig
-) -> tuple[Shape, str]:
+) -> tuple[Shape, str, NDArray | None]:
     """The input a user could send for a mesh ``(V, 3)``, ``(F, 3)``: the randomly rotated mesh
-    (probability ``mesh_fraction``) or an augmented cloud; and its kind."""
+    (probability ``mesh_fraction``) or an augmented cloud; its kind; and the turn of its
+    canonical frame (``(3, 3)``, the augmented view's frame jitter and axis turn as in
+    training; ``None`` for none)."""
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
     if rng.random() < config.mesh_fraction:
         rotation = random_rotation(rng)
-        return Shape.from_arrays(vertices @ rotation.T, faces), "mesh"
+        return Shape.from_arrays(vertices @ rotation.T, faces), "mesh", None
     area = float(Shape.from_arrays(vertices, faces).area)
     view = augmented_view(vertices, faces, area, config.augment, rng)
-    return Shape.from_arrays(view.points), "cloud"
+    return Shape.from_arrays(view.points), "cloud", view.frame
 
 
 def _pairs(points: NDArray, count: int, config: DistillConfig, rng: np.random.Generator) -> tuple:
@@ -241,12 +244,22 @@ def _pairs(points: NDArray, count: int, config: DistillConfig, rng: np.random.Ge
 
 
 def label_view(
-    teacher: Predictor, shape: Shape, index: int, kind: str, config: DistillConfig, seed: int
+    teacher: Predictor,
+    shape: Shape,
+    index: int,
+    kind: str,
+    config: DistillConfig,
+    seed: int,
+    frame: NDArray | None = None,
 ) -> LabelledView:
-    """Register ``shape`` with the teacher and label :attr:`~DistillConfig.pairs_per_view`
-    of its pairs (see :class:`LabelledView`)."""
+    """Register ``shape`` with the teacher (in its PCA frame turned by ``frame`` ``(3, 3)``
+    when given) and label :attr:`~DistillConfig.pairs_per_view` of its pairs (see
+    :class:`LabelledView`)."""
     rng = np.random.default_rng([seed, index, 1])
-    state = teacher.register(shape)
+    if frame is None:
+        state = teacher.register(shape)
+    else:
+        state = teacher.register_turned(shape, frame[None])[0]
     folded = teacher.folded
     with torch.no_grad():
         x = state.canonical_vertices
@@ -323,13 +336,13 @@ def distill_small_head(
         if extra_meshes and view_rng.random() < config.extra_fraction:
             vertices, faces = extra_meshes[extra_made % len(extra_meshes)]
             extra_made += 1
-            shape, kind = mesh_view(vertices, faces, view_rng, config)
+            shape, kind, frame = mesh_view(vertices, faces, view_rng, config)
             kind = f"extra {kind}"
         else:
-            shape, kind = view_shape(
+            shape, kind, frame = view_shape(
                 category, names[index % len(names)], config.seed_offset + index, view_rng, config
             )
-        return label_view(teacher, shape, index, kind, config, config.seed)
+        return label_view(teacher, shape, index, kind, config, config.seed, frame)
 
     pool = [new_view() for _ in range(config.pool_views)]
     mean_g = float(torch.cat([v.geodesic for v in pool]).mean())

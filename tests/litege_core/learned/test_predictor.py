@@ -164,6 +164,26 @@ def test_bfloat16_point_mlp_predictor_stays_close_and_keeps_its_own_tables(bundl
     np.testing.assert_allclose(exact.distances(state, [0, 5]), want, rtol=1e-5, atol=1e-6)
 
 
+def test_register_turned_describes_each_turned_frame(predictor, cloud):
+    from litege_core.train.augment import axis_turn
+
+    turns = np.stack([np.eye(3), axis_turn(1), random_rotation(np.random.default_rng(2))])
+    plain = predictor.register(cloud)
+    states = predictor.register_turned(cloud, turns)
+    assert states[0].transform.allclose(plain.transform, atol=1e-9)
+    np.testing.assert_allclose(states[0].descriptor, plain.descriptor, atol=1e-5)
+    for turn, state in zip(turns, states, strict=True):  # frame i = turns[i] @ R_pca
+        np.testing.assert_allclose(
+            state.transform.rotation, turn @ plain.transform.rotation, atol=1e-12
+        )
+        np.testing.assert_allclose(state.transform.scale, plain.transform.scale)
+        expected = predictor.bundle.basis.describe(state.transform.apply(cloud.vertices))
+        np.testing.assert_allclose(state.descriptor, expected, atol=1e-4)
+    assert not np.allclose(states[1].descriptor, plain.descriptor)  # the UDF sees the turn
+    fields = [predictor.distances(s, [0]) for s in states]
+    assert not np.allclose(fields[0], fields[1])  # and so does the network
+
+
 def test_cached_state_equals_fresh_computation(bundle, predictor, mesh, mesh_state):
     net = bundle.network
     description = describe_shape(mesh, bundle.basis, n_samples=800, seed=3)

@@ -10,6 +10,7 @@ import trimesh
 
 from litege_core.errors import InputError
 from litege_core.learned import Predictor
+from litege_core.train.config import AugmentConfig
 from litege_core.train.distill import (
     DISTILL_SEED_OFFSET,
     DistillConfig,
@@ -41,7 +42,10 @@ def test_views_are_meshes_and_augmented_clouds(toy_predictor) -> None:
     kinds = set()
     for index in range(6):
         rng = np.random.default_rng([0, index, 0])
-        shape, kind = view_shape("quadruped", "dog", DISTILL_SEED_OFFSET + index, rng, config)
+        shape, kind, frame = view_shape(
+            "quadruped", "dog", DISTILL_SEED_OFFSET + index, rng, config
+        )
+        assert frame is None  # no jitter or axis turns in the default augment settings
         kinds.add(kind)
         assert shape.is_mesh == (kind == "mesh")
         if kind == "cloud":
@@ -58,6 +62,22 @@ def test_views_are_meshes_and_augmented_clouds(toy_predictor) -> None:
         shape.vertices[view.src[512:].numpy()] - shape.vertices[view.dst[512:].numpy()], axis=1
     )
     assert np.median(near) < 0.3 * np.median(uniform)  # the first quarter are near pairs
+
+
+def test_views_turned_as_in_training_are_labelled_in_the_turned_frame(toy_predictor) -> None:
+    turning = AugmentConfig(axis_turn_probability=1.0)
+    config = DistillConfig(**TINY, mesh_fraction=0.0, augment=turning)
+    rng = np.random.default_rng([0, 0, 0])
+    shape, kind, frame = view_shape("quadruped", "dog", DISTILL_SEED_OFFSET, rng, config)
+    assert kind == "cloud" and frame is not None
+    turned = label_view(toy_predictor, shape, 0, kind, config, seed=0, frame=frame)
+    plain = label_view(toy_predictor, shape, 0, kind, config, seed=0)
+    state = toy_predictor.register_turned(shape, frame[None])[0]
+    with torch.no_grad():
+        expected = toy_predictor.folded.embed(state.canonical_vertices, state.shape_bias)
+    torch.testing.assert_close(turned.embeddings, expected.cpu())
+    assert torch.equal(turned.src, plain.src)  # the same pairs, labelled in another frame
+    assert not torch.allclose(turned.target, plain.target)
 
 
 def test_a_few_steps_reduce_the_loss_deterministically(toy_predictor) -> None:
@@ -95,7 +115,7 @@ def test_extra_meshes_make_a_share_of_the_views(toy_predictor) -> None:
     result = distill_small_head(toy_predictor, config, category="quadruped", extra_meshes=extra)
     assert result.settings["extra_meshes"] == 1
     assert 0 < result.settings["extra_views"] < result.views  # about half of the 3 + 0 views
-    shape, kind = mesh_view(*extra[0], np.random.default_rng(0), config)
+    shape, kind, _ = mesh_view(*extra[0], np.random.default_rng(0), config)
     assert kind in ("mesh", "cloud") and shape.n_points > 0
     with pytest.raises(InputError, match="extra meshes"):
         distill_small_head(toy_predictor, config, category="quadruped")
