@@ -22,6 +22,11 @@ Usage::
     python scripts/frame_agreement.py --sets faust,data/makehuman-steep-cal@humans \\
         --settings cloud_300,noise_0.01,cloud_2000 --cache out/exact-cache-h
 
+``--per-frame`` adds a table of the network's error in each frame that keeps the first axis
+(and any frame some shape errs least in), with the number of shapes whose lowest error is
+there; ``--model`` answers every set with one bundle (a name or a directory) instead of the
+set's shipped model.
+
 Sets: real dev sets (``faust``, ``tosca``, ``leopard``), the test split of a dataset we build
 (``DIR@MODEL``) or held-out procedural shapes (``synth-CATEGORY@MODEL``, 16 shapes).
 """
@@ -47,7 +52,7 @@ from litege_core.evaluation.geodesic import (
     named_eval_set,
 )
 from litege_core.evaluation.matching import machine_header
-from litege_core.learned import Predictor, load_shipped
+from litege_core.learned import Predictor, load_model
 from litege_core.learned.frame import candidate_rotations
 
 REPO = Path(__file__).resolve().parents[1]
@@ -106,10 +111,37 @@ def run_case(
         "oracle": int(np.argmin([s[0] for s in network_sums])),
     }
     return {
+        "frames": np.stack(network_sums),
         "network": {rule: network_sums[f] for rule, f in chosen.items()},
         "fused": {rule: error_sums(rows(fused, f), item.gt) for rule, f in chosen.items()},
         "chosen": chosen,
     }
+
+
+def turn_label(rotation: NDArray) -> str:
+    """A signed axis permutation as the axes it puts first, second and third, e.g.
+    ``"+x −z +y"`` for the quarter turn about the first axis."""
+    names = []
+    for row in np.rint(np.asarray(rotation)).astype(int):
+        axis = int(np.flatnonzero(row)[0])
+        names.append(("+" if row[axis] > 0 else "−") + "xyz"[axis])
+    return " ".join(names)
+
+
+def per_frame_rows(group: str, setting: str, frame_sums: NDArray, rotations: NDArray) -> list[str]:
+    """Table rows of the network's pooled error in each candidate frame and the number of
+    shapes whose lowest error is there, for ``frame_sums`` ``(S, F, 2)`` (:func:`error_sums`
+    of each shape in each frame). Listed: the 8 frames that keep the first axis on itself
+    (the PCA frame first) and any other frame some shape errs least in."""
+    pooled = frame_sums.sum(axis=0)
+    errors = 100 * pooled[:, 0] / pooled[:, 1]
+    per_shape = frame_sums[:, :, 0] / frame_sums[:, :, 1]
+    best = np.bincount(np.argmin(per_shape, axis=1), minlength=len(rotations))
+    keep = [f for f in range(len(rotations)) if abs(rotations[f][0, 0]) == 1 or best[f]]
+    return [
+        f"| {group} | {setting} | {f} | {turn_label(rotations[f])} | {errors[f]:.2f} | {best[f]} |"
+        for f in keep
+    ]
 
 
 def load_set(key: str, sources: int, cache: Path | None) -> tuple[str, str, list[EvalShape]]:
@@ -129,6 +161,12 @@ def main() -> None:
     parser.add_argument("--sources", type=int, default=12, help="FPS sources per real shape")
     parser.add_argument("--cache", type=Path, default=None, help="exact rows of the real sets")
     parser.add_argument("--reference", choices=("fused", "knn"), default="fused")
+    parser.add_argument("--model", default=None, help="bundle (name or dir) instead of the sets'")
+    parser.add_argument(
+        "--per-frame",
+        action="store_true",
+        help="also each frame's network error and how many shapes err least in it",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -137,14 +175,21 @@ def main() -> None:
         "| agreement | oracle | frames changed (agreement / oracle) |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
+    frame_table = [
+        "| shapes | setting | frame | axes (PCA frame: +x +y +z) | network error | shapes "
+        "erring least in it |",
+        "|---|---|---:|---|---:|---:|",
+    ]
+    rotations = np.stack(candidate_rotations("all"))
     models: list[str] = []
     for key in [k for k in args.sets.split(",") if k]:
         group, model, shapes = load_set(key, args.sources, args.cache)
         if not shapes:
             print(f"frame_agreement: no shapes for {key}; skipped", file=sys.stderr)
             continue
+        model = args.model or model
         models += [] if model in models else [model]
-        bundle = load_shipped(model)
+        bundle = load_model(model)
         network = Predictor(bundle, fusion="none")
         fused = Predictor(bundle, fusion="graph")
         for setting in args.settings.split(","):
@@ -157,6 +202,8 @@ def main() -> None:
                 for rule in RULES:
                     total = sum(r[kind][rule] for r in results)
                     cells.append(f"{100 * total[0] / total[1]:.2f}")
+            frame_sums = np.stack([r["frames"] for r in results])
+            frame_table += per_frame_rows(group, setting, frame_sums, rotations)
             moved = [sum(r["chosen"][rule] != 0 for r in results) for rule in RULES[1:]]
             table.append(
                 f"| {group} | {setting} | {len(shapes)} | "
@@ -175,6 +222,8 @@ def main() -> None:
         "GT mean 100; shipped models, default head and lattice; seed = shape index"
     )
     print("\n" + "\n".join(table))
+    if args.per_frame:
+        print("\nThe network alone in each candidate frame:\n\n" + "\n".join(frame_table))
 
 
 if __name__ == "__main__":

@@ -52,3 +52,25 @@ def test_error_sums_skip_the_sources_own_zero():
     gt = np.array([[0.0, 1.0, 2.0]])
     pred = np.array([[5.0, 1.5, 1.0]])
     assert np.allclose(frame_agreement.error_sums(pred, gt), [1.5, 3.0])
+
+
+def test_turn_labels_name_the_axes_each_frame_puts_first():
+    assert frame_agreement.turn_label(np.eye(3)) == "+x +y +z"
+    quarter = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    assert frame_agreement.turn_label(quarter) == "+x −z +y"
+
+
+def test_per_frame_rows_pool_errors_and_count_each_shapes_best_frame():
+    rotations = np.stack(frame_agreement.candidate_rotations("all"))
+    sums = np.zeros((3, len(rotations), 2))
+    sums[:, :, 1] = 100.0
+    sums[:, :, 0] = 20.0  # every frame errs by 20 ...
+    sums[0, 0, 0] = sums[1, 0, 0] = 5.0  # ... but the first two shapes err least unturned
+    sums[2, 12, 0] = 1.0  # and the third in a frame that moves the first axis
+    rows = frame_agreement.per_frame_rows("toy", "cloud_300", sums, rotations)
+    frames = [int(row.split(" | ")[2]) for row in rows]
+    assert frames == [0, 1, 2, 3, 4, 5, 6, 7, 12]
+    first = rows[0].split(" | ")
+    assert first[3] == "+x +y +z" and float(first[4]) == 10.0 and first[5] == "2 |"  # 30/300
+    assert rows[1].endswith("| 0 |") and float(rows[1].split(" | ")[4]) == 20.0
+    assert rows[-1].endswith("| 1 |") and float(rows[-1].split(" | ")[4]) == 13.67  # 41/300
