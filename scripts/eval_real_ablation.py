@@ -171,8 +171,9 @@ def main() -> None:
     print(
         f"- date {datetime.now(UTC):%Y-%m-%d %H:%M} UTC; machine "
         f"{cpu_name()}; {len(shapes)} {'' if args.dataset else 'real '}shapes, "
-        f"{len(synthetic)} held-out procedural {real.category}s; {args.sources} FPS sources "
-        "each, exact MMP, unit area, GT mean 100; command `python scripts/eval_real_ablation.py "
+        + (f"{len(synthetic)} held-out procedural {real.category}s; " if synthetic else "")
+        + f"{args.sources} FPS sources each, exact MMP, unit area, GT mean 100; "
+        "command `python scripts/eval_real_ablation.py "
         + " ".join(f"--model {shlex.quote(m)}" for m in models)
         + f" {what} --sources {args.sources}"
         + f" --settings {args.settings}"
