@@ -410,23 +410,7 @@ def register_in_frame(
     choice = select_frame(
         points, predictor.bundle.basis, predictor.device, candidates, margin=margin
     )
-    return predictor.restore(shape, _record(predictor, shape, choice, seed)), choice
-
-
-def _record(predictor, shape: Shape, choice, seed: int):
-    """The :class:`~litege_core.learned.state.ShapeRecord` of ``shape`` in the frame of a
-    :class:`~litege_core.learned.frame.FrameChoice`."""
-    from litege_core.arrays import frozen
-    from litege_core.learned.state import ShapeRecord
-
-    return ShapeRecord(
-        shape_id=shape.content_hash,
-        bundle_hash=predictor.bundle.content_hash,
-        transform=choice.transform,
-        descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
-        residual=choice.residual,
-        seed=int(seed),
-    )
+    return predictor.restore(shape, predictor.frame_record(shape, choice, seed=seed)), choice
 
 
 def frame_turns(count: int, max_degrees: float, seed: int = 0) -> NDArray:

@@ -76,7 +76,7 @@ from litege_core.device import resolve_device
 from litege_core.errors import ArrayShapeError, ArtifactError, InputError
 from litege_core.learned.bundle import ModelBundle
 from litege_core.learned.describe import shape_samples
-from litege_core.learned.frame import turned_frames
+from litege_core.learned.frame import FrameChoice, turned_frames
 from litege_core.learned.fusion import cloud_graph_key, fused_distances, route_trees, shape_graph
 from litege_core.learned.fusion_calibration import DEFAULT_FUSION, FusionCalibration, resolve_fusion
 from litege_core.learned.manifest import (
@@ -340,18 +340,22 @@ class Predictor:
         each described in its own frame (frame probes, test-time augmentation, distillation
         views in the frames training turned). The identity gives :meth:`register`'s state."""
         points = shape_samples(shape, self.n_mesh_samples, seed)
-        records = [
-            ShapeRecord(
-                shape_id=shape.content_hash,
-                bundle_hash=self.bundle.content_hash,
-                transform=choice.transform,
-                descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
-                residual=choice.residual,
-                seed=int(seed),
-            )
-            for choice in turned_frames(points, self.engine, turns)
-        ]
+        choices = turned_frames(points, self.engine, turns)
+        records = [self.frame_record(shape, choice, seed=seed) for choice in choices]
         return self.restore_many([shape] * len(records), records)
+
+    def frame_record(self, shape: Shape, choice: FrameChoice, *, seed: int = 0) -> ShapeRecord:
+        """The :class:`ShapeRecord` of ``shape`` in the frame of a
+        :class:`~litege_core.learned.frame.FrameChoice` (its transform, descriptor and
+        residual), for :meth:`restore`."""
+        return ShapeRecord(
+            shape_id=shape.content_hash,
+            bundle_hash=self.bundle.content_hash,
+            transform=choice.transform,
+            descriptor=frozen(np.asarray(choice.descriptor, dtype=np.float32)),
+            residual=choice.residual,
+            seed=int(seed),
+        )
 
     def restore(self, shape: Shape, record: ShapeRecord) -> ShapeState:
         """Rebuild a state from its :class:`ShapeRecord` without recomputing the descriptor."""
