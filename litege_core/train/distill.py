@@ -17,10 +17,12 @@ rotated; otherwise an augmented cloud exactly like the training views
 (:func:`litege_core.train.augment.augmented_view`: 300–8000 area-weighted points, noise and
 cuts by two planes with the training probabilities, random rotation). Poses are not checked
 for self-intersection (``reject=False``, 15× faster; the student copies the teacher whatever
-the pose). Each view is registered by the teacher (its canonicalization and descriptor), its
-embeddings ``(N, n)`` kept, and :attr:`~DistillConfig.pairs_per_view` pairs labelled once
-by the teacher head: a fraction :attr:`~DistillConfig.near_fraction` are near pairs (a point
-and one of its :attr:`~DistillConfig.near_neighbours` nearest points), the rest uniform.
+the pose). Each view is registered by the teacher (its canonicalization and descriptor; a
+cloud whose augmentation turned its frame, ``AugmentConfig.axis_turn_probability``, in that
+turned frame), its embeddings ``(N, n)`` kept, and :attr:`~DistillConfig.pairs_per_view`
+pairs labelled once by the teacher head: a fraction :attr:`~DistillConfig.near_fraction` are
+near pairs (a point and one of its :attr:`~DistillConfig.near_neighbours` nearest points), the
+rest uniform.
 
 **Loss.** ``Σ w |s − t| / Σ w`` over a batch, ``s``, ``t`` the student and teacher head
 outputs, ``w = (1 + c) / (G_t / Ḡ + c)`` with ``G_t`` the teacher's geodesic (canonical
