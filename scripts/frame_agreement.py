@@ -219,7 +219,7 @@ def main() -> None:
         + f"\n- command `python scripts/frame_agreement.py {shlex.join(sys.argv[1:])}`; "
         f"reference: {args.reference}; 24 candidate frames per shape; exact rows from "
         f"{args.sources} FPS sources per real shape (the stored rows of a dataset), unit area, "
-        "GT mean 100; shipped models, default head and lattice; seed = shape index"
+        "GT mean 100; the models' default head and lattice; seed = shape index"
     )
     print("\n" + "\n".join(table))
     if args.per_frame:
