@@ -13,8 +13,11 @@ trained network as trained), and ``fusion`` (the calibrated graph fusion,
 although the library's default is ``auto``: the labels of earlier runs keep their meaning) and
 ``ttaC`` / ``ttaCxD`` (test-time augmentation: the distances averaged over the PCA frame and
 ``C`` turns of it by at most ``D`` degrees, default 10,
-``litege_core.evaluation.geodesic.frame_turns``) and ``int8`` (the point MLP's products in
-dynamic int8, ``Predictor(bundle, precision="int8", embed_precision="int8")``: the small
+``litege_core.evaluation.geodesic.frame_turns``), ``ttaflip`` (averaged over the PCA frame and
+its half turn about the first axis: the second and third axes' signs, which the PCA frame's
+median rule decides, flipped) or ``ttasigns`` (over the 4 proper sign flips of the PCA axes,
+``litege_core.learned.frame.candidate_rotations("signs")``) and ``int8`` (the point MLP's
+products in dynamic int8, ``Predictor(bundle, precision="int8", embed_precision="int8")``: the small
 head's product too) or ``bf16`` (the point MLP's and the head's products in bfloat16,
 ``precision="bfloat16", embed_precision="bfloat16"``); ``--no-baselines`` leaves out
 heat and kNN; ``--knn K`` adds a kNN-graph Dijkstra row with ``K`` neighbours. ``--dataset DIR``
@@ -59,14 +62,30 @@ from litege_core.evaluation.geodesic import (
 )
 from litege_core.evaluation.speed import cpu_name
 from litege_core.learned import Predictor, load_model
+from litege_core.learned.frame import candidate_rotations
 
 TTA_OPTION = re.compile(r"tta(\d+)(?:x(\d+(?:\.\d+)?))?")
+SIGN_FLIPS = candidate_rotations("signs")
+TTA_FLIPS = {
+    "ttaflip": np.stack([SIGN_FLIPS[0], np.diag([1.0, -1.0, -1.0])]),
+    "ttasigns": np.stack(SIGN_FLIPS),
+}
+"""The test-time augmentations over sign flips of the PCA axes: option → ``(C, 3, 3)`` turns."""
+
+
+def is_tta(option: str) -> bool:
+    """Whether ``option`` names a test-time augmentation (``ttaC[xD]``, ``ttaflip``,
+    ``ttasigns``)."""
+    return option in TTA_FLIPS or TTA_OPTION.fullmatch(option) is not None
 
 
 def frame_turns_of(name: str) -> NDArray | None:
-    """The ``ttaC[xD]`` option of ``NAME_OR_DIR@OPTIONS`` as :func:`frame_turns`, or ``None``."""
+    """The ``ttaC[xD]`` option of ``NAME_OR_DIR@OPTIONS`` as :func:`frame_turns`, or the turns
+    of ``ttaflip`` / ``ttasigns`` (:data:`TTA_FLIPS`), or ``None``."""
     _, _, text = name.partition("@")
     for option in filter(None, text.split("+")):
+        if option in TTA_FLIPS:
+            return TTA_FLIPS[option]
         found = TTA_OPTION.fullmatch(option)
         if found:
             return frame_turns(int(found[1]), float(found[2] or 10.0))
@@ -78,9 +97,9 @@ def load_predictor(name: str) -> Predictor:
     ``small`` / ``fullhead`` (head; default ``auto``), ``full`` / ``bcc`` / ``stride2``
     (descriptor lattice; default ``auto``), ``fusion`` (the bundle's calibrated graph fusion),
     ``int8`` (the point MLP and the small head in dynamic int8);
-    ``ttaC[xD]`` is read by :func:`frame_turns_of`."""
+    ``ttaC[xD]``, ``ttaflip`` and ``ttasigns`` are read by :func:`frame_turns_of`."""
     name, _, text = name.partition("@")
-    options = {o for o in text.split("+") if o and not TTA_OPTION.fullmatch(o)}
+    options = {o for o in text.split("+") if o and not is_tta(o)}
     unknown = options - {"small", "fullhead", "full", "stride2", "bcc", "fusion", "int8", "bf16"}
     if unknown:
         raise SystemExit(f"unknown model options {sorted(unknown)} in {name}@{text}")

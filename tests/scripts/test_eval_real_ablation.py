@@ -19,6 +19,19 @@ def test_tta_option_names_the_frame_turns(eval_real_ablation):
     )
 
 
+def test_sign_flip_options_turn_the_pca_axes(eval_real_ablation):
+    flip = eval_real_ablation.frame_turns_of("humans@fusion+ttaflip")
+    np.testing.assert_array_equal(flip, np.stack([np.eye(3), np.diag([1.0, -1.0, -1.0])]))
+    signs = eval_real_ablation.frame_turns_of("humans@ttasigns")
+    assert signs.shape == (4, 3, 3)
+    np.testing.assert_array_equal(signs[0], np.eye(3))
+    for turn in signs:  # proper sign flips: ±1 on the diagonal, determinant 1
+        np.testing.assert_array_equal(np.abs(turn), np.eye(3))
+        assert np.linalg.det(turn) == pytest.approx(1.0)
+    predictor = eval_real_ablation.load_predictor("humans@fusion+ttaflip")
+    assert predictor.fusion is not None
+
+
 def test_load_predictor_reads_the_other_options_beside_tta(eval_real_ablation):
     predictor = eval_real_ablation.load_predictor("quadrupeds@fullhead+full+tta4")
     assert predictor.head == "full" and predictor.descriptor_lattice == "full"
