@@ -1,7 +1,8 @@
 """Run a benchmark command and write its stdout into a section of BENCHMARKS.md.
 
 Sections are delimited by ``<!-- BEGIN name -->`` / ``<!-- END name -->`` markers; the section
-is created at the end of the file if missing. Numbers in BENCHMARKS.md are therefore always the
+is created at the end of the file if missing, and the contents table at the top is rewritten
+(``scripts/benchmarks_contents.py``). Numbers in BENCHMARKS.md are therefore always the
 verbatim output of a script in this repository, never typed by hand.
 
 Usage: python scripts/update_benchmarks.py SECTION -- python scripts/bench_descriptor.py --runs 30
@@ -35,7 +36,9 @@ def main() -> None:
         sys.stderr.write(result.stdout + result.stderr)
         sys.exit(f"{command[0]} exited with status {result.returncode}; {name} left unchanged")
     text = BENCHMARKS.read_text() if BENCHMARKS.exists() else "# Benchmarks\n"
-    BENCHMARKS.write_text(replace_section(text, name, result.stdout))
+    from benchmarks_contents import with_contents  # its table lists the new section too
+
+    BENCHMARKS.write_text(with_contents(replace_section(text, name, result.stdout)))
     print(result.stdout)
 
 

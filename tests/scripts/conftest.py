@@ -65,3 +65,8 @@ def signed_error() -> ModuleType:
 @pytest.fixture(scope="module")
 def bench_workloads() -> ModuleType:
     return load_script("bench_workloads")
+
+
+@pytest.fixture(scope="module")
+def benchmarks_contents() -> ModuleType:
+    return load_script("benchmarks_contents")
