@@ -212,10 +212,9 @@ def main() -> None:
     (out / "section.md").write_text(section)
     if args.benchmarks:
         sys.path.insert(0, str(ROOT / "scripts"))
-        from update_benchmarks import BENCHMARKS, replace_section
+        from update_benchmarks import write_section
 
-        text = BENCHMARKS.read_text()
-        BENCHMARKS.write_text(replace_section(text, "train-folder", section))
+        write_section("train-folder", section)
 
 
 if __name__ == "__main__":

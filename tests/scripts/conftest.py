@@ -68,5 +68,5 @@ def bench_workloads() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def benchmarks_contents() -> ModuleType:
-    return load_script("benchmarks_contents")
+def update_benchmarks() -> ModuleType:
+    return load_script("update_benchmarks")

@@ -1,4 +1,4 @@
-"""scripts/benchmarks_contents.py: GitHub's anchors, titles read, the table kept current."""
+"""scripts/update_benchmarks.py: its contents table (GitHub anchors, titles, kept current)."""
 
 from __future__ import annotations
 
@@ -33,22 +33,22 @@ text
 """
 
 
-def test_slug_follows_githubs_rules(benchmarks_contents: ModuleType) -> None:
-    assert benchmarks_contents.slug("B shapes × 1 query, ['cpu']") == "b-shapes--1-query-cpu"
-    shipped = benchmarks_contents.slug("Shipped `humans` model — shipped")
+def test_slug_follows_githubs_rules(update_benchmarks: ModuleType) -> None:
+    assert update_benchmarks.slug("B shapes × 1 query, ['cpu']") == "b-shapes--1-query-cpu"
+    shipped = update_benchmarks.slug("Shipped `humans` model — shipped")
     assert shipped == "shipped-humans-model--shipped"
-    assert benchmarks_contents.slug("A fused pair 26.7 → 10.5 ms") == "a-fused-pair-267--105-ms"
+    assert update_benchmarks.slug("A fused pair 26.7 → 10.5 ms") == "a-fused-pair-267--105-ms"
 
 
-def test_repeated_headings_are_numbered_and_fences_skipped(benchmarks_contents: ModuleType) -> None:
-    found = benchmarks_contents.anchors(DOC)
+def test_repeated_headings_are_numbered_and_fences_skipped(update_benchmarks: ModuleType) -> None:
+    found = update_benchmarks.anchors(DOC)
     assert found.count("real-shape-ablation-tosca-animals-real") == 1
     assert "real-shape-ablation-tosca-animals-real-1" in found
     assert not any("shell-comment" in anchor for anchor in found)
 
 
-def test_sections_read_title_issues_and_outcome(benchmarks_contents: ModuleType) -> None:
-    first, second, third, plain = benchmarks_contents.sections(DOC)
+def test_sections_read_title_issues_and_outcome(update_benchmarks: ModuleType) -> None:
+    first, second, third, plain = update_benchmarks.sections(DOC)
     assert (first.name, first.issues, first.outcome) == ("first", [14], "shipped")
     assert first.anchor.startswith("graph-fusion-chords-cut-issue-14")
     # the first block's subheading took the unnumbered anchor
@@ -57,18 +57,18 @@ def test_sections_read_title_issues_and_outcome(benchmarks_contents: ModuleType)
     assert (plain.title, plain.anchor) == ("", "")
 
 
-def test_contents_placed_once_then_replaced(benchmarks_contents: ModuleType) -> None:
-    once = benchmarks_contents.with_contents(DOC)
+def test_contents_placed_once_then_replaced(update_benchmarks: ModuleType) -> None:
+    once = update_benchmarks.with_contents(DOC)
     assert once.index("<!-- BEGIN contents -->") < once.index("<!-- BEGIN first -->")
     assert once.index("Intro paragraph.") < once.index("<!-- BEGIN contents -->")
-    assert benchmarks_contents.with_contents(once) == once
+    assert update_benchmarks.with_contents(once) == once
     assert "- the dev sets" not in once  # no snapshot of that kind in DOC
     assert "- speed, every workload: [Speed at the end of the session" in once
     # the contents heading is reserved: a later heading of the same name would be numbered
-    assert benchmarks_contents.anchors(once)[1] == "contents"
+    assert update_benchmarks.anchors(once)[1] == "contents"
 
 
-def test_the_repositorys_contents_are_current(benchmarks_contents: ModuleType) -> None:
-    text = benchmarks_contents.BENCHMARKS.read_text()
-    current = benchmarks_contents.with_contents(text)
-    assert current == text, "run python scripts/benchmarks_contents.py"
+def test_the_repositorys_contents_are_current(update_benchmarks: ModuleType) -> None:
+    text = update_benchmarks.BENCHMARKS.read_text()
+    current = update_benchmarks.with_contents(text)
+    assert current == text, "run python scripts/update_benchmarks.py --contents"
