@@ -184,6 +184,14 @@ def main() -> None:
         help="head that prunes the graph (auto: the small head where the bundle ships one)",
     )
     parser.add_argument(
+        "--network",
+        choices=("full", "default"),
+        default="full",
+        help="the network the fusion blends: full (the trained head on the full lattice) or "
+        "default (the configuration a Predictor runs by default: the small head on the stride2 "
+        "lattice where the bundle has them)",
+    )
+    parser.add_argument(
         "--shortcut-cut",
         default=",".join(f"{c:g}" for c in SHORTCUT_CUT_CANDIDATES),
         help="cuts of the shipped shortcut scorer to try per density (1: none)",
@@ -200,8 +208,9 @@ def main() -> None:
     torch.set_num_threads(1)
     start = time.perf_counter()
     bundle = load_model(args.model)
-    predictor = Predictor(  # shipped recipe; the network alone
-        bundle, head="full", descriptor_lattice="full", fusion="none"
+    configuration = "full" if args.network == "full" else "auto"
+    predictor = Predictor(  # the network alone
+        bundle, head=configuration, descriptor_lattice=configuration, fusion="none"
     )
     veto_head = args.veto_head
     if veto_head == "auto":
