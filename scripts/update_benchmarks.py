@@ -17,6 +17,7 @@ Usage:
 
 from __future__ import annotations
 
+import bisect
 import re
 import subprocess
 import sys
@@ -93,16 +94,10 @@ def slug(heading: str) -> str:
     return kept.replace(" ", "-")
 
 
-def headings(text: str, start: int = 0, end: int | None = None) -> list[re.Match[str]]:
-    """The Markdown headings of ``text[start:end]`` (positions in ``text``), those inside
-    fenced code blocks left out."""
-    end = len(text) if end is None else end
+def headings(text: str) -> list[re.Match[str]]:
+    """The Markdown headings of ``text``, those inside fenced code blocks left out."""
     fences = [(m.start(), m.end()) for m in _FENCE.finditer(text)]
-    return [
-        m
-        for m in _HEADING.finditer(text, start, end)
-        if not any(a <= m.start() < b for a, b in fences)
-    ]
+    return [m for m in _HEADING.finditer(text) if not any(a <= m.start() < b for a, b in fences)]
 
 
 def anchors(text: str, reserved: tuple[str, ...] = ()) -> list[str]:
@@ -124,21 +119,17 @@ def sections(text: str) -> list[Section]:
     """Every block of ``text`` but ``contents``, in document order, anchored as they will be
     once the contents section (whose only heading is :data:`TITLE`) stands before them."""
     body = _BLOCK.sub(lambda m: "" if m.group(1) == CONTENTS else m.group(0), text)
-    heading_anchors = dict(
-        zip(
-            (m.start() for m in headings(body)),
-            anchors(body, reserved=(slug(TITLE),)),
-            strict=True,
-        )
-    )
+    found = headings(body)
+    starts = [m.start() for m in found]
+    labelled = list(zip(found, anchors(body, reserved=(slug(TITLE),)), strict=True))
     out = []
     for block in _BLOCK.finditer(body):
-        inside = headings(body, block.start(2), block.end(2))
-        if not inside:
-            out.append(Section(block.group(1), "", ""))
+        first = bisect.bisect_left(starts, block.start(2))  # the block's first heading, if any
+        if first < len(starts) and starts[first] < block.end(2):
+            heading, anchor = labelled[first]
+            out.append(Section(block.group(1), heading.group(2), anchor))
         else:
-            first = inside[0]
-            out.append(Section(block.group(1), first.group(2), heading_anchors[first.start()]))
+            out.append(Section(block.group(1), "", ""))
     return out
 
 
