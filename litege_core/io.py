@@ -1,6 +1,7 @@
 """Loading meshes and point clouds from files or bytes into validated :class:`Shape` objects.
 
-Meshes: OBJ, PLY, OFF, STL, GLB. Point clouds: PLY (no faces), XYZ (text, first three
+Meshes: OBJ, PLY, OFF, STL, GLB, glTF (``.gltf``: buffers embedded as ``data:`` URIs, or, when
+loaded from a path, in files beside it). Point clouds: PLY (no faces), XYZ (text, first three
 columns), NPY (``(N, 3)`` array, no pickle). trimesh processing is off: vertices keep the
 user's order and are never merged, except for STL, which stores a triangle soup without shared
 vertices; there exact duplicate corners are merged in first-occurrence order so the mesh is
@@ -13,7 +14,7 @@ by :class:`~litege_core.validate.ShapeLimits` *before* anything of the declared 
 
 * Declared sizes are checked first: PLY element counts, OFF counts, the NPY header's shape
   and dtype (also against the bytes that follow it), binary STL's triangle count, the GLB's
-  JSON (nodes, node instances after expanding the scene graph, instanced vertices and
+  or glTF's JSON (nodes, node instances after expanding the scene graph, instanced vertices and
   triangles), and for OBJ, XYZ and ASCII STL the number of vertex and face lines counted in
   the raw bytes. Too large: :class:`~litege_core.errors.ShapeTooLargeError`.
 * Headers must tell the truth: an ASCII PLY or OFF body must hold exactly the declared
@@ -27,13 +28,17 @@ by :class:`~litege_core.validate.ShapeLimits` *before* anything of the declared 
   fixed-size records by ``np.frombuffer``; other binary PLY, STL, GLB and OBJ keep trimesh's
   numpy-based readers, behind the size checks above.
 * Scene formats are bounded by :attr:`ShapeLimits.max_scene_nodes` (trimesh needs about a
-  minute for a GLB of 200,000 nodes).
+  minute for a GLB of 200,000 nodes). Their materials and textures are never read.
+* A ``.gltf`` loaded from bytes (an upload) must embed its buffers; loaded from a path, a
+  buffer may be a file beside it, named by a relative URI that stays in the file's folder, and
+  the file and its buffers together count against :attr:`ShapeLimits.max_file_bytes`.
 
 These functions are synchronous and CPU-bound: a server must call them off its event loop.
 """
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import math
@@ -44,6 +49,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote, urlparse
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,7 +65,7 @@ from litege_core.errors import (
 from litege_core.shape import Shape, ShapeKind
 from litege_core.validate import DEFAULT_LIMITS, ShapeLimits
 
-MESH_FORMATS = frozenset({"obj", "ply", "off", "stl", "glb"})
+MESH_FORMATS = frozenset({"obj", "ply", "off", "stl", "glb", "gltf"})
 POINT_FORMATS = frozenset({"ply", "xyz", "npy"})
 SUPPORTED_FORMATS = MESH_FORMATS | POINT_FORMATS
 
@@ -124,6 +130,7 @@ def load_shape(
         UnsupportedFormatError, ShapeFileError, ShapeTooLargeError and every validation
         error of :meth:`Shape.from_arrays`.
     """
+    folder = None  # where a glTF's external buffers lie (none for bytes)
     if isinstance(source, bytes | bytearray | memoryview):
         if file_format is None:
             raise UnsupportedFormatError("file_format is required when loading from bytes")
@@ -137,12 +144,15 @@ def load_shape(
             raise ShapeFileError(f"cannot read {path}: {exc.strerror}") from exc
         _check_size(size, limits)
         data = path.read_bytes()
+        folder = path.parent
     file_format = file_format.lower().lstrip(".")
     if file_format not in SUPPORTED_FORMATS:
         raise UnsupportedFormatError(
             f"unsupported format {file_format!r}; supported: {sorted(SUPPORTED_FORMATS)}"
         )
     _check_size(len(data), limits)
+    if file_format == "gltf" and folder is not None:
+        data = _embed_gltf_buffers(data, folder, limits)
     vertices, faces = read_arrays(data, file_format, limits)
     if kind is None:
         kind = ShapeKind.MESH if faces is not None else ShapeKind.POINT_CLOUD
@@ -202,6 +212,8 @@ def read_arrays(
         _check_stl(data, limits)
     elif file_format == "glb":
         _check_glb(data, limits)
+    elif file_format == "gltf":
+        _check_gltf_json(data, limits)
     return _read_with_trimesh(data, file_format)
 
 
@@ -652,7 +664,7 @@ def _ply_faces(values: NDArray, counts: NDArray, face: _PlyElement) -> NDArray:
     return _triangulate(first + 1, sizes, values, "ply")
 
 
-# ----------------------------------------------------------------------------- STL, GLB
+# ----------------------------------------------------------------------------- STL, glTF
 
 
 def _check_stl(data: bytes, limits: ShapeLimits) -> None:
@@ -682,12 +694,123 @@ def _check_glb(data: bytes, limits: ShapeLimits) -> None:
         raise ShapeFileError(f"cannot parse GLB file: {exc}") from exc
 
 
-def _check_gltf(document: dict[str, Any], limits: ShapeLimits) -> None:
+def _gltf_document(data: bytes) -> dict[str, Any]:
+    """The JSON document of a ``.gltf`` file.
+
+    Raises:
+        ShapeFileError: not a JSON object.
+    """
+    try:
+        document = json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ShapeFileError(f"cannot parse glTF file: {exc}") from exc
+    if not isinstance(document, dict):
+        raise ShapeFileError("cannot parse glTF file: the JSON is not an object")
+    return document
+
+
+def _external_buffers(document: dict[str, Any]) -> list[tuple[int, str]]:
+    """``(index, uri)`` of the buffers of a glTF document stored outside it (not ``data:``)."""
+    buffers = document.get("buffers", [])
+    if not isinstance(buffers, list):
+        raise ShapeFileError("cannot parse glTF file: 'buffers' is not a list")
+    out = []
+    for index, buffer in enumerate(buffers):
+        uri = buffer.get("uri") if isinstance(buffer, dict) else None
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            out.append((index, uri))
+    return out
+
+
+def _check_gltf_json(data: bytes, limits: ShapeLimits) -> None:
+    """Sizes of a ``.gltf`` (as :func:`_check_glb`), and every buffer embedded in it.
+
+    Raises:
+        ShapeFileError: not glTF JSON, or a buffer in a separate file (bytes cannot name it).
+        ShapeTooLargeError: more nodes, vertices or faces than ``limits`` allow.
+    """
+    document = _gltf_document(data)
+    external = _external_buffers(document)
+    if external:
+        index, uri = external[0]
+        raise ShapeFileError(
+            f"glTF buffer {index} is stored in a separate file ({uri!r}); send a .glb, or a "
+            ".gltf whose buffers are embedded as data: URIs (or load the .gltf from its path)"
+        )
+    try:
+        _check_gltf(document, limits, "gltf")
+    except LiteGEError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        raise ShapeFileError(f"cannot parse glTF file: {exc}") from exc
+
+
+def self_contained_gltf(path: str | os.PathLike, limits: ShapeLimits = DEFAULT_LIMITS) -> bytes:
+    """The ``.gltf`` file at ``path`` with its buffer files embedded (:func:`load_shape`'s
+    reading of it; also what identifies its content).
+
+    Raises:
+        ShapeFileError, ShapeTooLargeError: as :func:`_embed_gltf_buffers`.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ShapeFileError(f"cannot read {path}: {exc.strerror}") from exc
+    return _embed_gltf_buffers(data, path.parent, limits)
+
+
+def _embed_gltf_buffers(data: bytes, folder: Path, limits: ShapeLimits = DEFAULT_LIMITS) -> bytes:
+    """A ``.gltf`` file's bytes with the buffers it keeps in files of ``folder`` embedded as
+    ``data:`` URIs (the bytes themselves where it keeps none there).
+
+    A buffer's URI must be relative and name a file inside ``folder`` (no ``..`` out of it, no
+    scheme); the file and its buffers together must fit ``limits.max_file_bytes``.
+
+    Raises:
+        ShapeFileError: unparsable JSON, a URI outside ``folder``, an unreadable buffer file.
+        ShapeTooLargeError: the file and its buffers exceed ``limits.max_file_bytes``.
+    """
+    document = _gltf_document(data)
+    external = _external_buffers(document)
+    if not external:
+        return data
+    root = folder.resolve()
+    total = len(data)
+    for index, uri in external:
+        name = unquote(uri)
+        target = (root / name).resolve()
+        if urlparse(uri).scheme or Path(name).is_absolute() or not target.is_relative_to(root):
+            raise ShapeFileError(
+                f"glTF buffer {index} names {uri!r}: a buffer file must lie in the glTF's folder"
+            )
+        try:
+            total += target.stat().st_size
+            if total > limits.max_file_bytes:
+                raise ShapeTooLargeError(
+                    f"glTF file and its buffers have {total} bytes or more, the limit is "
+                    f"{limits.max_file_bytes}",
+                    n_bytes=total,
+                    limit=limits.max_file_bytes,
+                )
+            raw = target.read_bytes()
+        except OSError as exc:
+            raise ShapeFileError(
+                f"cannot read glTF buffer {index} ({uri!r}): {exc.strerror}"
+            ) from exc
+        encoded = base64.b64encode(raw).decode("ascii")
+        document["buffers"][index]["uri"] = f"data:application/octet-stream;base64,{encoded}"
+    return json.dumps(document).encode()
+
+
+def _check_gltf(document: dict[str, Any], limits: ShapeLimits, file_format: str = "glb") -> None:
+    """Nodes, node instances, instanced vertices and triangles of a glTF document (the JSON of
+    a ``.gltf`` or of a GLB's first chunk) against ``limits``."""
     nodes = document.get("nodes", [])
     bound = limits.max_scene_nodes
     if len(nodes) > bound:
         raise ShapeTooLargeError(
-            f"GLB file has {len(nodes)} nodes, the limit is {bound}",
+            f"{file_format.upper()} file has {len(nodes)} nodes, the limit is {bound}",
             n_nodes=len(nodes),
             limit=bound,
         )
@@ -711,7 +834,7 @@ def _check_gltf(document: dict[str, Any], limits: ShapeLimits) -> None:
         mesh_sizes.append((n_vertices, n_faces))
     # trimesh reads every mesh, whether the scene uses it or not, then every instance
     defined_vertices = sum(v for v, _ in mesh_sizes)
-    _check_counts("glb", limits, defined_vertices, sum(f for _, f in mesh_sizes), "defines")
+    _check_counts(file_format, limits, defined_vertices, sum(f for _, f in mesh_sizes), "defines")
     scenes = document.get("scenes")
     if scenes:
         roots = list(scenes[int(document.get("scene", 0))].get("nodes", []))
@@ -725,7 +848,8 @@ def _check_gltf(document: dict[str, Any], limits: ShapeLimits) -> None:
         visited += 1
         if visited > bound:
             raise ShapeTooLargeError(
-                f"GLB scene expands to more than {bound} node instances, the limit",
+                f"{file_format.upper()} scene expands to more than {bound} node instances, "
+                "the limit",
                 limit=bound,
             )
         node = nodes[index]
@@ -734,7 +858,7 @@ def _check_gltf(document: dict[str, Any], limits: ShapeLimits) -> None:
             n_vertices += mesh_vertices
             n_faces += mesh_faces
         stack.extend(node.get("children", []))
-    _check_counts("glb", limits, n_vertices, n_faces)
+    _check_counts(file_format, limits, n_vertices, n_faces)
 
 
 # ----------------------------------------------------------------------------- trimesh
@@ -744,8 +868,16 @@ def _read_with_trimesh(data: bytes, file_format: str) -> tuple[NDArray, NDArray 
     import trimesh
 
     try:
+        # materials and textures are never needed (and a glTF's images may be files we lack)
+        scene_options: dict[str, Any] = (
+            {"skip_materials": True} if file_format in {"glb", "gltf"} else {}
+        )
         loaded = trimesh.load(
-            io.BytesIO(data), file_type=file_format, process=False, maintain_order=True
+            io.BytesIO(data),
+            file_type=file_format,
+            process=False,
+            maintain_order=True,
+            **scene_options,
         )
     except LiteGEError:
         raise
@@ -834,6 +966,9 @@ def _write_shape(shape: Shape, path: str | os.PathLike, file_format: str) -> Non
     if file_format == "npy":
         np.save(path, np.asarray(shape.vertices), allow_pickle=False)
         return
+    if file_format == "gltf":
+        _write_gltf(shape, path)
+        return
     if file_format == "xyz":
         np.savetxt(path, shape.vertices, fmt="%.17g")
         return
@@ -852,3 +987,14 @@ def _write_shape(shape: Shape, path: str | os.PathLike, file_format: str) -> Non
     # trimesh's exporters take a str or a pathlib path, not any os.PathLike
     target = path if isinstance(path, str) else Path(path)
     geometry.export(target, file_type=file_format, **options)
+
+
+def _write_gltf(shape: Shape, path: str | os.PathLike) -> None:
+    """One self-contained ``.gltf`` (its buffer embedded as a ``data:`` URI; float32
+    positions, as GLB)."""
+    import trimesh
+    from trimesh.exchange.gltf import export_gltf
+
+    mesh = trimesh.Trimesh(np.asarray(shape.vertices), np.asarray(shape.faces), process=False)
+    files = export_gltf(trimesh.Scene(mesh), embed_buffers=True)
+    Path(path).write_bytes(files["model.gltf"])

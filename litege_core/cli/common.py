@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from litege_core.learned import NumpyPredictor, Predictor
 
 SHAPE_KINDS = ("mesh", "point_cloud")
-SHAPE_FILE_HELP = "mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, XYZ, NPY)"
+SHAPE_FILE_HELP = "mesh or point-cloud file (OBJ, PLY, OFF, STL, GLB, glTF, XYZ, NPY)"
 
 
 def parse_indices(text: str, what: str) -> list[int]:

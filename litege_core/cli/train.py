@@ -224,7 +224,7 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     geodesic.add_argument(
         "--meshes",
         default=None,
-        help="a folder of meshes (obj, ply, off, stl, glb): ground truth, training, held-out "
+        help="a folder of meshes (obj, ply, off, stl, glb, gltf): ground truth, training, held-out "
         "comparison and a bundle with its model card in --out, in one command",
     )
     geodesic.add_argument("--resume", default=None, help="checkpoint (RUN/checkpoints/last…)")

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litege_core.errors import ComputationError, EmptyShapeError, InputError, LiteGEError
+from litege_core.io import MESH_FORMATS, load_shape, self_contained_gltf
 from litege_core.synth.meshops import (
     collapse_slivers,
     largest_component,
@@ -38,9 +39,12 @@ from litege_core.synth.meshops import (
     unit_area_scale,
     weld,
 )
+from litege_core.validate import ShapeLimits
 
 FOLDER_VERSION = "folder-1"
-MESH_SUFFIXES = ("obj", "ply", "off", "stl", "glb")
+FOLDER_LIMITS = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
+"""Size bounds of a collection's mesh files (the user's own files: wider than an upload's)."""
+MESH_SUFFIXES = tuple(sorted(MESH_FORMATS))
 """Mesh formats of :data:`litege_core.io.MESH_FORMATS` (files of point-cloud-only formats,
 XYZ and NPY, are skipped; a PLY without faces is listed and refused by name when loaded)."""
 
@@ -106,12 +110,24 @@ def split_files(
 
 
 def folder_digest(directory: str | Path, files: tuple[str, ...]) -> str:
-    """SHA-256 (hex, 16 characters) over the names and bytes of ``files``."""
+    """SHA-256 (hex, 16 characters) over the names and bytes of ``files`` (a ``.gltf``'s with
+    the buffer files it names embedded, :func:`~litege_core.io.self_contained_gltf`)."""
     digest = hashlib.sha256()
     for name in files:
         digest.update(name.encode())
-        digest.update(hashlib.sha256((Path(directory) / name).read_bytes()).digest())
+        digest.update(hashlib.sha256(_content(Path(directory) / name)).digest())
     return digest.hexdigest()[:16]
+
+
+def _content(path: Path) -> bytes:
+    """The bytes that make the mesh file at ``path``: its own, and a ``.gltf``'s buffer files
+    (its own alone where they cannot be read: loading it will say why)."""
+    if path.suffix.lower() == ".gltf":
+        try:
+            return self_contained_gltf(path, FOLDER_LIMITS)
+        except LiteGEError:
+            pass
+    return path.read_bytes()
 
 
 @dataclass(frozen=True)
@@ -139,11 +155,7 @@ def prepare_mesh(path: str) -> PreparedMesh:
 
 
 def _prepare_mesh(path: str) -> PreparedMesh:
-    from litege_core.io import load_shape
-    from litege_core.validate import ShapeLimits
-
-    limits = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
-    shape = load_shape(path, limits=limits)
+    shape = load_shape(path, limits=FOLDER_LIMITS)
     if shape.faces is None:
         raise EmptyShapeError(
             "the file has no faces (a point cloud): training on a folder needs triangle "

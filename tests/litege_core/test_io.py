@@ -30,7 +30,7 @@ def mesh(sphere_mesh):
     return Shape.from_arrays(vertices.astype(np.float32).astype(np.float64), faces)
 
 
-@pytest.mark.parametrize("fmt", ["obj", "ply", "off", "glb"])
+@pytest.mark.parametrize("fmt", ["obj", "ply", "off", "glb", "gltf"])
 def test_mesh_round_trip_keeps_vertex_order_exactly(tmp_path, mesh, fmt):
     path = tmp_path / f"shape.{fmt}"
     save_shape(mesh, path)
@@ -122,6 +122,8 @@ def test_xyz_with_normals_and_comments():
         (b"hello world garbage\n\x00\x01", "off", ShapeFileError),
         (b"hello world garbage\n\x00\x01", "stl", ShapeFileError),
         (b"hello world garbage\n\x00\x01", "glb", ShapeFileError),
+        (b"hello world garbage\n\x00\x01", "gltf", ShapeFileError),
+        (b"[1, 2, 3]", "gltf", ShapeFileError),
         (b"\x93NUMPY garbage", "npy", ShapeFileError),
         (b"0 0\n1 1\n", "xyz", ShapeFileError),
         (b"0 0 x\n", "xyz", ShapeFileError),

@@ -15,6 +15,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from litege_core.io import load_shape, save_shape
 from litege_core.learned import Predictor, load_shipped
 from service import grpc_stubs
 from service.client import LiteGEClient, ProblemError
@@ -78,6 +79,19 @@ def test_upload_is_idempotent_across_formats(service, mesh_bytes, test_shape):
     assert body["kind"] == "mesh" and body["n_points"] == shape.n_points
     assert body["n_faces"] == shape.n_faces and body["model"] == "quadrupeds"
     assert math.isfinite(body["ood_score"])
+
+
+def test_gltf_and_glb_uploads_are_the_same_shape(service, test_shape, tmp_path):
+    for file_format in ("gltf", "glb"):
+        save_shape(test_shape(4), tmp_path / f"a.{file_format}")
+    with httpx.Client(base_url=service.base_url) as http:
+        ids = {
+            http.post("/shapes", files={"file": (name, (tmp_path / name).read_bytes())}).json()[
+                "shape_id"
+            ]
+            for name in ("a.gltf", "a.glb")
+        }
+    assert ids == {load_shape(tmp_path / "a.glb").content_hash}
 
 
 def test_geodesic_matches_the_library(client, registered, reference):
@@ -151,6 +165,13 @@ def test_get_and_delete(client, mesh_bytes):
     assert again.value.status == 404
 
 
+GLTF_WITH_BUFFER_FILE = {
+    "asset": {"version": "2.0"},
+    "buffers": [{"uri": "model.bin", "byteLength": 36}],
+}
+"""A ``.gltf`` whose buffer is a separate file, which an upload cannot bring."""
+
+
 def _bad_requests(shape_id: str) -> list[tuple[str, dict, int, str]]:
     nan_json = '{"vertices": [[0, 0, 0], [1, 0, 0], [0, NaN, 0]], "faces": [[0, 1, 2]]}'
     return [
@@ -161,6 +182,12 @@ def _bad_requests(shape_id: str) -> list[tuple[str, dict, int, str]]:
             "malformed-file",
         ),
         ("unknown extension", {"files": {"file": ("x.dwg", b"abc")}}, 415, "unsupported-format"),
+        (
+            "glTF naming a buffer file",
+            {"files": {"file": ("x.gltf", json.dumps(GLTF_WITH_BUFFER_FILE).encode())}},
+            400,
+            "malformed-file",
+        ),
         (
             "no file part",
             {"data": {"kind": "mesh"}, "files": {"other": ("a", b"")}},
