@@ -224,8 +224,9 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     geodesic.add_argument(
         "--meshes",
         default=None,
-        help="a folder of meshes (obj, ply, off, stl, glb, gltf): ground truth, training, held-out "
-        "comparison and a bundle with its model card in --out, in one command",
+        help="a folder of meshes (obj, ply, off, stl, glb, gltf; a rigged, animated glTF is "
+        "posed by its own clips): ground truth, training, held-out comparison and a bundle "
+        "with its model card in --out, in one command",
     )
     geodesic.add_argument("--resume", default=None, help="checkpoint (RUN/checkpoints/last…)")
     geodesic.add_argument(

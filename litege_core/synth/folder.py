@@ -7,7 +7,13 @@ file (seeded), so no mesh of the evaluation splits is seen in training.
 A shape is a pure function of ``(file, seed)``, so a small collection yields many shapes:
 
 1. the file is loaded once per process, welded, reduced to its largest connected component,
-   repaired where it is not edge-manifold, centred and scaled to unit area;
+   repaired where it is not edge-manifold, centred and scaled to unit area. A rigged, animated
+   glTF (GLB or ``.gltf``: a skinned mesh and at least one animation; with
+   ``FolderSettings.poses``) is loaded as a rig instead (:func:`~litege_core.synth.rigged.
+   load_rigged`: its skinned body, one closed manifold) and each shape takes a pose of its
+   own: a clip drawn among the file's animations and a time in it, posed by linear blend
+   skinning (the clip's pose as it is: no joint noise, no bend, which a user's rig need not
+   tolerate). A glTF whose skin cannot be read so is used in its stored pose;
 2. with probability ``stretch_probability`` a smooth non-rigid stretch is applied
    (:func:`~litege_core.synth.meshops.smooth_stretch`: an anisotropic scale along random axes
    plus low-frequency sine displacements, a diffeomorphism);
@@ -39,9 +45,10 @@ from litege_core.synth.meshops import (
     unit_area_scale,
     weld,
 )
+from litege_core.synth.rigged import PoseSettings, RiggedModel, load_rigged, pose_model
 from litege_core.validate import ShapeLimits
 
-FOLDER_VERSION = "folder-1"
+FOLDER_VERSION = "folder-2"
 FOLDER_LIMITS = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
 """Size bounds of a collection's mesh files (the user's own files: wider than an upload's)."""
 MESH_SUFFIXES = tuple(sorted(MESH_FORMATS))
@@ -58,6 +65,9 @@ class FolderSettings:
     axis_range: tuple[float, float] = (0.85, 1.15)
     amplitude: float = 0.04
     attempts: int = 4
+    poses: bool = True
+    """Pose each rigged, animated glTF file by its own clips (step 1); ``False``: every file
+    in its stored pose."""
 
     def __post_init__(self) -> None:
         if not 100 <= self.vertex_range[0] <= self.vertex_range[1]:
@@ -70,7 +80,7 @@ class FolderSettings:
         return (
             f"v{self.vertex_range[0]}-{self.vertex_range[1]}"
             f",p{self.stretch_probability:g},a{self.axis_range[0]:g}-{self.axis_range[1]:g}"
-            f",w{self.amplitude:g},k{self.attempts}"
+            f",w{self.amplitude:g},k{self.attempts},r{int(self.poses)}"
         )
 
 
@@ -176,29 +186,35 @@ def _prepare_mesh(path: str) -> PreparedMesh:
 def folder_shape(
     directory: str | Path, name: str, seed: int, settings: FolderSettings = FolderSettings()
 ) -> tuple[NDArray, NDArray]:
-    """The shape ``(vertices (V, 3), faces (F, 3))`` of file ``name`` and ``seed`` (steps 2–3);
-    attempt ``k`` draws from ``default_rng([seed, k])``.
+    """The shape ``(vertices (V, 3), faces (F, 3))`` of file ``name`` and ``seed`` (a rig's
+    pose, then steps 2–3); attempt ``k`` draws from ``default_rng([seed, k])``.
 
     Raises:
         ComputationError: no attempt gave a clean manifold.
     """
-    prepared = prepare_mesh(str(Path(directory) / name))
+    path = str(Path(directory) / name)
+    rig = rigged_model(path) if settings.poses else None
     last: Exception | None = None
     for attempt in range(settings.attempts):
         rng = np.random.default_rng([seed, attempt])
+        if rig is None:
+            source = prepare_mesh(path)  # memoized: loaded once per process
+        else:
+            posed, _ = pose_model(rig, rng, RIG_POSES)
+            source = PreparedMesh(posed, rig.mesh.faces, closed=True)
         low, high = settings.vertex_range
         n_target = round(float(np.exp(rng.uniform(np.log(low), np.log(high)))))
-        vertices = prepared.vertices
+        vertices = source.vertices
         if rng.random() < settings.stretch_probability:
             vertices = smooth_stretch(
                 vertices, rng, axis_range=settings.axis_range, amplitude=settings.amplitude
             )
         try:
-            new_vertices, new_faces = remesh(vertices, prepared.faces, n_target, tolerance=0.08)
+            new_vertices, new_faces = remesh(vertices, source.faces, n_target, tolerance=0.08)
             new_vertices, new_faces = collapse_slivers(new_vertices, new_faces, min_angle=2.0)
             report = manifold_report(new_vertices, new_faces)
             clean = report.manifold and report.oriented and report.components == 1
-            if not clean or report.min_angle <= 1.0 or (prepared.closed and not report.closed):
+            if not clean or report.min_angle <= 1.0 or (source.closed and not report.closed):
                 raise ComputationError(f"remeshed {name} is not a clean manifold: {report}")
         except ComputationError as exc:
             last = exc
@@ -207,14 +223,34 @@ def folder_shape(
     raise ComputationError(f"{name} seed {seed}: no clean remeshed shape ({last})")
 
 
+RIG_POSES = PoseSettings(perturb_degrees=0.0, body_range=(1.0, 1.0))
+"""How :func:`folder_shape` poses a rig: a clip and a time, nothing more (its vertex range and
+subdivision are unused: the folder's own remeshing follows)."""
+
+
+@functools.lru_cache(maxsize=64)
+def rigged_model(path: str) -> RiggedModel | None:
+    """The rig of a glTF file with a skinned mesh and an animation
+    (:func:`~litege_core.synth.rigged.load_rigged`); ``None`` for other files, and for a glTF
+    whose skinned body cannot be made one closed manifold (it is then used as it is stored)."""
+    if Path(path).suffix.lower() not in {".glb", ".gltf"}:
+        return None
+    try:
+        return load_rigged(path)
+    except LiteGEError:
+        return None
+
+
 __all__ = [
     "FOLDER_VERSION",
     "MESH_SUFFIXES",
+    "RIG_POSES",
     "FolderSettings",
     "PreparedMesh",
     "folder_digest",
     "folder_shape",
     "list_meshes",
     "prepare_mesh",
+    "rigged_model",
     "split_files",
 ]

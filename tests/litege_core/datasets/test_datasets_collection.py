@@ -192,7 +192,7 @@ def test_folder_dataset_build_resume_and_split(tmp_path):
     )
     manifest = build_collection_dataset(meshes, tmp_path / "data", **kwargs)
     assert manifest["counts"] == {"train": 2, "val": 1, "test": 1}
-    assert manifest["generator"]["version"].startswith("folder-1:")
+    assert manifest["generator"]["version"].startswith("folder-2:")
     again = build_collection_dataset(meshes, tmp_path / "data", **kwargs)  # resume: nothing to do
     assert again["shards"] == manifest["shards"]
     train = GeodesicDataset(tmp_path / "data").load_split("train")
