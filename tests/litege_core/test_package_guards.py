@@ -18,7 +18,6 @@ SERVICE_SIDE = ("fastapi", "starlette", "grpc", "redis", "uvicorn", "service")
 # shrinks: a module that gains __all__ must be taken off it (tested below).
 PENDING_ALL = frozenset(
     {
-        "litege_core.io",
         "litege_core.learned.describe",
         "litege_core.render.raster",
         "litege_core.validate",

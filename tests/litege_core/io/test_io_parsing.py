@@ -17,7 +17,8 @@ from litege_core.errors import (
     ShapeFileError,
     ShapeTooLargeError,
 )
-from litege_core.io import _read_with_trimesh, load_shape, read_arrays
+from litege_core.io import load_shape, read_arrays
+from litege_core.io.trimesh_backend import read_with_trimesh
 from litege_core.validate import ShapeLimits
 
 RNG = np.random.default_rng(0)
@@ -72,7 +73,7 @@ def _off(vertices: np.ndarray, polygons: list[list[int]], colors: bool = False) 
 
 def _assert_same_as_trimesh(data: bytes, fmt: str) -> None:
     vertices, faces = read_arrays(data, fmt)
-    expected_vertices, expected_faces = _read_with_trimesh(data, fmt)
+    expected_vertices, expected_faces = read_with_trimesh(data, fmt)
     np.testing.assert_array_equal(vertices, expected_vertices)
     if expected_faces is None:
         assert faces is None

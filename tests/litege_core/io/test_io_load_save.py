@@ -237,15 +237,16 @@ def _binary_ply(vertices, faces, order="<", corners=3, extra_vertex_property=Fal
 def test_binary_ply_is_read_without_trimesh_and_as_trimesh_reads_it(
     mesh, monkeypatch, order, extra
 ):
-    from litege_core import io as shape_io
+    from litege_core.io import ply
+    from litege_core.io.trimesh_backend import read_with_trimesh
 
     data = _binary_ply(mesh.vertices, mesh.faces, order, extra_vertex_property=extra)
-    reference = shape_io._read_with_trimesh(data, "ply")  # the slow reference
+    reference = read_with_trimesh(data, "ply")  # the slow reference
 
     def refuse(*_args):
         raise AssertionError("a plain binary PLY went to trimesh")
 
-    monkeypatch.setattr(shape_io, "_read_with_trimesh", refuse)
+    monkeypatch.setattr(ply, "read_with_trimesh", refuse)
     vertices, faces = read_arrays(data, "ply")
     np.testing.assert_array_equal(vertices, reference[0])
     np.testing.assert_array_equal(faces, reference[1])
