@@ -9,11 +9,12 @@ A shape is a pure function of ``(file, seed)``, so a small collection yields man
 1. the file is loaded once per process, welded, reduced to its largest connected component,
    repaired where it is not edge-manifold, centred and scaled to unit area. A rigged, animated
    glTF (GLB or ``.gltf``: a skinned mesh and at least one animation; with
-   ``FolderSettings.poses``) is loaded as a rig instead (:func:`~litege_core.synth.rigged.
-   load_rigged`: its skinned body, one closed manifold) and each shape takes a pose of its
-   own: a clip drawn among the file's animations and a time in it, posed by linear blend
-   skinning (the clip's pose as it is: no joint noise, no bend, which a user's rig need not
-   tolerate). A glTF whose skin cannot be read so is used in its stored pose;
+   ``FolderSettings.poses``) is loaded as a rig instead
+   (:func:`~litege_core.synth.rigged.load_rigged`: its skinned body, one closed manifold), and
+   each shape takes a pose of its own: a clip drawn among the file's animations and a time in
+   it, posed by linear blend skinning (the clip's pose as it is: no joint noise, no bend, which
+   a user's rig need not tolerate). A glTF whose skin cannot be read so is used in its stored
+   pose;
 2. with probability ``stretch_probability`` a smooth non-rigid stretch is applied
    (:func:`~litege_core.synth.meshops.smooth_stretch`: an anisotropic scale along random axes
    plus low-frequency sine displacements, a diffeomorphism);

@@ -9,6 +9,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from litege_core.datasets import GeodesicDataset, build_collection_dataset, shape_mesh
 from litege_core.synth.folder import FolderSettings, folder_shape, list_meshes, rigged_model
 
 SETTINGS = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0)
@@ -132,3 +133,24 @@ def test_only_gltf_files_are_rigs(tmp_path, suffix):
     path = tmp_path / f"box.{suffix}"
     trimesh.creation.box().export(path)
     assert rigged_model(str(path)) is None
+
+
+def test_a_collection_built_from_rigs_holds_their_poses(tmp_path):
+    meshes = tmp_path / "rigs"
+    meshes.mkdir()
+    for i in range(3):  # one file per split
+        _rigged_capsule(meshes / f"capsule{i}.gltf")
+    manifest = build_collection_dataset(
+        meshes,
+        tmp_path / "data",
+        shapes_per_mesh=4,
+        eval_shapes_per_mesh=1,
+        n_sources=4,
+        n_extra_sources=2,
+        settings=FolderSettings(vertex_range=(150, 200), stretch_probability=0.0),
+        progress=False,
+    )
+    assert manifest["generator"]["version"].endswith(",r1")
+    train = GeodesicDataset(tmp_path / "data").load_split("train")
+    bends = [_height_over_length(shape_mesh(train, i)[0]) for i in range(4)]
+    assert max(bends) > 2.0 * min(bends)
