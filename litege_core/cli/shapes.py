@@ -4,6 +4,7 @@ stdout and (for the last two) a ``.npy`` file out."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from litege_core.cli.common import (
@@ -36,8 +37,21 @@ def cmd_info(args: argparse.Namespace) -> int:
     }
     if shape.is_mesh:
         report["area"] = shape.area
+    if Path(args.file).suffix.lower() in {".glb", ".gltf"}:
+        report["rig"] = _rig_report(str(args.file))
     print_json(report)
     return 0
+
+
+def _rig_report(path: str) -> dict[str, Any] | None:
+    """The clips and joints of a rigged, animated glTF, which training on a folder poses
+    (:mod:`litege_core.synth.folder`); ``None`` for a glTF it keeps in its stored pose."""
+    from litege_core.synth.folder import rigged_model
+
+    rig = rigged_model(path)
+    if rig is None:
+        return None
+    return {"clips": [clip.name for clip in rig.clips], "joints": int(rig.mesh.joint_nodes.size)}
 
 
 METHODS = ("learned", "heat", "exact", "graph")

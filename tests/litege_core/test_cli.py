@@ -15,6 +15,16 @@ def test_info_prints_summary(tmp_path, sphere_mesh, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["content_hash"] == shape.content_hash
     assert report["n_points"] == shape.n_points and report["kind"] == "mesh"
+    assert "rig" not in report  # only glTF files can hold one
+
+
+def test_info_names_the_clips_a_folder_training_poses(tmp_path, sphere_mesh, rigged_gltf, capsys):
+    rigged_gltf(tmp_path / "capsule.gltf")
+    assert main(["info", str(tmp_path / "capsule.gltf")]) == 0
+    assert json.loads(capsys.readouterr().out)["rig"] == {"clips": ["lift"], "joints": 2}
+    save_shape(Shape.from_arrays(*sphere_mesh), tmp_path / "still.glb")
+    assert main(["info", str(tmp_path / "still.glb")]) == 0
+    assert json.loads(capsys.readouterr().out)["rig"] is None
 
 
 def test_info_reports_errors_with_code(tmp_path, capsys):
