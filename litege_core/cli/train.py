@@ -60,6 +60,7 @@ def cmd_train_geodesic_meshes(args: argparse.Namespace) -> int:
         shapes_per_mesh=args.shapes_per_mesh,
         eval_shapes_per_mesh=args.eval_shapes_per_mesh,
         vertex_range=_vertex_range(args.vertices),
+        poses=not args.no_poses,
         solver=args.solver,
         config=args.config,
         name=args.name,
@@ -260,6 +261,12 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     )
     folder.add_argument(
         "--vertices", default="2000,4000", help="vertex counts of the remeshed shapes: MIN,MAX"
+    )
+    folder.add_argument(
+        "--no-poses",
+        action="store_true",
+        help="keep rigged, animated glTF files in their stored pose (default: each shape "
+        "posed at a time drawn in one of the file's clips)",
     )
     folder.add_argument(
         "--solver",

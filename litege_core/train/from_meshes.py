@@ -128,6 +128,8 @@ class FolderTrainOptions:
         seed: seed of the file split and of training.
         shapes_per_mesh / eval_shapes_per_mesh: augmented shapes per train / val-test file.
         vertex_range: vertex counts of the remeshed shapes (log-uniform).
+        poses: pose each rigged, animated glTF by its own clips (``FolderSettings.poses``);
+            ``False``: every file in its stored pose.
         n_sources / n_extra_sources: farthest-point and random ground-truth sources per shape.
         solver: ``"exact"`` (MMP), ``"heat"`` or ``"heat-fine"`` (see
             :data:`~litege_core.datasets.build.SOLVERS`).
@@ -151,6 +153,7 @@ class FolderTrainOptions:
     shapes_per_mesh: int = 10
     eval_shapes_per_mesh: int = 2
     vertex_range: tuple[int, int] = DEFAULT_VERTEX_RANGE
+    poses: bool = True
     n_sources: int = 48
     n_extra_sources: int = 16
     solver: str = "exact"
@@ -212,7 +215,7 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
         shard_size=8,
         name=options.name or f"folder-{Path(options.meshes).resolve().name}",
     )
-    settings = FolderSettings(vertex_range=options.vertex_range)
+    settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     factory: Any = folder_factory(options.meshes, spec, settings)
     if options.time_budget_s is not None:
         data_deadline = time.time() + DATA_SHARE * options.time_budget_s - clock.elapsed()

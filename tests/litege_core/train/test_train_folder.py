@@ -214,3 +214,14 @@ def test_matching_from_a_folder_checks_the_topology(tmp_path, capsys):
     reordered.export(mixed / "c.ply")
     with pytest.raises(InputError, match="face 0 is"):
         shared_topology(mixed)
+
+
+@pytest.mark.parametrize(("flag", "poses"), [((), True), (("--no-poses",), False)])
+def test_no_poses_keeps_rigged_files_in_their_stored_pose(tmp_path, monkeypatch, flag, poses):
+    from litege_core.train import from_meshes
+
+    seen = []
+    monkeypatch.setattr(from_meshes, "train_from_meshes", lambda options: seen.append(options))
+    argv = ["train", "geodesic", "--meshes", str(tmp_path), "--out", str(tmp_path / "b")]
+    assert main([*argv, *flag]) == 0
+    assert seen[0].poses is poses
