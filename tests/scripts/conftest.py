@@ -70,3 +70,8 @@ def bench_workloads() -> ModuleType:
 @pytest.fixture(scope="module")
 def update_benchmarks() -> ModuleType:
     return load_script("update_benchmarks")
+
+
+@pytest.fixture(scope="module")
+def bench_rig_poses() -> ModuleType:
+    return load_script("bench_rig_poses")
