@@ -9,10 +9,11 @@ MAX_HEADER_BYTES = 1 << 20
 """Largest accepted PLY header and NPY header dictionary (bytes)."""
 
 
-def check_size(n_bytes: int, limits: ShapeLimits) -> None:
+def check_size(n_bytes: int, limits: ShapeLimits, what: str = "file") -> None:
+    """Refuse ``n_bytes`` (of ``what``) above ``limits.max_file_bytes``, and an empty file."""
     if n_bytes > limits.max_file_bytes:
         raise ShapeTooLargeError(
-            f"file has {n_bytes} bytes, the limit is {limits.max_file_bytes}",
+            f"{what} has {n_bytes} bytes, the limit is {limits.max_file_bytes}",
             n_bytes=n_bytes,
             limit=limits.max_file_bytes,
         )

@@ -13,7 +13,7 @@ from typing import Any
 from urllib.parse import unquote, urlparse
 
 from litege_core.errors import LiteGEError, ShapeFileError, ShapeTooLargeError
-from litege_core.io.limits import check_counts
+from litege_core.io.limits import check_counts, check_size
 from litege_core.validate import DEFAULT_LIMITS, ShapeLimits
 
 
@@ -136,13 +136,7 @@ def embed_gltf_buffers(data: bytes, folder: Path, limits: ShapeLimits = DEFAULT_
             )
         try:
             total += target.stat().st_size
-            if total > limits.max_file_bytes:
-                raise ShapeTooLargeError(
-                    f"glTF file and its buffers have {total} bytes or more, the limit is "
-                    f"{limits.max_file_bytes}",
-                    n_bytes=total,
-                    limit=limits.max_file_bytes,
-                )
+            check_size(total, limits, "the glTF file with its buffers so far")
             raw = target.read_bytes()
         except OSError as exc:
             raise ShapeFileError(

@@ -90,7 +90,7 @@ def test_buffer_files_count_against_the_byte_limit(tmp_path, embedded):
     buffer_bytes = sum((tmp_path / f"buffer{i}.bin").stat().st_size for i in range(2))
     file_bytes = path.stat().st_size
     load_shape(path, limits=ShapeLimits(max_file_bytes=file_bytes + buffer_bytes))
-    with pytest.raises(ShapeTooLargeError, match="buffers"):
+    with pytest.raises(ShapeTooLargeError, match="with its buffers"):
         load_shape(path, limits=ShapeLimits(max_file_bytes=file_bytes + buffer_bytes - 1))
 
 
