@@ -14,8 +14,9 @@ know of these animals does not decide. Both are then evaluated side by side with
   unseen files, the case the option is for);
 * on TOSCA (real animals of the dev set: ``--no-tosca`` leaves it out).
 
-Prints a markdown section; ``--benchmarks`` also writes it into BENCHMARKS.md (section
-``rig-poses``). Progress goes to stderr.
+Prints a markdown subsection (``###``: the section's title and what it found are prose above
+it); ``--benchmarks`` also writes it into BENCHMARKS.md (section ``rig-poses``). Progress goes
+to stderr.
 
 Usage:
     nice .venv/bin/python scripts/bench_rig_poses.py [--budget 20] [--benchmarks] \\
@@ -122,7 +123,7 @@ def main() -> None:
     posed = summaries["posed"]
     files = posed["data"]["files"]
     lines = [
-        f"## Rigged files posed by their own clips when training on a folder ({date[:10]})",
+        f"### Rigged files posed by their own clips, or as stored ({date[:10]})",
         "",
         f"`scripts/bench_rig_poses.py --budget {args.budget:g}`, {date}, {cpu} logical CPUs "
         "(the two runs side by side, one process each).",
