@@ -7,7 +7,8 @@ file (seeded), so no mesh of the evaluation splits is seen in training.
 A shape is a pure function of ``(file, seed)``, so a small collection yields many shapes:
 
 1. the file is loaded once per process, welded, reduced to its largest connected component,
-   repaired where it is not edge-manifold, centred and scaled to unit area. A rigged, animated
+   repaired where it is not edge-manifold (a shell that met the body at a single vertex, an
+   antler on its pedicle, comes off), centred and scaled to unit area. A rigged, animated
    glTF (GLB or ``.gltf``: a skinned mesh and at least one animation; with
    ``FolderSettings.poses``) is loaded as a rig instead
    (:func:`~litege_core.synth.rigged.load_rigged`: its skinned body, one closed manifold), and
@@ -43,6 +44,7 @@ from litege_core.synth.meshops import (
     remesh,
     repair_manifold,
     smooth_stretch,
+    split_pinched_vertices,
     unit_area_scale,
     weld,
 )
@@ -178,8 +180,12 @@ def _prepare_mesh(path: str) -> PreparedMesh:
     report = manifold_report(vertices, faces)
     if not (report.manifold and report.oriented):
         faces, origin = repair_manifold(vertices, faces, require_closed=False)
-        vertices = vertices[origin]
-        report = manifold_report(vertices, faces)
+    else:  # the repair's last step alone
+        faces, origin = split_pinched_vertices(faces, vertices.shape[0])
+    # shells that met at a single vertex (an antler on its pedicle) are apart now: the largest
+    body, faces = largest_component(faces, origin.size)
+    vertices = vertices[origin[body]]
+    report = manifold_report(vertices, faces)
     vertices = (vertices - vertices.mean(axis=0)) * unit_area_scale(vertices, faces)
     return PreparedMesh(vertices, faces, report.closed)
 

@@ -5,7 +5,13 @@ import pytest
 import trimesh
 
 from litege_core.datasets import GeodesicDataset, build_collection_dataset, shape_mesh
-from litege_core.synth.folder import FolderSettings, folder_shape, list_meshes, rigged_model
+from litege_core.synth.folder import (
+    FolderSettings,
+    folder_shape,
+    list_meshes,
+    prepare_mesh,
+    rigged_model,
+)
 
 SETTINGS = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0)
 
@@ -73,3 +79,21 @@ def test_a_collection_built_from_rigs_holds_their_poses(tmp_path, rigged_gltf):
     train = GeodesicDataset(tmp_path / "data").load_split("train")
     bends = [_height_over_length(shape_mesh(train, i)[0]) for i in range(4)]
     assert max(bends) > 2.0 * min(bends)
+
+
+def test_a_shell_pinched_onto_the_body_is_dropped(tmp_path):
+    body = trimesh.creation.icosphere(subdivisions=3)
+    top = int(np.argmax(body.vertices[:, 2]))
+    horn = trimesh.creation.icosphere(subdivisions=1, radius=0.2)
+    horn.vertices += body.vertices[top] - horn.vertices[np.argmin(horn.vertices[:, 2])]
+    # the horn's lowest vertex is the body's top vertex: one shell, pinched there
+    lowest = int(np.argmin(horn.vertices[:, 2]))
+    horn_index = np.arange(len(horn.vertices)) + len(body.vertices)
+    horn_index[lowest] = top
+    vertices = np.concatenate([body.vertices, horn.vertices])
+    faces = np.concatenate([body.faces, horn_index[horn.faces]])
+    trimesh.Trimesh(vertices, faces, process=False).export(tmp_path / "horned.obj")
+    prepared = prepare_mesh(str(tmp_path / "horned.obj"))
+    assert len(prepared.faces) == len(body.faces) and prepared.closed
+    vertices, faces = folder_shape(tmp_path, "horned.obj", 0, SETTINGS)
+    assert trimesh.Trimesh(vertices, faces, process=False).is_watertight
