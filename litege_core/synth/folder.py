@@ -106,6 +106,32 @@ def list_meshes(directory: str | Path) -> tuple[str, ...]:
     return tuple(files)
 
 
+def check_files(
+    directory: str | Path, files: tuple[str, ...], settings: FolderSettings = FolderSettings()
+) -> None:
+    """Load (or rig, :func:`rigged_model`) every file of ``files`` once, before any shape is
+    built, so that a folder's unusable files are named together and at once.
+
+    Raises:
+        InputError: the files that cannot serve (unreadable, no faces, no manifold body), each
+            with its reason (the first ten), to remove from the folder.
+    """
+    failed = []
+    for name in files:
+        path = str(Path(directory) / name)
+        try:
+            if not (settings.poses and rigged_model(path) is not None):
+                prepare_mesh(path)
+        except LiteGEError as exc:
+            failed.append(exc.message)
+    if failed:
+        more = f"; and {len(failed) - 10} more" if len(failed) > 10 else ""
+        raise InputError(
+            f"{len(failed)} of {len(files)} mesh files cannot be used (remove them from the "
+            f"folder): {'; '.join(failed[:10])}{more}"
+        )
+
+
 def split_files(
     files: tuple[str, ...], seed: int, eval_fraction: float = 0.1
 ) -> dict[str, tuple[str, ...]]:
@@ -249,6 +275,7 @@ def rigged_model(path: str) -> RiggedModel | None:
 
 
 __all__ = [
+    "FOLDER_LIMITS",
     "FOLDER_VERSION",
     "MESH_SUFFIXES",
     "RIG_POSES",

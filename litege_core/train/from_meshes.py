@@ -202,9 +202,11 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     the train split bounded by the data share of the budget; returns what was built."""
     from litege_core.datasets import build_dataset, folder_spec
     from litege_core.datasets.collection import folder_factory
-    from litege_core.synth.folder import FolderSettings
+    from litege_core.synth.folder import FolderSettings, check_files
 
     files = check_folder(options.meshes)
+    settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
+    check_files(options.meshes, files, settings)
     spec = folder_spec(
         options.meshes,
         shapes_per_mesh=options.shapes_per_mesh,
@@ -215,7 +217,6 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
         shard_size=8,
         name=options.name or f"folder-{Path(options.meshes).resolve().name}",
     )
-    settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     factory: Any = folder_factory(options.meshes, spec, settings)
     if options.time_budget_s is not None:
         data_deadline = time.time() + DATA_SHARE * options.time_budget_s - clock.elapsed()
@@ -656,13 +657,12 @@ def shared_topology(meshes: str | Path) -> tuple[Sequence[str], int, NDArray]:
             topology (naming both and how they differ).
     """
     from litege_core.io import load_shape
-    from litege_core.validate import ShapeLimits
+    from litege_core.synth.folder import FOLDER_LIMITS
 
     files = check_folder(meshes)
-    limits = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
     first_name, first_faces, n_vertices = "", np.zeros((0, 3), np.int64), 0
     for index, name in enumerate(files):
-        shape = load_shape(Path(meshes) / name, kind="mesh", limits=limits)
+        shape = load_shape(Path(meshes) / name, kind="mesh", limits=FOLDER_LIMITS)
         faces = np.asarray(shape.faces, dtype=np.int64)
         if index == 0:
             first_name, first_faces, n_vertices = name, faces, shape.n_points

@@ -5,8 +5,10 @@ import pytest
 import trimesh
 
 from litege_core.datasets import GeodesicDataset, build_collection_dataset, shape_mesh
+from litege_core.errors import InputError
 from litege_core.synth.folder import (
     FolderSettings,
+    check_files,
     folder_shape,
     list_meshes,
     prepare_mesh,
@@ -97,3 +99,15 @@ def test_a_shell_pinched_onto_the_body_is_dropped(tmp_path):
     assert len(prepared.faces) == len(body.faces) and prepared.closed
     vertices, faces = folder_shape(tmp_path, "horned.obj", 0, SETTINGS)
     assert trimesh.Trimesh(vertices, faces, process=False).is_watertight
+
+
+def test_unusable_files_are_named_together_before_any_shape(tmp_path, rigged_gltf):
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "good.obj")
+    rigged_gltf(tmp_path / "rig.gltf")
+    trimesh.PointCloud(np.random.default_rng(0).normal(size=(50, 3))).export(tmp_path / "c.ply")
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
+    files = list_meshes(tmp_path)
+    with pytest.raises(InputError, match="2 of 4 mesh files cannot be used") as error:
+        check_files(tmp_path, files)
+    assert "broken.obj" in error.value.message and "c.ply" in error.value.message
+    check_files(tmp_path, ("good.obj", "rig.gltf"))  # the good ones pass
