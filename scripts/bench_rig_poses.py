@@ -57,13 +57,15 @@ def link_rigs(folder: Path, data: Path) -> list[str]:
     return names
 
 
-def train(folder: Path, out: Path, budget: float, extra: list[str]) -> subprocess.Popen[str]:
+def train(
+    folder: Path, out: Path, budget: float, seed: int, extra: list[str]
+) -> subprocess.Popen[str]:
     """Start one ``litege train geodesic --meshes`` run (its summary JSON on stdout)."""
     if out.exists():
         shutil.rmtree(out)
     command = [sys.executable, "-m", "litege_core.cli", "train", "geodesic"]
     command += ["--meshes", str(folder), "--out", str(out), "--time-budget", f"{budget:g}"]
-    command += ["--workers", "1", "--eval-shapes-per-mesh", "8", *extra]
+    command += ["--workers", "1", "--eval-shapes-per-mesh", "8", "--seed", str(seed), *extra]
     return subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
 
 
@@ -78,6 +80,7 @@ def main() -> None:
     parser.add_argument("--out", default="out/bench-rig-poses")
     parser.add_argument("--train-data", default=None)
     parser.add_argument("--budget", type=float, default=20.0, help="minutes per run")
+    parser.add_argument("--seed", type=int, default=0, help="file split and training seed")
     parser.add_argument("--cache", default="out/exact-cache", help="TOSCA's exact rows")
     parser.add_argument("--no-tosca", action="store_true")
     parser.add_argument("--benchmarks", action="store_true", help="write into BENCHMARKS.md")
@@ -90,8 +93,8 @@ def main() -> None:
     cpu = os.cpu_count()
     start = time.perf_counter()
     runs = {
-        "posed": train(rigs, out / "posed", args.budget, []),
-        "static": train(rigs, out / "static", args.budget, ["--no-poses"]),
+        "posed": train(rigs, out / "posed", args.budget, args.seed, []),
+        "static": train(rigs, out / "static", args.budget, args.seed, ["--no-poses"]),
     }
     summaries = {}
     for label, process in runs.items():
@@ -125,7 +128,8 @@ def main() -> None:
     lines = [
         f"### Rigged files posed by their own clips, or as stored ({date[:10]})",
         "",
-        f"`scripts/bench_rig_poses.py --budget {args.budget:g}`, {date}, {cpu} logical CPUs "
+        f"`scripts/bench_rig_poses.py --budget {args.budget:g} --seed {args.seed}`, {date}, "
+        f"{cpu} logical CPUs "
         "(the two runs side by side, one process each).",
         "",
         f"- Folder: the {len(names)} rigged, animated train-data animals ({', '.join(names)}), "
