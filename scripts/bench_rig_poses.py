@@ -1,13 +1,14 @@
 """Does posing a collection's rigged files help the model trained on it? (``litege train
-geodesic --meshes``, its rigged glTF files posed by their own clips, or ``--no-poses``)
+geodesic --meshes``, its rigged glTF files as stored, or posed by their own clips with
+``--poses``)
 
 The 12 rigged, animated animals of the train-data directory (``$LITEGE_TRAIN_DATA`` or
 ``../shared/train-data``: the 11 Quaternius ``.gltf`` files and the Khronos ``Fox.glb``) are
 linked into ``OUT/rigs``. Two bundles are trained from scratch on that folder, side by side
 (one process each, the same budget, seed and file split, so both hold out the same animals):
-``OUT/posed`` (each shape a pose drawn in one of its file's clips) and ``OUT/static``
-(``--no-poses``: every file as stored). From scratch, so that what the shipped models already
-know of these animals does not decide. Both are then evaluated side by side with
+``OUT/posed`` (``--poses``: each shape a pose drawn in one of its file's clips) and
+``OUT/static`` (the default: every file as stored). From scratch, so that what the shipped
+models already know of these animals does not decide. Both are then evaluated side by side with
 ``scripts/eval_real_ablation.py``, the network alone:
 
 * on the posed run's held-out test shapes (poses of the held-out animals: unseen poses of
@@ -93,8 +94,8 @@ def main() -> None:
     cpu = os.cpu_count()
     start = time.perf_counter()
     runs = {
-        "posed": train(rigs, out / "posed", args.budget, args.seed, []),
-        "static": train(rigs, out / "static", args.budget, args.seed, ["--no-poses"]),
+        "posed": train(rigs, out / "posed", args.budget, args.seed, ["--poses"]),
+        "static": train(rigs, out / "static", args.budget, args.seed, []),
     }
     summaries = {}
     for label, process in runs.items():
@@ -135,8 +136,8 @@ def main() -> None:
         f"- Folder: the {len(names)} rigged, animated train-data animals ({', '.join(names)}), "
         f"split by file {files['train']} train / {files['val']} val / {files['test']} test "
         "(the same split in both runs).",
-        "- Both from scratch (no `--init`), the same budget and seed; `posed`: each shape at a "
-        "time drawn in one of its file's clips; `static`: `--no-poses`, every file as stored. "
+        "- Both from scratch (no `--init`), the same budget and seed; `posed`: `--poses`, each "
+        "shape at a time drawn in one of its file's clips; `static`: every file as stored. "
         f"Wall clock for both: {wall / 60:.1f} min.",
     ]
     for label, summary in summaries.items():

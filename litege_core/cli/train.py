@@ -60,7 +60,7 @@ def cmd_train_geodesic_meshes(args: argparse.Namespace) -> int:
         shapes_per_mesh=args.shapes_per_mesh,
         eval_shapes_per_mesh=args.eval_shapes_per_mesh,
         vertex_range=_vertex_range(args.vertices),
-        poses=not args.no_poses,
+        poses=args.poses,
         solver=args.solver,
         config=args.config,
         name=args.name,
@@ -225,9 +225,8 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     geodesic.add_argument(
         "--meshes",
         default=None,
-        help="a folder of meshes (obj, ply, off, stl, glb, gltf; a rigged, animated glTF is "
-        "posed by its own clips): ground truth, training, held-out comparison and a bundle "
-        "with its model card in --out, in one command",
+        help="a folder of meshes (obj, ply, off, stl, glb, gltf): ground truth, training, "
+        "held-out comparison and a bundle with its model card in --out, in one command",
     )
     geodesic.add_argument("--resume", default=None, help="checkpoint (RUN/checkpoints/last…)")
     geodesic.add_argument(
@@ -263,10 +262,10 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
         "--vertices", default="2000,4000", help="vertex counts of the remeshed shapes: MIN,MAX"
     )
     folder.add_argument(
-        "--no-poses",
+        "--poses",
         action="store_true",
-        help="keep rigged, animated glTF files in their stored pose (default: each shape "
-        "posed at a time drawn in one of the file's clips)",
+        help="pose each rigged, animated glTF file by its own clips (each shape at a time "
+        "drawn in one of them; default: every file in its stored pose)",
     )
     folder.add_argument(
         "--solver",

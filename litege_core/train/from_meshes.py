@@ -129,7 +129,7 @@ class FolderTrainOptions:
         shapes_per_mesh / eval_shapes_per_mesh: augmented shapes per train / val-test file.
         vertex_range: vertex counts of the remeshed shapes (log-uniform).
         poses: pose each rigged, animated glTF by its own clips (``FolderSettings.poses``);
-            ``False``: every file in its stored pose.
+            ``False`` (default): every file in its stored pose.
         n_sources / n_extra_sources: farthest-point and random ground-truth sources per shape.
         solver: ``"exact"`` (MMP), ``"heat"`` or ``"heat-fine"`` (see
             :data:`~litege_core.datasets.build.SOLVERS`).
@@ -153,7 +153,7 @@ class FolderTrainOptions:
     shapes_per_mesh: int = 10
     eval_shapes_per_mesh: int = 2
     vertex_range: tuple[int, int] = DEFAULT_VERTEX_RANGE
-    poses: bool = True
+    poses: bool = False
     n_sources: int = 48
     n_extra_sources: int = 16
     solver: str = "exact"

@@ -15,7 +15,7 @@ from litege_core.synth.folder import (
     rigged_model,
 )
 
-SETTINGS = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0)
+SETTINGS = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0, poses=True)
 
 
 def _height_over_length(vertices: np.ndarray) -> float:
@@ -37,12 +37,12 @@ def test_a_rigged_file_takes_a_pose_of_its_clip_per_seed(tmp_path, rigged_gltf):
         assert mesh.is_watertight and mesh.body_count == 1
 
 
-def test_stored_pose_without_poses_or_without_a_clip(tmp_path, rigged_gltf):
+def test_stored_pose_by_default_or_without_a_clip(tmp_path, rigged_gltf):
     rigged_gltf(tmp_path / "capsule.gltf")
     rigged_gltf(tmp_path / "still.gltf", animated=False)
     assert list_meshes(tmp_path) == ("capsule.gltf", "still.gltf")
     assert rigged_model(str(tmp_path / "still.gltf")) is None
-    static = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0, poses=False)
+    static = FolderSettings(vertex_range=(400, 500), stretch_probability=0.0)  # the default
     for name, settings in (("capsule.gltf", static), ("still.gltf", SETTINGS)):
         bends = [
             _height_over_length(folder_shape(tmp_path, name, seed, settings)[0])
@@ -52,7 +52,8 @@ def test_stored_pose_without_poses_or_without_a_clip(tmp_path, rigged_gltf):
 
 
 def test_the_settings_name_the_poses():
-    assert FolderSettings().describe() != FolderSettings(poses=False).describe()
+    assert not FolderSettings().poses  # opt-in (BENCHMARKS.md "rig-poses")
+    assert FolderSettings().describe() != FolderSettings(poses=True).describe()
 
 
 @pytest.mark.parametrize("suffix", ["glb", "obj"])
@@ -74,7 +75,7 @@ def test_a_collection_built_from_rigs_holds_their_poses(tmp_path, rigged_gltf):
         eval_shapes_per_mesh=1,
         n_sources=4,
         n_extra_sources=2,
-        settings=FolderSettings(vertex_range=(150, 200), stretch_probability=0.0),
+        settings=FolderSettings(vertex_range=(150, 200), stretch_probability=0.0, poses=True),
         progress=False,
     )
     assert manifest["generator"]["version"].endswith(",r1")

@@ -216,8 +216,8 @@ def test_matching_from_a_folder_checks_the_topology(tmp_path, capsys):
         shared_topology(mixed)
 
 
-@pytest.mark.parametrize(("flag", "poses"), [((), True), (("--no-poses",), False)])
-def test_no_poses_keeps_rigged_files_in_their_stored_pose(tmp_path, monkeypatch, flag, poses):
+@pytest.mark.parametrize(("flag", "poses"), [((), False), (("--poses",), True)])
+def test_poses_is_opt_in(tmp_path, monkeypatch, flag, poses):
     from litege_core.train import from_meshes
 
     seen = []
