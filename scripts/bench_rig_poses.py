@@ -15,13 +15,14 @@ models already know of these animals does not decide. Both are then evaluated si
   unseen files, the case the option is for);
 * on TOSCA (real animals of the dev set: ``--no-tosca`` leaves it out).
 
-Prints a markdown subsection (``###``: the section's title and what it found are prose above
-it); ``--benchmarks`` also writes it into BENCHMARKS.md (section ``rig-poses``). Progress goes
-to stderr.
+Prints a markdown subsection (``###``) and keeps it as ``OUT/section.md``. The BENCHMARKS.md
+section ``rig-poses`` holds the prose (title, what it found) and one such subsection per seed,
+written with ``scripts/update_benchmarks.py``'s ``write_section`` (as on 2026-12-02, seeds 0
+and 1). Progress goes to stderr.
 
 Usage:
-    nice .venv/bin/python scripts/bench_rig_poses.py [--budget 20] [--benchmarks] \\
-        > out/bench-rig-poses/section.md 2> out/bench-rig-poses/log.txt
+    nice .venv/bin/python scripts/bench_rig_poses.py [--budget 20] [--seed 0] \\
+        2> out/bench-rig-poses/log.txt
 """
 
 from __future__ import annotations
@@ -84,7 +85,6 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="file split and training seed")
     parser.add_argument("--cache", default="out/exact-cache", help="TOSCA's exact rows")
     parser.add_argument("--no-tosca", action="store_true")
-    parser.add_argument("--benchmarks", action="store_true", help="write into BENCHMARKS.md")
     args = parser.parse_args()
 
     out = Path(args.out)
@@ -159,11 +159,6 @@ def main() -> None:
     section = "\n".join(lines) + "\n"
     print(section)
     (out / "section.md").write_text(section)
-    if args.benchmarks:
-        sys.path.insert(0, str(ROOT / "scripts"))
-        from update_benchmarks import write_section
-
-        write_section("rig-poses", section)
 
 
 if __name__ == "__main__":
