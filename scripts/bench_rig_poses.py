@@ -63,10 +63,13 @@ def train(
     folder: Path, out: Path, budget: float, seed: int, extra: list[str]
 ) -> subprocess.Popen[str]:
     """Start one ``litege train geodesic --meshes`` run (its summary JSON on stdout)."""
-    if out.exists():
-        shutil.rmtree(out)
+    build = out.with_name(f"{out.name}-build")  # the run's dataset and checkpoints
+    for path in (out, build):
+        if path.exists():
+            shutil.rmtree(path)
     command = [sys.executable, "-m", "litege_core.cli", "train", "geodesic"]
-    command += ["--meshes", str(folder), "--out", str(out), "--time-budget", f"{budget:g}"]
+    command += ["--meshes", str(folder), "--out", str(out), "--work", str(build)]
+    command += ["--time-budget", f"{budget:g}"]
     command += ["--workers", "1", "--eval-shapes-per-mesh", "8", "--seed", str(seed), *extra]
     return subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
 
@@ -111,7 +114,7 @@ def main() -> None:
         [
             *model_args,
             "--dataset",
-            str(out / "posed" / "work" / "data"),
+            str(out / "posed-build" / "data"),
             *common,
             "--synthetic",
             "0",
