@@ -37,11 +37,9 @@ def check_glb(data: bytes, limits: ShapeLimits) -> None:
         raise ShapeFileError("cannot parse GLB file: no JSON chunk")
     try:
         document = json.loads(data[20 : 20 + length])
-        _check_gltf(document, limits)
-    except LiteGEError:
-        raise
-    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+    except ValueError as exc:
         raise ShapeFileError(f"cannot parse GLB file: {exc}") from exc
+    _check_gltf(document, limits, "glb")
 
 
 def _gltf_document(data: bytes) -> dict[str, Any]:
@@ -87,12 +85,7 @@ def check_gltf_json(data: bytes, limits: ShapeLimits) -> None:
             f"glTF buffer {index} is stored in a separate file ({uri!r}); send a .glb, or a "
             ".gltf whose buffers are embedded as data: URIs (or load the .gltf from its path)"
         )
-    try:
-        _check_gltf(document, limits, "gltf")
-    except LiteGEError:
-        raise
-    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
-        raise ShapeFileError(f"cannot parse glTF file: {exc}") from exc
+    _check_gltf(document, limits, "gltf")
 
 
 def self_contained_gltf(path: str | os.PathLike, limits: ShapeLimits = DEFAULT_LIMITS) -> bytes:
@@ -147,9 +140,26 @@ def embed_gltf_buffers(data: bytes, folder: Path, limits: ShapeLimits = DEFAULT_
     return json.dumps(document).encode()
 
 
-def _check_gltf(document: dict[str, Any], limits: ShapeLimits, file_format: str = "glb") -> None:
+def _check_gltf(document: Any, limits: ShapeLimits, file_format: str) -> None:
     """Nodes, node instances, instanced vertices and triangles of a glTF document (the JSON of
-    a ``.gltf`` or of a GLB's first chunk) against ``limits``."""
+    a ``.gltf`` or of a GLB's first chunk) against ``limits``.
+
+    Raises:
+        ShapeTooLargeError: more than ``limits`` allow.
+        ShapeFileError: a document whose structure is not glTF's (a list where an object
+            belongs, a missing accessor, ...).
+    """
+    try:
+        _check_scene_sizes(document, limits, file_format)
+    except LiteGEError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        name = "GLB" if file_format == "glb" else "glTF"
+        raise ShapeFileError(f"cannot parse {name} file: {exc}") from exc
+
+
+def _check_scene_sizes(document: dict[str, Any], limits: ShapeLimits, file_format: str) -> None:
+    """:func:`_check_gltf` without the translation of structural errors."""
     nodes = document.get("nodes", [])
     bound = limits.max_scene_nodes
     if len(nodes) > bound:
