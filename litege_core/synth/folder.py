@@ -39,12 +39,10 @@ from litege_core.errors import ComputationError, EmptyShapeError, InputError, Li
 from litege_core.io import MESH_FORMATS, load_shape, self_contained_gltf
 from litege_core.synth.meshops import (
     collapse_slivers,
-    largest_component,
+    largest_body,
     manifold_report,
     remesh,
-    repair_manifold,
     smooth_stretch,
-    split_pinched_vertices,
     unit_area_scale,
     weld,
 )
@@ -203,16 +201,8 @@ def _prepare_mesh(path: str) -> PreparedMesh:
             "meshes; remove it from the folder"
         )
     welded = weld(np.asarray(shape.vertices), np.asarray(shape.faces), tolerance=1e-7)
-    kept, faces = largest_component(welded.faces, welded.vertices.shape[0])
+    kept, faces = largest_body(welded.vertices, welded.faces, require_closed=False)
     vertices = welded.vertices[kept]
-    report = manifold_report(vertices, faces)
-    if not (report.manifold and report.oriented):
-        faces, origin = repair_manifold(vertices, faces, require_closed=False)
-    else:  # the repair's last step alone
-        faces, origin = split_pinched_vertices(faces, vertices.shape[0])
-    # shells that met at a single vertex (an antler on its pedicle) are apart now: the largest
-    body, faces = largest_component(faces, origin.size)
-    vertices = vertices[origin[body]]
     report = manifold_report(vertices, faces)
     vertices = (vertices - vertices.mean(axis=0)) * unit_area_scale(vertices, faces)
     return PreparedMesh(vertices, faces, report.closed)

@@ -393,6 +393,32 @@ def repair_manifold(
     return new_faces, origin
 
 
+def largest_body(
+    vertices: NDArray, faces: NDArray, require_closed: bool = True
+) -> tuple[NDArray, NDArray]:
+    """The mesh's largest component made one oriented manifold body: the largest component,
+    :func:`repair_manifold` where it is not a manifold (and, with ``require_closed``, not
+    closed), else its pinched vertices split (:func:`split_pinched_vertices`), then the largest
+    component again, since a shell that met the body at a single vertex (an antler on its
+    pedicle) has come apart.
+
+    Returns:
+        ``(kept (V',), faces (F', 3))``: the vertex of ``vertices`` each kept vertex copies
+        (a split vertex is kept more than once) and the faces on the kept vertices.
+
+    Raises:
+        ComputationError: the repair failed (see :func:`repair_manifold`).
+    """
+    kept, faces = largest_component(faces, vertices.shape[0])
+    report = manifold_report(vertices[kept], faces)
+    if not (report.manifold and report.oriented and (report.closed or not require_closed)):
+        faces, origin = repair_manifold(vertices[kept], faces, require_closed=require_closed)
+    else:
+        faces, origin = split_pinched_vertices(faces, kept.size)
+    body, faces = largest_component(faces, origin.size)
+    return kept[origin[body]], faces
+
+
 def split_pinched_vertices(faces: NDArray, n_vertices: int) -> tuple[NDArray, NDArray]:
     """Give every extra fan of faces around a pinched vertex its own copy of the vertex.
 
@@ -499,6 +525,7 @@ __all__ = [
     "Welded",
     "collapse_slivers",
     "edge_length_for",
+    "largest_body",
     "largest_component",
     "manifold_report",
     "min_angles",

@@ -42,10 +42,9 @@ from litege_core.synth import gltf
 from litege_core.synth.bend import Bend, BendSettings, body_axes, random_bend
 from litege_core.synth.meshops import (
     collapse_slivers,
-    largest_component,
+    largest_body,
     manifold_report,
     remesh,
-    repair_manifold,
     subdivide_loop,
     unit_area_scale,
     weld,
@@ -218,12 +217,7 @@ def load_rigged(path: str | Path, name: str | None = None) -> RiggedModel:
     if not clips:
         raise InputError(f"{path} has no animation to sample poses from")
     welded = weld(raw.vertices, raw.faces)
-    kept, faces = largest_component(welded.faces, welded.vertices.shape[0])
-    report = manifold_report(welded.vertices[kept], faces)
-    if not (report.closed and report.manifold and report.oriented):
-        faces, origin = repair_manifold(welded.vertices[kept], faces)
-        body, faces = largest_component(faces, origin.size)  # a split may cut off a shell
-        kept = kept[origin[body]]
+    kept, faces = largest_body(welded.vertices, welded.faces)
     source = welded.representative[kept]
     mesh = gltf.SkinnedMesh(
         vertices=welded.vertices[kept],

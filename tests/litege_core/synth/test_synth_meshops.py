@@ -165,3 +165,19 @@ def test_folder_errors_name_the_file_and_keep_their_problem_type(tmp_path):
     assert "scan.ply" in folder.list_meshes(tmp_path)
     with pytest.raises(EmptyShapeError, match=r"scan\.ply: the file has no faces"):
         folder.folder_shape(tmp_path, "scan.ply", 0)
+
+
+def test_largest_body_cuts_off_a_shell_pinched_at_one_vertex():
+    body = trimesh.creation.icosphere(subdivisions=2)
+    top = int(np.argmax(body.vertices[:, 2]))
+    horn = trimesh.creation.icosphere(subdivisions=1, radius=0.2)
+    lowest = int(np.argmin(horn.vertices[:, 2]))
+    horn.vertices += body.vertices[top] - horn.vertices[lowest]
+    index = np.arange(len(horn.vertices)) + len(body.vertices)
+    index[lowest] = top  # the horn touches the body at that one vertex
+    vertices = np.concatenate([body.vertices, horn.vertices])
+    faces = np.concatenate([body.faces, index[horn.faces]])
+    kept, kept_faces = meshops.largest_body(vertices, faces)
+    assert len(kept_faces) == len(body.faces) and len(kept) == len(body.vertices)
+    np.testing.assert_array_equal(vertices[kept], body.vertices)
+    assert meshops.manifold_report(vertices[kept], kept_faces).ok
