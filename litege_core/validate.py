@@ -178,3 +178,15 @@ def validate_arrays(
     if not total_area > 0.0:
         raise DegenerateShapeError("mesh has zero total surface area")
     return checked_vertices, checked_faces
+
+
+__all__ = [
+    "DEFAULT_LIMITS",
+    "MAX_ABS_COORDINATE",
+    "MIN_EXTENT",
+    "ShapeLimits",
+    "triangle_areas",
+    "validate_arrays",
+    "validate_faces",
+    "validate_vertices",
+]

@@ -93,3 +93,6 @@ def describe_shape(
         descriptor=result.descriptors[0].cpu().numpy(),
         residual=float(result.residual[0]),
     )
+
+
+__all__ = ["DEFAULT_MESH_SAMPLES", "ShapeDescription", "describe_shape", "shape_samples"]

@@ -428,3 +428,20 @@ def dilate(mask: NDArray, radius: int) -> NDArray:
         grown[:, :-1] |= out[:, 1:]
         out = grown
     return out
+
+
+__all__ = [
+    "UP_ROTATIONS",
+    "VIEWS",
+    "Camera",
+    "Fragments",
+    "detect_up_axis",
+    "dilate",
+    "disk_mask",
+    "fit_camera",
+    "lambert",
+    "polyline_masks",
+    "rasterize_mesh",
+    "rasterize_points",
+    "view_axes",
+]
