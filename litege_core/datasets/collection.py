@@ -82,7 +82,7 @@ def build_collection_dataset(
     ``out_dir``; returns the manifest.
 
     Args:
-        meshes_dir: directory of mesh files (obj, ply, off, stl, glb; searched recursively).
+        meshes_dir: directory of mesh files (obj, ply, off, stl, glb, gltf; searched recursively).
         out_dir: dataset directory (resumable: rerun the same call to continue).
         shapes_per_mesh / eval_shapes_per_mesh: shapes per training / evaluation file.
         workers: processes computing shapes in parallel.
@@ -92,8 +92,12 @@ def build_collection_dataset(
         settings: :class:`~litege_core.synth.folder.FolderSettings` (augmentation ranges).
 
     Raises:
+        InputError: files of the folder cannot be used (all named,
+            :func:`~litege_core.synth.folder.check_files`, before any shape is built).
         ArtifactError: ``out_dir`` holds a dataset of other files, settings or solver.
     """
+    from litege_core.synth.folder import FolderSettings, check_files
+
     spec = folder_spec(
         meshes_dir,
         shapes_per_mesh=shapes_per_mesh,
@@ -102,6 +106,7 @@ def build_collection_dataset(
         n_sources=n_sources,
         n_extra_sources=n_extra_sources,
     )
+    check_files(meshes_dir, spec.families, settings or FolderSettings())
     factory = folder_factory(meshes_dir, spec, settings)
     return build_dataset(spec, out_dir, factory, workers=workers, solver=solver, progress=progress)
 

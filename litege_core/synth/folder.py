@@ -23,18 +23,25 @@ A shape is a pure function of ``(file, seed)``, so a small collection yields man
    ``vertex_range`` (different densities and triangulations of the same surface), slivers are
    collapsed, and the result is checked to be an oriented edge-manifold single component (and
    closed when the input was). Random rotations are left to training views.
+
+A draw whose remesh is not clean is redrawn (``attempts`` in all); when every draw fails, the
+shape is the file's *reference shape* (:func:`reference_shape`: as stored, a rig in its rest
+pose, unstretched, remeshed to the middle of ``vertex_range``). :func:`check_files` builds each
+file's reference shape before a build starts, so a build never stops on a file that passed it.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litege_core.arrays import frozen
 from litege_core.errors import ComputationError, EmptyShapeError, InputError, LiteGEError
 from litege_core.io import MESH_FORMATS, load_shape, self_contained_gltf
 from litege_core.synth.meshops import (
@@ -109,19 +116,18 @@ def list_meshes(directory: str | Path) -> tuple[str, ...]:
 def check_files(
     directory: str | Path, files: tuple[str, ...], settings: FolderSettings = FolderSettings()
 ) -> None:
-    """Load (or rig, :func:`rigged_model`) every file of ``files`` once, before any shape is
-    built, so that a folder's unusable files are named together and at once.
+    """Build the reference shape (:func:`reference_shape`) of every file of ``files`` once,
+    before any shape is built, so that a folder's unusable files are named together and at
+    once, and a build that starts never stops on one of them.
 
     Raises:
-        InputError: the files that cannot serve (unreadable, no faces, no manifold body), each
-            with its reason (the first ten), to remove from the folder.
+        InputError: the files that cannot serve (unreadable, no faces, no manifold body, no
+            clean remesh), each with its reason (the first ten), to remove from the folder.
     """
     failed = []
     for name in files:
-        path = str(Path(directory) / name)
         try:
-            if not (settings.poses and rigged_model(path) is not None):
-                prepare_mesh(path)
+            reference_shape(directory, name, settings)
         except LiteGEError as exc:
             failed.append(exc.message)
     if failed:
@@ -212,14 +218,15 @@ def folder_shape(
     directory: str | Path, name: str, seed: int, settings: FolderSettings = FolderSettings()
 ) -> tuple[NDArray, NDArray]:
     """The shape ``(vertices (V, 3), faces (F, 3))`` of file ``name`` and ``seed`` (a rig's
-    pose, then steps 2–3); attempt ``k`` draws from ``default_rng([seed, k])``.
+    pose, then steps 2–3); attempt ``k`` draws from ``default_rng([seed, k])``, and when no
+    attempt gives a clean manifold the shape is the file's :func:`reference_shape`.
 
     Raises:
-        ComputationError: no attempt gave a clean manifold.
+        LiteGEError subclasses: the file cannot be loaded, or not even its reference shape is
+            a clean manifold (:func:`check_files` names such files up front).
     """
     path = str(Path(directory) / name)
     rig = rigged_model(path) if settings.poses else None
-    last: Exception | None = None
     for attempt in range(settings.attempts):
         rng = np.random.default_rng([seed, attempt])
         if rig is None:
@@ -235,17 +242,58 @@ def folder_shape(
                 vertices, rng, axis_range=settings.axis_range, amplitude=settings.amplitude
             )
         try:
-            new_vertices, new_faces = remesh(vertices, source.faces, n_target, tolerance=0.08)
-            new_vertices, new_faces = collapse_slivers(new_vertices, new_faces, min_angle=2.0)
-            report = manifold_report(new_vertices, new_faces)
-            clean = report.manifold and report.oriented and report.components == 1
-            if not clean or report.min_angle <= 1.0 or (source.closed and not report.closed):
-                raise ComputationError(f"remeshed {name} is not a clean manifold: {report}")
-        except ComputationError as exc:
-            last = exc
+            return clean_remesh(PreparedMesh(vertices, source.faces, source.closed), n_target)
+        except ComputationError:
             continue
-        return new_vertices, new_faces
-    raise ComputationError(f"{name} seed {seed}: no clean remeshed shape ({last})")
+    vertices, faces = reference_shape(directory, name, settings)
+    return vertices.copy(), faces.copy()
+
+
+def reference_shape(
+    directory: str | Path, name: str, settings: FolderSettings = FolderSettings()
+) -> tuple[NDArray, NDArray]:
+    """The reference shape ``(vertices (V, 3), faces (F, 3))``, read-only, of file ``name``:
+    its surface as stored (with ``settings.poses``, a rig in its rest pose), unstretched,
+    remeshed to the geometric middle of ``settings.vertex_range`` (memoized per process).
+
+    Raises:
+        LiteGEError subclasses naming the file: it cannot be loaded, or its remesh is not a
+            clean manifold (ComputationError).
+    """
+    return _reference_shape(str(Path(directory) / name), settings)
+
+
+@functools.lru_cache(maxsize=64)
+def _reference_shape(path: str, settings: FolderSettings) -> tuple[NDArray, NDArray]:
+    rig = rigged_model(path) if settings.poses else None
+    if rig is None:
+        source = prepare_mesh(path)
+    else:
+        rest = rig.rest_vertices()  # scaled to unit area
+        source = PreparedMesh(rest - rest.mean(axis=0), rig.mesh.faces, closed=True)
+    n_target = round(math.sqrt(settings.vertex_range[0] * settings.vertex_range[1]))
+    try:
+        vertices, faces = clean_remesh(source, n_target)
+    except ComputationError as exc:
+        raise ComputationError(f"{path}: {exc.message}") from exc
+    return frozen(vertices), frozen(faces)
+
+
+def clean_remesh(source: PreparedMesh, n_target: int) -> tuple[NDArray, NDArray]:
+    """Step 3: ``source`` remeshed isotropically to about ``n_target`` vertices, slivers
+    collapsed, checked.
+
+    Raises:
+        ComputationError: the result is not an oriented edge-manifold single component with
+            no angle at or below 1°, closed when ``source`` is.
+    """
+    vertices, faces = remesh(source.vertices, source.faces, n_target, tolerance=0.08)
+    vertices, faces = collapse_slivers(vertices, faces, min_angle=2.0)
+    report = manifold_report(vertices, faces)
+    clean = report.manifold and report.oriented and report.components == 1
+    if not clean or report.min_angle <= 1.0 or (source.closed and not report.closed):
+        raise ComputationError(f"the remeshed surface is not a clean manifold: {report}")
+    return vertices, faces
 
 
 RIG_POSES = PoseSettings(perturb_degrees=0.0, body_range=(1.0, 1.0))
@@ -273,10 +321,13 @@ __all__ = [
     "RIG_POSES",
     "FolderSettings",
     "PreparedMesh",
+    "check_files",
+    "clean_remesh",
     "folder_digest",
     "folder_shape",
     "list_meshes",
     "prepare_mesh",
+    "reference_shape",
     "rigged_model",
     "split_files",
 ]

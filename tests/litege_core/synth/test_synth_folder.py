@@ -1,4 +1,5 @@
-"""Folder collections: rigged, animated glTF files are posed by their own clips."""
+"""Folder collections: rigged, animated glTF files posed by their own clips; files checked
+up front; a shape no draw can remesh falls back to its file's reference shape."""
 
 import numpy as np
 import pytest
@@ -6,12 +7,14 @@ import trimesh
 
 from litege_core.datasets import GeodesicDataset, build_collection_dataset, shape_mesh
 from litege_core.errors import InputError
+from litege_core.synth import folder
 from litege_core.synth.folder import (
     FolderSettings,
     check_files,
     folder_shape,
     list_meshes,
     prepare_mesh,
+    reference_shape,
     rigged_model,
 )
 
@@ -112,3 +115,48 @@ def test_unusable_files_are_named_together_before_any_shape(tmp_path, rigged_glt
         check_files(tmp_path, files)
     assert "broken.obj" in error.value.message and "c.ply" in error.value.message
     check_files(tmp_path, ("good.obj", "rig.gltf"))  # the good ones pass
+
+
+def _flattened(vertices, rng, **_):
+    """A 'stretch' that presses the surface flat: no remesh of it is a closed manifold."""
+    return vertices * np.array([1.0, 1.0, 0.0])
+
+
+def test_a_shape_whose_every_draw_fails_is_the_files_reference_shape(tmp_path, monkeypatch):
+    trimesh.creation.icosphere(subdivisions=3).export(tmp_path / "ball.obj")
+    settings = FolderSettings(vertex_range=(300, 400), stretch_probability=1.0)
+    reference, reference_faces = reference_shape(tmp_path, "ball.obj", settings)
+    assert not reference.flags.writeable and 250 <= len(reference) <= 450
+    assert np.ptp(reference, axis=0).min() > 0.5  # the ball as stored, unstretched
+    monkeypatch.setattr(folder, "smooth_stretch", _flattened)
+    for seed in (0, 1):
+        vertices, faces = folder_shape(tmp_path, "ball.obj", seed, settings)
+        np.testing.assert_array_equal(vertices, reference)
+        np.testing.assert_array_equal(faces, reference_faces)
+        assert vertices.flags.writeable  # the caller's own copy
+    unstretched = FolderSettings(vertex_range=(300, 400), stretch_probability=0.0)
+    drawn = folder_shape(tmp_path, "ball.obj", 0, unstretched)[0]
+    assert np.ptp(drawn, axis=0).min() > 0.5 and not np.array_equal(drawn, reference)
+
+
+def test_a_rigs_reference_shape_is_its_rest_pose(tmp_path, rigged_gltf):
+    rigged_gltf(tmp_path / "capsule.gltf")
+    vertices, faces = reference_shape(tmp_path, "capsule.gltf", SETTINGS)
+    assert _height_over_length(vertices) < 0.3  # the straight capsule
+    assert trimesh.Trimesh(vertices, faces, process=False).is_watertight
+
+
+def test_a_file_whose_reference_shape_cannot_be_remeshed_is_named_up_front(tmp_path, monkeypatch):
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "good.obj")
+    trimesh.creation.box().export(tmp_path / "torn.obj")
+    remesh = folder.remesh
+
+    def tearing(vertices, faces, n_target, **kwargs):  # the box (12 faces) comes out open
+        new_vertices, new_faces = remesh(vertices, faces, n_target, **kwargs)
+        return new_vertices, new_faces[1:] if len(faces) == 12 else new_faces
+
+    monkeypatch.setattr(folder, "remesh", tearing)
+    settings = FolderSettings(vertex_range=(300, 400))
+    with pytest.raises(InputError, match="1 of 2 mesh files cannot be used") as error:
+        check_files(tmp_path, ("good.obj", "torn.obj"), settings)
+    assert "torn.obj: the remeshed surface is not a clean manifold" in error.value.message
