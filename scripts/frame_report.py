@@ -58,6 +58,7 @@ import itertools
 import re
 from collections.abc import Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -82,12 +83,21 @@ def angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def frames_of(model: MatchingModel, shapes: list[Shape], mode: str) -> list[tuple[np.ndarray, str]]:
-    """``(rotation, frame name)`` of each shape prepared with ``frames=mode``."""
+class Found(NamedTuple):
+    """A shape's frame prepared with one ``frames`` mode."""
+
+    rotation: np.ndarray
+    name: str  # MatchingShape.frame
+    check: str  # MatchingShape.frame_check
+
+
+def frames_of(model: MatchingModel, shapes: list[Shape], mode: str) -> list[Found]:
+    """The frame of each shape prepared with ``frames=mode``."""
     out = []
     for shape in shapes:
         prepared = model.prepare(shape, frames=mode)
-        out.append((np.asarray(prepared.transform.rotation), prepared.frame))
+        rotation = np.asarray(prepared.transform.rotation)
+        out.append(Found(rotation, prepared.frame, prepared.frame_check))
     return out
 
 
@@ -334,21 +344,37 @@ def rotated_files(files: list[Path], seed: int, salt: int) -> tuple[list[Shape],
     return rotated(((shape.vertices, shape.faces) for shape in loaded), seed, salt)
 
 
-def errors_to_truth(found: list[tuple[np.ndarray, str]], truths: list[np.ndarray]) -> list[float]:
+def errors_to_truth(found: list[Found], truths: list[np.ndarray]) -> list[float]:
     """Angle (rad) of each found frame from the true one (the inverse of the input rotation)."""
-    return [angle(r @ t, np.eye(3)) for (r, _), t in zip(found, truths, strict=True)]
+    return [angle(f.rotation @ t, np.eye(3)) for f, t in zip(found, truths, strict=True)]
 
 
 def mode_errors(
     model: MatchingModel, shapes: list[Shape], truths: list[np.ndarray]
-) -> dict[str, tuple[list[float], int]]:
+) -> dict[str, tuple[list[float], list[Found]]]:
     """Per frame mode (``tnet``, ``judged``): :func:`errors_to_truth` of the shapes' frames and
-    how many frames were not the T-Net's."""
+    the frames."""
     out = {}
     for mode in ("tnet", "judged"):
         found = frames_of(model, shapes, mode)
-        out[mode] = (errors_to_truth(found, truths), sum(name != "tnet" for _, name in found))
+        out[mode] = (errors_to_truth(found, truths), found)
     return out
+
+
+def switched_count(found: list[Found]) -> int:
+    """How many frames are not the T-Net's."""
+    return sum(f.name != "tnet" for f in found)
+
+
+def check_rows(label: str, mode: str, errors: list[float], found: list[Found]) -> list[str]:
+    """Rows of the frames by their frame check (``MatchingShape.frame_check``: what a user is
+    told of each prepared shape), for a mode that checks them."""
+    rows = []
+    for check in ("agreed", "split"):
+        chosen = [e for e, f in zip(errors, found, strict=True) if f.check == check]
+        if chosen:
+            rows.append(f"| {label}, T-Net runs {check} | {mode} | {summary(chosen)} |")
+    return rows
 
 
 def summary(errors: list[float]) -> str:
@@ -427,11 +453,11 @@ def main() -> None:
     ]
     shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 17)
     poses = [g.pose for g in generated]
-    for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
+    for mode, (errors, found) in mode_errors(model, shapes, truths).items():
         rows.append(f"| procedural (test seeds), all poses | {mode} | {summary(errors)} |")
         upright = [e for e, p in zip(errors, poses, strict=True) if p != "lying"]
         rows.append(f"| procedural, poses other than lying | {mode} | {summary(upright)} |")
-        switched[f"procedural {mode}"] = changed
+        switched[f"procedural {mode}"] = switched_count(found)
 
     # ------------------------------------------------------------------ steep poses
     steep_modes = EXTRA_MODES[model.category]
@@ -446,9 +472,10 @@ def main() -> None:
             for k in range(args.steep)
         ]
         shapes, truths = rotated(((g.vertices, g.faces) for g in generated), args.seed, 19)
-        for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
+        for mode, (errors, found) in mode_errors(model, shapes, truths).items():
             rows.append(f"| procedural (test seeds), steep modes | {mode} | {summary(errors)} |")
-            switched[f"steep {mode}"] = changed
+            rows += check_rows("procedural, steep modes", mode, errors, found)
+            switched[f"steep {mode}"] = switched_count(found)
 
     # ------------------------------------------------------------------ rigged animals
     if args.rigged and model.category == "quadruped":
@@ -459,9 +486,10 @@ def main() -> None:
             rigged = collection_shape_set("rigged", "val", args.rigged, None, args.cache)
             meshes = zip(rigged.vertices, rigged.faces, strict=True)
             shapes, truths = rotated(meshes, args.seed, 31)
-            for mode, (errors, changed) in mode_errors(model, shapes, truths).items():
+            for mode, (errors, found) in mode_errors(model, shapes, truths).items():
                 rows.append(f"| rigged animals (val seeds) | {mode} | {summary(errors)} |")
-                switched[f"rigged {mode}"] = changed
+                rows += check_rows("rigged animals", mode, errors, found)
+                switched[f"rigged {mode}"] = switched_count(found)
             if args.oracle:
                 found_errors = alternative_errors(model, shapes, truths, np.eye(3), args.sagittal)
                 for name, errors in found_errors.items():
@@ -487,13 +515,14 @@ def main() -> None:
         labels = [("L" if "landmarks" in str(path) else "") + path.stem for path in files]
         for mode in ("tnet", "judged"):
             found = frames_of(model, real, mode)
-            in_file = [r @ t for (r, _), t in zip(found, rotations, strict=True)]
+            in_file = [f.rotation @ t for f, t in zip(found, rotations, strict=True)]
             errors = [angle(f, TOSCA_TO_CANONICAL) for f in in_file]
-            for label, (_, name), error in zip(labels, found, errors, strict=True):
-                per_shape.setdefault(f"TOSCA {label}", {})[mode] = (name, error)
+            for label, frame, error in zip(labels, found, errors, strict=True):
+                per_shape.setdefault(f"TOSCA {label}", {})[mode] = (frame.name, error)
             rows.append(
                 f"| TOSCA ({len(real)} shapes) vs file convention | {mode} | {summary(errors)} |"
             )
+            rows += check_rows("TOSCA", mode, errors, found)
             pose_index = [i for i, label in enumerate(labels) if not label.startswith("L")]
             pairs = [
                 (i, j)
@@ -505,7 +534,7 @@ def main() -> None:
                 f"| TOSCA same-class pose pairs ({len(pairs)}): frames agree ≤ 0.66 rad, % | "
                 f"{mode} | {len(pairs)} | — | — | {100 * np.mean(agree):.1f} |"
             )
-            switched[f"TOSCA {mode}"] = sum(name != "tnet" for _, name in found)
+            switched[f"TOSCA {mode}"] = switched_count(found)
         if args.intrinsic:
             chosen, every, families_kept = intrinsic_choices(model, real, rotations)
             found_errors = {
@@ -544,18 +573,22 @@ def main() -> None:
         for mode in ("tnet", "judged", *intrinsic):
             if mode in intrinsic:
                 in_file = intrinsic[mode]
-                found = list(zip(in_file, families_kept, strict=True))
+                found = [
+                    Found(r, family, "unchecked")
+                    for r, family in zip(in_file, families_kept, strict=True)
+                ]
             else:
                 found = frames_of(model, real, mode)
-                in_file = [r @ t for (r, _), t in zip(found, rotations, strict=True)]
+                in_file = [f.rotation @ t for f, t in zip(found, rotations, strict=True)]
             reference = consensus(in_file)
             errors = [angle(f, reference) for f in in_file]
-            for path, (_, name), error in zip(files, found, errors, strict=True):
-                per_shape.setdefault(f"FAUST {path.stem}", {})[mode] = (name, error)
+            for path, frame, error in zip(files, found, errors, strict=True):
+                per_shape.setdefault(f"FAUST {path.stem}", {})[mode] = (frame.name, error)
             rows.append(
                 f"| FAUST ({len(real)} shapes) vs their consensus frame | {mode} | "
                 f"{summary(errors)} |"
             )
+            rows += check_rows("FAUST", mode, errors, found)
             pairs = list(itertools.combinations(range(len(real)), 2))
             agree = [angle(in_file[i], in_file[j]) <= FAILURE for i, j in pairs]
             rows.append(
@@ -563,7 +596,7 @@ def main() -> None:
                 f"{len(pairs)} | — | — | {100 * np.mean(agree):.1f} |"
             )
             if mode not in intrinsic:
-                switched[f"FAUST {mode}"] = sum(name != "tnet" for _, name in found)
+                switched[f"FAUST {mode}"] = switched_count(found)
 
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
     print(f"### Frame failures (> {FAILURE} rad): `{args.model}` matching model\n")

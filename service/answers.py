@@ -146,6 +146,28 @@ class Readiness:
 
 
 @dataclass(frozen=True)
+class FrameInfo:
+    """How the canonical frame of a shape prepared for matching was chosen.
+
+    Attributes:
+        frame: :attr:`MatchingShape.frame <litege_core.matching.model.MatchingShape>`:
+            ``"tnet"``, ``"pcaK"`` or ``"intrinsic:<family>"``.
+        check: :attr:`MatchingShape.frame_check <litege_core.matching.model.MatchingShape>`:
+            ``"agreed"`` (the T-Net's turned runs agreed), ``"split"`` (they did not: an
+            uncertain frame, chosen among candidates) or ``"unchecked"``.
+    """
+
+    frame: str
+    check: str
+
+    def to_dict(self) -> dict[str, str]:
+        return {"frame": self.frame, "check": self.check}
+
+
+UNCHECKED_FRAME = FrameInfo("tnet", "unchecked")
+
+
+@dataclass(frozen=True)
 class Correspondence:
     """Matches of query points of a source shape on a target shape.
 
@@ -162,6 +184,8 @@ class Correspondence:
         refinement: how the matches were refined (:attr:`MatchResult.refinement
             <litege_core.matching.model.MatchResult>`): ``"none"``, ``"zoomout"``, or
             ``"zoomout:<seed>"`` for ``refine="zoomout-hybrid"`` (the start of the kept map).
+        source_frame, target_frame: how each shape's frame was chosen (a ``"split"`` check
+            warns that the matches may be turned or mirrored).
     """
 
     source_shape_id: str
@@ -172,6 +196,8 @@ class Correspondence:
     distances_unit_area: np.ndarray
     evaluations: int
     refinement: str = NO_REFINEMENT
+    source_frame: FrameInfo = UNCHECKED_FRAME
+    target_frame: FrameInfo = UNCHECKED_FRAME
 
     @property
     def n_queries(self) -> int:

@@ -747,7 +747,9 @@ def _add_query_routes(app: FastAPI) -> None:
         search). Both shapes must be registered first (``POST /shapes``). With
         ``return_distance``: the distance at each match in the target's input units
         (``distances``) and in unit-area units (``distances_unit_area``). With ``refine``
-        (meshes only): the matches refined with ZoomOut, ``refinement`` saying how."""
+        (meshes only): the matches refined with ZoomOut, ``refinement`` saying how.
+        ``source_frame`` and ``target_frame`` say how each shape's canonical frame was chosen;
+        a ``"split"`` check marks an uncertain frame (matches may be turned or mirrored)."""
         body = await _json_body(request, CorrespondenceRequest)
         result = await runtime.correspond(
             body.source_shape_id,
@@ -767,6 +769,8 @@ def _add_query_routes(app: FastAPI) -> None:
                 result.distances_unit_area.tolist() if body.return_distance else None
             ),
             "refinement": result.refinement,
+            "source_frame": result.source_frame.to_dict(),
+            "target_frame": result.target_frame.to_dict(),
         }
         return Response(json.dumps(payload, allow_nan=False), media_type="application/json")
 

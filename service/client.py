@@ -190,8 +190,10 @@ class LiteGEClient:
         """Matches of source queries (indices, ``(K, 3)`` points or ``"all"``) on the target:
         the response dict with ``matches`` a ``(K,)`` int64 array, and ``distances`` (the
         target's input units) and ``distances_unit_area`` ``(K,)`` float32 arrays (``None``
-        unless ``return_distance``), and ``refinement``. ``refine``: ``"zoomout"`` or
-        ``"zoomout-hybrid"`` refines the matches of two meshes (seconds per request)."""
+        unless ``return_distance``), ``refinement``, and ``source_frame`` and ``target_frame``
+        (``{"frame", "check"}``; check ``"split"``: an uncertain frame). ``refine``:
+        ``"zoomout"`` or ``"zoomout-hybrid"`` refines the matches of two meshes (seconds per
+        request)."""
         body: dict[str, Any] = {
             "source_shape_id": source_shape_id,
             "target_shape_id": target_shape_id,

@@ -87,6 +87,11 @@ class GrpcCallError(Exception):
         )
 
 
+def _frame_info(message: Any) -> dict[str, str]:
+    """A ``FrameInfo`` message as ``{"frame", "check"}``."""
+    return {"frame": message.frame, "check": message.check}
+
+
 def _indices_or_points(value: ArrayLike, what: str) -> tuple[str, NDArray]:
     """``("indices", (K,) int64)`` or ``("points", (K, 3) float64)`` from user input."""
     array = np.asarray(value)
@@ -372,7 +377,8 @@ class GrpcClient:
         (``(K,)`` int64 target indices), ``distances`` (``(K,)`` float32 in the target's input
         units) and ``distances_unit_area`` (the same in unit-area units; both ``None`` unless
         ``return_distance``), ``model``, ``refinement`` (``"none"``, ``"zoomout"``,
-        ``"zoomout:<seed>"``).
+        ``"zoomout:<seed>"``), ``source_frame`` and ``target_frame`` (``{"frame", "check"}``:
+        how each shape's frame was chosen; check ``"split"``: an uncertain frame).
 
         Args:
             batches: each ``(K,)`` integer indices, ``(K, 3)`` float xyz points in the source's
@@ -423,6 +429,8 @@ class GrpcClient:
                     "target_shape_id": response.target_shape_id,
                     "model": response.model,
                     "refinement": response.refinement,
+                    "source_frame": _frame_info(response.source_frame),
+                    "target_frame": _frame_info(response.target_frame),
                     "n_queries": int(response.n_queries),
                     "matches": np.array(response.matches, dtype=np.int64),
                     "distances": (

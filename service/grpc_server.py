@@ -354,6 +354,8 @@ class LiteGEServicer:
             n_queries=result.n_queries,
             matches=result.matches.tolist(),
             refinement=result.refinement,
+            source_frame=self.pb2.FrameInfo(**result.source_frame.to_dict()),
+            target_frame=self.pb2.FrameInfo(**result.target_frame.to_dict()),
         )
         if message.return_distance:
             response.MergeFromString(

@@ -33,6 +33,7 @@ from service.answers import (
     LEARNED,
     NO_REFINEMENT,
     Correspondence,
+    FrameInfo,
     GeodesicAnswer,
     PathResult,
     Readiness,
@@ -556,6 +557,8 @@ class Runtime:
             np.concatenate([p.distances_unit_area for p in parts]),
             sum(p.evaluations for p in parts),
             refinement=parts[0].refinement,
+            source_frame=parts[0].source_frame,
+            target_frame=parts[0].target_frame,
         )
 
     def _matching_model_of(self, source_shape_id: str) -> str:
@@ -699,6 +702,8 @@ class Runtime:
             unit_area,
             result.evaluations,
             refinement=result.refinement,
+            source_frame=FrameInfo(source.frame, source.frame_check),
+            target_frame=FrameInfo(target.frame, target.frame_check),
         )
 
     def _handle_geodesic(self, jobs: list[GeodesicJob]) -> list[Any]:

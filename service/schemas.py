@@ -211,6 +211,21 @@ class GeodesicResponse(BaseModel):
     )
 
 
+class FrameInfoModel(BaseModel):
+    """How a shape's canonical frame was chosen for matching."""
+
+    frame: str = Field(
+        description="'tnet' (the T-Net's frame), 'pcaK' (principal-axis frame K, chosen by "
+        "the frame judge) or 'intrinsic:<family>' (frames='intrinsic')"
+    )
+    check: Literal["agreed", "split", "unchecked"] = Field(
+        description="'agreed': the T-Net's frame held on turned copies of the shape; 'split': "
+        "it did not, and the frame was chosen among candidates: an uncertain frame (on the "
+        "real dev animals about half of these are wrong), so the matches may be turned or "
+        "mirrored; 'unchecked': no check ran (frames='tnet')"
+    )
+
+
 class CorrespondenceResponse(BaseModel):
     source_shape_id: str
     target_shape_id: str
@@ -236,6 +251,8 @@ class CorrespondenceResponse(BaseModel):
         "'zoomout:<seed>' naming the start of the kept map ('zoomout:litege' or "
         "'zoomout:descriptors')"
     )
+    source_frame: FrameInfoModel = Field(description="how the source shape's frame was chosen")
+    target_frame: FrameInfoModel = Field(description="how the target shape's frame was chosen")
 
 
 class PathSegment(BaseModel):

@@ -56,6 +56,7 @@ def cmd_match(args: argparse.Namespace) -> int:
             "n_queries": int(result.indices.size),
             "scaling": [x.scaling, y.scaling],
             "frames": [x.frame, y.frame],
+            "frame_checks": [x.frame_check, y.frame_check],
             "refinement": result.refinement,
             "evaluations": result.evaluations,
             "mean_predicted_distance": float(result.distance.mean()),

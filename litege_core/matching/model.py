@@ -88,11 +88,18 @@ SIDES: tuple[str, ...] = ("frame", "network")
 (proper rotations keep each shape's handedness); ``network`` — match on Y and on its mirror image
 and keep the lower mean predicted distance."""
 
-PREPARATION_VERSION = 2
+PREPARATION_VERSION = 3
 """Version of what :meth:`MatchingModel.prepare` computes from a shape and a bundle (frame,
 descriptor, cache): a stored prepared shape of another version is stale, so caches key on it
 besides the bundle's hash. 2 (2026-11-28): ``judged`` frames consult the judge only where the
-T-Net's turned runs disagree, over the principal-axis frames (1: the T-Net frame's half turns)."""
+T-Net's turned runs disagree, over the principal-axis frames (1: the T-Net frame's half turns).
+3 (2026-12-02): the prepared shape records :attr:`MatchingShape.frame_check`."""
+FRAME_CHECKS: tuple[str, ...] = ("agreed", "split", "unchecked")
+"""Values of :attr:`MatchingShape.frame_check`: the T-Net's turned runs (:func:`~litege_core.
+matching.frame.runs_agree`) agreed on its frame, or split (the frame was then chosen among
+candidates: about half such frames of real animals are wrong, BENCHMARKS.md
+``frame-check``), or were not run (``frames="tnet"``, and point clouds under
+``frames="intrinsic"``)."""
 MAX_PAIRS_PER_CALL = 16_384
 """(query, candidate) pairs per head call: bounds the ``pairs × 2n`` scratch memory."""
 REFINED_MAPS_PER_SHAPE = 8
@@ -143,6 +150,8 @@ class MatchingShape:
             judge's choice, principal-axis frame ``K`` of
             :func:`~litege_core.matching.frame.pca_candidates`), ``"mirror"`` (an internal
             mirror-image twin).
+        frame_check: whether the frame was checked and held (:data:`FRAME_CHECKS`):
+            ``"agreed"``, ``"split"`` (an uncertain frame) or ``"unchecked"``.
     """
 
     shape_id: str
@@ -157,6 +166,7 @@ class MatchingShape:
     seed: int
     faces: NDArray | None = field(default=None, repr=False)
     frame: str = "tnet"
+    frame_check: str = "unchecked"
     _lazy: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -203,6 +213,7 @@ class MatchingShape:
             "residual": np.array([self.residual], dtype=np.float64),
             "seed": np.array([self.seed], dtype=np.int64),
             "frame": _text(self.frame),
+            "frame_check": _text(self.frame_check),
         }
         if self.faces is not None:
             arrays["faces"] = np.asarray(self.faces, dtype=np.int64)
@@ -237,6 +248,9 @@ class MatchingShape:
                 seed=int(arrays["seed"].reshape(-1)[0]),
                 faces=_optional_faces(arrays.get("faces"), aligned.shape[0]),
                 frame=_untext(arrays["frame"]) if "frame" in arrays else "tnet",
+                frame_check=(
+                    _untext(arrays["frame_check"]) if "frame_check" in arrays else "unchecked"
+                ),
             )
         except (KeyError, IndexError, ValueError, TypeError, UnicodeDecodeError) as exc:
             raise ArtifactError(f"malformed matching shape: {exc}") from exc
@@ -475,13 +489,15 @@ class MatchingModel:
         aligned_frames = align_shapes(
             on_surface, self.bundle.tnet, self.pipeline, scaling=scaling, seed=int(seed)
         )
-        names = ["tnet"] * len(shapes)
+        names, checks = ["tnet"] * len(shapes), ["unchecked"] * len(shapes)
         if mode == "judged":
-            aligned_frames, names = self._judged_frames(
+            aligned_frames, names, checks = self._judged_frames(
                 on_surface, aligned_frames, frame_margin, int(seed)
             )
         elif mode == "intrinsic":
-            aligned_frames, names = self._intrinsic_frames(on_surface, aligned_frames, int(seed))
+            aligned_frames, names, checks = self._intrinsic_frames(
+                on_surface, aligned_frames, int(seed)
+            )
         described = self._engine.describe_with_residual(
             [cloud.astype(np.float32) for _, cloud, _ in aligned_frames]
         )
@@ -515,6 +531,7 @@ class MatchingModel:
                     seed=int(seed),
                     faces=shape.faces,
                     frame=names[b],
+                    frame_check=checks[b],
                     _lazy={"cloud": frozen(cloud, np.float32)},
                 )
             )
@@ -526,16 +543,18 @@ class MatchingModel:
         frames: list[tuple[Transform, NDArray, str]],
         margin: float,
         seed: int,
-    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
+    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str], list[str]]:
         """The T-Net frame of each shape whose turned T-Net runs agree; for the others, the
         T-Net frame or one of the 24 principal-axis frames, whichever scores best: by the
         bundle's :class:`~litege_core.nets.orientation.OrientationNet` where it has one (the
-        lowest ``−log p(canonical)``), else by the frame judge (one call for all shapes)."""
+        lowest ``−log p(canonical)``), else by the frame judge (one call for all shapes).
+        Returns the frames, their names and their :data:`FRAME_CHECKS`."""
         candidates = candidate_turns(self.bundle.tnet, frames, self.pipeline.n_tnet_points, seed)
         split = [i for i, turns in enumerate(candidates) if turns is not None]
         out, names = list(frames), ["tnet"] * len(frames)
+        checks = ["split" if turns is not None else "agreed" for turns in candidates]
         if not split:
-            return out, names
+            return out, names, checks
         turns = [t for t in candidates if t is not None]
         orientation = self.bundle.orientation
         if orientation is not None:
@@ -552,24 +571,27 @@ class MatchingModel:
             transform, cloud, chosen = frames[i]
             out[i] = (turned(transform, shape_turns[best]), cloud @ shape_turns[best].T, chosen)
             names[i] = "tnet" if best == 0 else f"pca{best - 1}"
-        return out, names
+        return out, names, checks
 
     def _intrinsic_frames(
         self, shapes: list[Shape], frames: list[tuple[Transform, NDArray, str]], seed: int
-    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str]]:
+    ) -> tuple[list[tuple[Transform, NDArray, str]], list[str], list[str]]:
         """The T-Net frame of each shape whose turned T-Net runs agree (as judged frames) and
         of each point cloud; each other mesh in its intrinsic frame
         (:func:`~litege_core.matching.intrinsic.intrinsic_frame`), named
-        ``intrinsic:<family>`` after the reference animal that gave it."""
+        ``intrinsic:<family>`` after the reference animal that gave it. Returns the frames,
+        their names and their :data:`FRAME_CHECKS` (point clouds: ``"unchecked"``)."""
         out, names = list(frames), ["tnet"] * len(frames)
+        checks = ["unchecked"] * len(frames)
         meshes = [i for i, shape in enumerate(shapes) if shape.faces is not None]
         if not meshes:
-            return out, names
+            return out, names, checks
         turns = candidate_turns(
             self.bundle.tnet, [frames[i] for i in meshes], self.pipeline.n_tnet_points, seed
         )
         for i, shape_turns in zip(meshes, turns, strict=True):
             shape = shapes[i]
+            checks[i] = "agreed" if shape_turns is None else "split"
             if shape_turns is None or shape.faces is None:  # the T-Net's runs agree
                 continue
             found = intrinsic_frame(shape.vertices, shape.faces, self.category)
@@ -577,7 +599,7 @@ class MatchingModel:
             turn = found.rotation @ np.asarray(transform.rotation).T  # T-Net → intrinsic frame
             out[i] = (turned(transform, turn), cloud @ turn.T, chosen)
             names[i] = f"intrinsic:{found.family}"
-        return out, names
+        return out, names, checks
 
     def _orientation_scores(
         self, orientation: OrientationNet, cloud: NDArray, shape_turns: NDArray, seed: int
@@ -709,6 +731,7 @@ class MatchingModel:
                 seed=prepared.seed,
                 faces=prepared.faces,
                 frame="mirror",
+                frame_check=prepared.frame_check,
             )
             prepared._lazy["mirror"] = cached
         return cached
@@ -923,6 +946,7 @@ def ensemble_score_fn(
 
 
 __all__ = [
+    "FRAME_CHECKS",
     "MAX_PAIRS_PER_CALL",
     "MatchResult",
     "MatchingModel",

@@ -128,6 +128,7 @@ def test_match_reports_frames_and_refines_on_request(tmp_path, capsys):
     assert main([*argv, "-o", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == ["tnet", "tnet"] and report["refinement"]
+    assert report["frame_checks"] == ["unchecked", "unchecked"]  # --frames tnet runs no check
     assert np.load(out).shape == (3,)
     # --smoothing reaches the refinement: 0 keeps the spectral map, a negative weight is refused
     raw = tmp_path / "raw.npy"

@@ -141,3 +141,19 @@ class _JudgePrefers:
         out = np.ones(len(clouds))
         out[self.best] = 0.1
         return out
+
+
+def test_check_rows_split_the_failures_by_the_frame_check(frame_report):
+    found = [
+        frame_report.Found(np.eye(3), "tnet", check)
+        for check in ("agreed", "agreed", "split", "split", "split")
+    ]
+    errors = [0.1, 1.0, 2.0, 3.0, 0.2]
+    rows = frame_report.check_rows("TOSCA", "judged", errors, found)
+    assert rows == [
+        "| TOSCA, T-Net runs agreed | judged | 2 | 0.55 | 0.55 | 50.0 |",
+        "| TOSCA, T-Net runs split | judged | 3 | 2.00 | 1.73 | 66.7 |",
+    ]
+    unchecked = [f._replace(check="unchecked") for f in found]
+    assert frame_report.check_rows("TOSCA", "tnet", errors, unchecked) == []
+    assert frame_report.switched_count([*found[:2], found[2]._replace(name="pca4")]) == 1

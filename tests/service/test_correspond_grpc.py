@@ -137,6 +137,8 @@ def test_batches_answered_in_order_equal_the_library(client, pair, reference):
         assert answer["model"] == MODEL and answer["n_queries"] == len(want.indices)
         assert answer["refinement"] == "none"
         assert (answer["source_shape_id"], answer["target_shape_id"]) == tuple(pair["ids"])
+        for role, prepared in zip(("source_frame", "target_frame"), pair["prepared"], strict=True):
+            assert answer[role] == {"frame": prepared.frame, "check": prepared.frame_check}
         np.testing.assert_array_equal(answer["matches"], want.indices)
         unit_area = answer["distances_unit_area"]
         np.testing.assert_allclose(unit_area, want.distance, atol=1e-5, rtol=0)

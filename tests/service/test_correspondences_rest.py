@@ -130,8 +130,13 @@ def test_index_queries_without_distances(service, client, pair, reference):
         "distances",
         "distances_unit_area",
         "refinement",
+        "source_frame",
+        "target_frame",
     }
     assert raw.json()["refinement"] == "none" and got["refinement"] == "none"
+    for role, prepared in zip(("source_frame", "target_frame"), pair["prepared"], strict=True):
+        want = {"frame": prepared.frame, "check": prepared.frame_check}
+        assert raw.json()[role] == got[role] == want == {"frame": "tnet", "check": "unchecked"}
 
 
 def test_xyz_queries_match_the_library(client, pair, reference):

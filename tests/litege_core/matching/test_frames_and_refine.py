@@ -238,6 +238,9 @@ def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(sh
     judged = model.prepare_many(list(shapes), frames="judged")
     assert stub.calls == [25]  # one call: the split shape's T-Net frame and 24 PCA frames
     assert [p.frame for p in judged] == ["pca4", "tnet"]
+    assert [p.frame_check for p in judged] == ["split", "agreed"]  # what a user is told
+    assert [p.frame_check for p in plain] == ["unchecked"] * 2
+    assert model.mirrored(judged[0]).frame_check == "split"
     after, before, shape = judged[0], plain[0], shapes[0]
     unrotated = before._lazy["cloud"] @ before.transform.rotation  # scaled, not rotated
     seen = subsample(np.asarray(unrotated, np.float64), model.pipeline.n_tnet_points, 0)
@@ -247,11 +250,14 @@ def test_judged_frames_judge_only_split_shapes_and_keep_everything_consistent(sh
     np.testing.assert_allclose(after._lazy["cloud"], unrotated @ expected, atol=1e-4)
     exact = model.bundle.basis.engine("cpu").describe_batch(after._lazy["cloud"][None])
     np.testing.assert_allclose(after.descriptor, exact.numpy()[0], atol=1e-5)
-    assert MatchingShape.from_arrays(after.to_arrays()).frame == "pca4"
+    restored = MatchingShape.from_arrays(after.to_arrays())
+    assert (restored.frame, restored.frame_check) == ("pca4", "split")
     np.testing.assert_allclose(judged[1].aligned, plain[1].aligned)
 
     model.frame_judge = _StubJudge(model, best=0)  # the T-Net frame wins: nothing changes
-    assert [p.frame for p in model.prepare_many(list(shapes), frames="judged")] == ["tnet"] * 2
+    kept = model.prepare_many(list(shapes), frames="judged")
+    assert [p.frame for p in kept] == ["tnet"] * 2
+    assert [p.frame_check for p in kept] == ["split", "agreed"]  # kept, but still uncertain
     monkeypatch.setattr(
         frame_module,
         "tnet_turn_runs",
@@ -307,8 +313,9 @@ def test_an_orientation_network_weighs_the_candidates_instead_of_the_judge(shape
 
 def test_old_cache_entries_without_a_frame_read_as_tnet(model, shapes):
     arrays = model.prepare(shapes[0]).to_arrays()
-    del arrays["frame"]
-    assert MatchingShape.from_arrays(arrays).frame == "tnet"
+    del arrays["frame"], arrays["frame_check"]
+    restored = MatchingShape.from_arrays(arrays)
+    assert (restored.frame, restored.frame_check) == ("tnet", "unchecked")
 
 
 def test_shipped_tnet_runs_agree_on_standing_animals_in_any_rotation():

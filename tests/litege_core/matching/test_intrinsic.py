@@ -85,6 +85,7 @@ def test_prepare_with_intrinsic_frames_turns_meshes_and_keeps_clouds_on_the_tnet
     prepared, plain = model.prepare_many([mesh, cloud], frames="intrinsic")
     expected = intrinsic_frame(mesh.vertices, mesh.faces, model.category)
     assert prepared.frame == f"intrinsic:{expected.family}"
+    assert (prepared.frame_check, plain.frame_check) == ("split", "unchecked")
     np.testing.assert_allclose(prepared.transform.rotation, expected.rotation, atol=1e-9)
     assert _angle(np.asarray(prepared.transform.rotation) @ truth, np.eye(3)) < 0.66
     centred = prepared.aligned - prepared.aligned.mean(axis=0)
@@ -97,6 +98,6 @@ def test_prepare_with_intrinsic_frames_turns_meshes_and_keeps_clouds_on_the_tnet
     # where the T-Net's turned runs agree, its frame stands
     monkeypatch.setattr(model_module, "candidate_turns", lambda *args: [None])
     agreed = model.prepare(mesh, frames="intrinsic")
-    assert agreed.frame == "tnet"
+    assert (agreed.frame, agreed.frame_check) == ("tnet", "agreed")
     tnet_mesh = model.prepare(mesh, frames="tnet")
     np.testing.assert_allclose(agreed.transform.rotation, tnet_mesh.transform.rotation)
