@@ -6,8 +6,9 @@ stdout, progress to stderr.
 [--workers N]`` trains on a folder of meshes in one command (ground truth, training,
 held-out comparison, bundle with model card; :mod:`litege_core.train.from_meshes`).
 ``litege train matching --meshes DIR --out BUNDLE [--init quadrupeds] [--time-budget MINUTES]
-[--workers N]`` does the same for matching when the meshes share one topology (vertex ``i``
-corresponds; a clear error otherwise; :mod:`litege_core.train.matching_from_meshes`).
+[--workers N] [--poses]`` does the same for matching when the meshes share one topology (vertex
+``i`` corresponds; a clear error otherwise; :mod:`litege_core.train.matching_from_meshes`), or
+with ``--poses`` from the poses of rigged, animated glTF files (one character is enough).
 """
 
 from __future__ import annotations
@@ -166,6 +167,7 @@ def cmd_train_matching_meshes(args: argparse.Namespace) -> int:
         eval_shapes_per_mesh=args.eval_shapes_per_mesh,
         config=args.config,
         name=args.name,
+        poses=args.poses,
     )
     print_json(train_matching_from_meshes(options))
     return 0
@@ -363,6 +365,13 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     )
     mfolder.add_argument(
         "--eval-shapes-per-mesh", type=int, default=2, help="shapes per val / test file"
+    )
+    mfolder.add_argument(
+        "--poses",
+        action="store_true",
+        help="the files are rigged, animated glTF/GLB files of one topology (one is enough): "
+        "each shape is a pose from the file's own clips; with fewer than 3 files every split "
+        "holds every file and differs by its poses",
     )
     matching.set_defaults(handler=cmd_train_matching, one_of=("config", "meshes"))
     return train

@@ -660,28 +660,66 @@ def shared_topology(meshes: str | Path) -> tuple[Sequence[str], int, NDArray]:
     from litege_core.synth.folder import FOLDER_LIMITS
 
     files = check_folder(meshes)
-    first_name, first_faces, n_vertices = "", np.zeros((0, 3), np.int64), 0
-    for index, name in enumerate(files):
+    topologies = []
+    for name in files:
         shape = load_shape(Path(meshes) / name, kind="mesh", limits=FOLDER_LIMITS)
-        faces = np.asarray(shape.faces, dtype=np.int64)
-        if index == 0:
-            first_name, first_faces, n_vertices = name, faces, shape.n_points
+        topologies.append((name, shape.n_points, np.asarray(shape.faces, dtype=np.int64)))
+    return files, *_one_topology(topologies)
+
+
+def rig_topology(meshes: str | Path) -> tuple[Sequence[str], int, NDArray]:
+    """Check that every mesh file of a folder is a rigged, animated glTF (a skinned mesh and at
+    least one animation, :func:`~litege_core.synth.folder.rigged_model`) and that their skinned
+    bodies share one topology (matching from the poses of one character, or of several files of
+    one rig). One file is enough: its poses are the shapes.
+
+    Returns:
+        ``(files, n_vertices, faces)`` of the skinned bodies.
+
+    Raises:
+        InputError: no mesh file, a file that is not such a rig (the first ten named), or two
+            bodies of different topology.
+    """
+    from litege_core.synth.folder import list_meshes, rigged_model
+
+    files = list_meshes(meshes)
+    rigs = [(name, rigged_model(str(Path(meshes) / name))) for name in files]
+    not_rigs = [name for name, rig in rigs if rig is None]
+    if not_rigs:
+        raise InputError(
+            f"--poses needs rigged, animated glTF files (.glb or .gltf with a skinned mesh and "
+            f"at least one animation); {len(not_rigs)} of {len(files)} are not: "
+            f"{', '.join(not_rigs[:10])}"
+        )
+    return files, *_one_topology(
+        [(name, len(rig.mesh.vertices), rig.mesh.faces) for name, rig in rigs if rig is not None]
+    )
+
+
+def _one_topology(topologies: list[tuple[str, int, NDArray]]) -> tuple[int, NDArray]:
+    """``(n_vertices, faces)`` shared by every ``(file, n_vertices, faces)``.
+
+    Raises:
+        InputError: two files of different topology, naming both and how they differ.
+    """
+    first_name, n_vertices, first_faces = topologies[0]
+    for name, n_points, faces in topologies[1:]:
+        if n_points == n_vertices and np.array_equal(faces, first_faces):
             continue
-        if shape.n_points != n_vertices or not np.array_equal(faces, first_faces):
-            if shape.n_points != n_vertices:
-                how = f"{shape.n_points} vertices against {n_vertices}"
-            elif faces.shape != first_faces.shape:
-                how = f"{faces.shape[0]} faces against {first_faces.shape[0]}"
-            else:
-                row = int(np.flatnonzero((faces != first_faces).any(axis=1))[0])
-                how = f"face {row} is {faces[row].tolist()}, not {first_faces[row].tolist()}"
-            raise InputError(
-                f"matching from a folder needs meshes that share one topology (the same "
-                f"vertex count and faces, vertex i the same point on every shape): {name} and "
-                f"{first_name} differ ({how}). Remesh them onto one template first, or train "
-                "a geodesic model instead: litege train geodesic --meshes DIR --out BUNDLE"
-            )
-    return files, n_vertices, first_faces
+        if n_points != n_vertices:
+            how = f"{n_points} vertices against {n_vertices}"
+        elif faces.shape != first_faces.shape:
+            how = f"{faces.shape[0]} faces against {first_faces.shape[0]}"
+        else:
+            row = int(np.flatnonzero((faces != first_faces).any(axis=1))[0])
+            how = f"face {row} is {faces[row].tolist()}, not {first_faces[row].tolist()}"
+        raise InputError(
+            f"matching from a folder needs meshes that share one topology (the same "
+            f"vertex count and faces, vertex i the same point on every shape): {name} and "
+            f"{first_name} differ ({how}). Remesh them onto one template first, or train "
+            "a geodesic model instead: litege train geodesic --meshes DIR --out BUNDLE"
+        )
+    return n_vertices, first_faces
 
 
 __all__ = [
@@ -694,6 +732,7 @@ __all__ = [
     "folder_config",
     "measure_step_rate",
     "plan_schedule",
+    "rig_topology",
     "shared_topology",
     "train_from_meshes",
 ]

@@ -11,6 +11,14 @@ shape (:func:`~litege_core.train.from_meshes.shared_topology`; a clear InputErro
    smooth random non-rigid stretch (:func:`~litege_core.synth.meshops.smooth_stretch`, none
    for seed 0 of a file's evaluation shapes). Ground truth by the heat method, shared sources
    only (as the ``matching`` preset), built resumably under ``WORK/data``.
+
+   **Poses** (``poses=True``, ``--poses``): every file is a rigged, animated glTF whose skinned
+   bodies share one topology (:func:`~litege_core.train.from_meshes.rig_topology`; one file is
+   enough), and a shape is a pose of the file's rig (a clip drawn among its animations and a
+   time in it, linear blend skinning: :data:`~litege_core.synth.folder.RIG_POSES`) before the
+   stretch; a file stands in its rest pose for the template and the first evaluation shape.
+   With fewer than three files every split draws from every file: the splits hold different
+   poses (seeds) of the same characters.
 2. **Training** with a generated :class:`~litege_core.train.matching.MatchingTrainConfig`
    (:func:`folder_matching_config`): the T-Net of the ``init`` matching bundle (default
    ``quadrupeds``), a basis fitted on the training shapes, small widths and a number of steps
@@ -68,12 +76,26 @@ class FolderTemplateFactory:
     category: str = "folder-template"
     stretch_amplitude: float = 0.04
     axis_range: tuple[float, float] = (0.9, 1.1)
+    poses: bool = False
 
     @property
     def version(self) -> str:
-        return f"folder-template-1-{self.digest}"
+        return f"folder-template-1-{self.digest}" + ("-poses" if self.poses else "")
+
+    def _rig(self, name: str) -> Any:
+        from litege_core.synth.folder import rigged_model
+
+        rig = rigged_model(str(Path(self.meshes) / name))
+        if rig is None:
+            raise InputError(f"{name} is not a rigged, animated glTF file")
+        return rig
 
     def load(self, name: str) -> tuple[NDArray, NDArray]:
+        """The file's vertices, centred at unit area (a rig: its rest pose), and faces."""
+        if self.poses:
+            rig = self._rig(name)
+            faces = np.asarray(rig.mesh.faces, dtype=np.int64)
+            return _unit_area(rig.rest_vertices(), faces), faces
         from litege_core.io import load_shape
         from litege_core.validate import ShapeLimits
 
@@ -99,6 +121,11 @@ class FolderTemplateFactory:
             return vertices  # the first evaluation shape is the file itself
         digest = int.from_bytes(family.encode()[:8].ljust(8, b"\0"), "little")
         rng = np.random.default_rng([seed, digest, 0x5EED])
+        if self.poses:
+            from litege_core.synth.folder import RIG_POSES
+            from litege_core.synth.rigged import pose_model
+
+            vertices = pose_model(self._rig(family), rng, RIG_POSES)[0]
         stretched = smooth_stretch(
             vertices, rng, axis_range=self.axis_range, amplitude=self.stretch_amplitude
         )
@@ -121,6 +148,7 @@ class MatchingFolderOptions:
 
     Attributes:
         meshes: the folder (files sharing one topology).
+        poses: the files are rigs and their shapes poses of them (see the module docstring).
         out: the bundle directory written at the end.
         work: dataset and run directory (default ``OUT/work``).
         init: the matching bundle (shipped name or directory) whose T-Net is reused.
@@ -149,6 +177,7 @@ class MatchingFolderOptions:
     name: str | None = None
     distance_fn: Any = None
     progress: bool = True
+    poses: bool = False
 
     def __post_init__(self) -> None:
         if self.time_budget_s is not None and not self.time_budget_s > 0:
@@ -176,11 +205,12 @@ def folder_template_spec(
     n_sources: int = 48,
 ) -> Any:
     """The template-kind :class:`~litege_core.datasets.spec.DatasetSpec` of a folder: files
-    split by file, shared sources only (``n_extra_sources = 0``, as the matching preset)."""
-    from litege_core.datasets.spec import DatasetSpec
+    split by file (fewer than three: every split holds every file, and differs by its seeds),
+    shared sources only (``n_extra_sources = 0``, as the matching preset)."""
+    from litege_core.datasets.spec import SPLITS, DatasetSpec
     from litege_core.synth.folder import split_files
 
-    splits = split_files(files, seed)
+    splits = split_files(files, seed) if len(files) >= 3 else dict.fromkeys(SPLITS, files)
     counts = {
         "train": len(splits["train"]) * shapes_per_mesh,
         "val": len(splits["val"]) * eval_shapes_per_mesh,
@@ -270,13 +300,14 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     from litege_core.matching.bundle import load_matching_bundle
     from litege_core.synth.folder import folder_digest
     from litege_core.train.config import read_toml
-    from litege_core.train.from_meshes import shared_topology
+    from litege_core.train.from_meshes import rig_topology, shared_topology
     from litege_core.train.matching import train_matching
 
     start = time.monotonic()
     out, work = Path(options.out), options.work_dir
     name = options.name or Path(options.meshes).resolve().name
-    files, n_vertices, faces = shared_topology(options.meshes)
+    topology = rig_topology if options.poses else shared_topology
+    files, n_vertices, faces = topology(options.meshes)
     overrides = read_toml(options.config) if options.config is not None else {}
     run_dir = work / RUN_DIR
     tnet_path = work / TNET_FILE
@@ -293,7 +324,7 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
         n_sources=min(options.n_sources, n_vertices),
     )
     factory: Any = FolderTemplateFactory(  # a ShapeFactory (read-only category / version)
-        str(options.meshes), files, folder_digest(options.meshes, files)
+        str(options.meshes), files, folder_digest(options.meshes, files), poses=options.poses
     )
     splits = spec.split_families or {}
     LOG.info(
@@ -363,6 +394,7 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
         "shapes": dict(spec.n_shapes),
         "init": options.init,
         "seed": options.seed,
+        "poses": options.poses,
     }
     (out / CARD).write_text(_model_card(manifest, collection))
     summary = {
@@ -386,6 +418,13 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     return summary
 
 
+def _split_by_file(files: dict[str, list[str]]) -> bool:
+    """Whether each file of a split map is in one split only."""
+    return len({name for names in files.values() for name in names}) == sum(
+        len(names) for names in files.values()
+    )
+
+
 def _model_card(manifest: dict[str, Any], collection: dict[str, Any]) -> str:
     metrics = manifest.get("metrics", {})
     lines = [
@@ -396,10 +435,20 @@ def _model_card(manifest: dict[str, Any], collection: dict[str, Any]) -> str:
         f"({collection['n_vertices']} vertices, {collection['n_faces']} faces; vertex i "
         "corresponds on every shape).",
         "",
-        "- files (split by file, seed "
-        f"{collection['seed']}): "
+        "- files ("
+        + (
+            f"split by file, seed {collection['seed']}"
+            if _split_by_file(collection["files"])
+            else "every file in every split: the splits hold different poses"
+        )
+        + "): "
         + "; ".join(f"{split}: {len(names)}" for split, names in collection["files"].items()),
-        f"- shapes (smooth random stretches of the files): {collection['shapes']}",
+        (
+            f"- shapes (poses drawn from each rig's animation clips, then smooth random "
+            f"stretches): {collection['shapes']}"
+            if collection["poses"]
+            else f"- shapes (smooth random stretches of the files): {collection['shapes']}"
+        ),
         "- ground truth: heat method from the template's shared farthest-point sources",
         f"- T-Net: reused from the `{collection['init']}` matching bundle",
         "",

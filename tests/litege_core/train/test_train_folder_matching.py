@@ -8,6 +8,7 @@ import pytest
 
 from litege_core.cli import main
 from litege_core.datasets import GeodesicDataset
+from litege_core.errors import InputError
 from litege_core.io import save_shape
 from litege_core.matching.bundle import load_matching_bundle
 from litege_core.shape import Shape
@@ -116,3 +117,74 @@ def test_generated_config_keeps_the_command_paths(tmp_path):
     assert config.data.dataset == str(tmp_path / "data")
     assert config.data.tnet == str(tmp_path / "tnet.safetensors")
     assert config.output.dir == str(tmp_path / "run") and config.network.width == 32
+
+
+def _bend(vertices: np.ndarray) -> float:
+    """Height over length of the capsule (straight: about 0.2)."""
+    extent = np.ptp(vertices, axis=0)
+    return float(extent[1] / extent[0])
+
+
+def test_a_rig_folder_gives_posed_shapes_on_its_topology(tmp_path, rigged_gltf):
+    from litege_core.synth.folder import list_meshes
+
+    rigged_gltf(tmp_path / "capsule.gltf")
+    files = list_meshes(tmp_path)
+    factory = FolderTemplateFactory(str(tmp_path), files, "x", stretch_amplitude=0.0, poses=True)
+    template, faces = factory.template()
+    assert _bend(template) < 0.3 and faces.shape[1] == 3  # the rest pose
+    shapes = [factory.generate("capsule.gltf", seed) for seed in range(6)]
+    assert all(shape.shape == template.shape for shape in shapes)
+    assert max(map(_bend, shapes)) > 2.0 * min(map(_bend, shapes))  # poses of its one clip
+    np.testing.assert_allclose(factory.generate("capsule.gltf", 3), shapes[3])
+    np.testing.assert_allclose(factory.generate("capsule.gltf", 1_000_000), template)
+    assert factory.version != FolderTemplateFactory(str(tmp_path), files, "x").version
+
+
+def test_poses_need_rigs_of_one_topology(tmp_path, rigged_gltf):
+    from litege_core.train.from_meshes import rig_topology
+
+    rigged_gltf(tmp_path / "a.gltf")
+    rigged_gltf(tmp_path / "b.gltf")
+    files, n_vertices, faces = rig_topology(tmp_path)
+    assert files == ("a.gltf", "b.gltf") and faces.shape[1] == 3 and n_vertices > 100
+    rigged_gltf(tmp_path / "still.gltf", animated=False)
+    save_shape(Shape.from_arrays(*_box()), tmp_path / "box.obj")
+    with pytest.raises(InputError, match=r"2 of 4 are not: box\.obj, still\.gltf"):
+        rig_topology(tmp_path)
+
+
+def _box() -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    box = trimesh.creation.box()
+    return np.asarray(box.vertices), np.asarray(box.faces)
+
+
+def test_poses_of_one_rig_to_a_served_matching_bundle(tmp_path, capsys, rigged_gltf):
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    rigged_gltf(folder / "capsule.gltf")
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    out = tmp_path / "bundle"
+    argv = ["train", "matching", "--meshes", str(folder), "--out", str(out), "--poses"]
+    argv += ["--init", "quadrupeds", "--config", str(config), "--time-budget", "20"]
+    argv += ["--shapes-per-mesh", "6", "--eval-shapes-per-mesh", "2"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["data"]["poses"] and summary["data"]["files"] == {
+        split: ["capsule.gltf"] for split in ("train", "val", "test")
+    }
+    dataset = GeodesicDataset(summary["data"]["dir"])
+    assert dataset.manifest["counts"] == {"train": 6, "val": 2, "test": 2}
+    train = dataset.load_split("train")["vertices"]
+    bends = [_bend(vertices) for vertices in train]
+    assert max(bends) > 2.0 * min(bends)  # the training shapes are poses
+    card = (out / "MODEL_CARD.md").read_text()
+    assert "poses drawn from each rig" in card and "every file in every split" in card
+    matches = tmp_path / "matches.npy"
+    rig = str(folder / "capsule.gltf")
+    argv = ["match", rig, rig, "--bundle", str(out), "--queries", "0,1,2", "-o", str(matches)]
+    assert main(argv) == 0
+    assert np.load(matches).shape == (3,)
