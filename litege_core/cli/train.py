@@ -168,6 +168,7 @@ def cmd_train_matching_meshes(args: argparse.Namespace) -> int:
         config=args.config,
         name=args.name,
         poses=args.poses,
+        tnet_steps=args.tnet_steps,
     )
     print_json(train_matching_from_meshes(options))
     return 0
@@ -372,6 +373,13 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
         help="the files are rigged, animated glTF/GLB files of one topology (one is enough): "
         "each shape is a pose from the file's own clips; with fewer than 3 files every split "
         "holds every file and differs by its poses",
+    )
+    mfolder.add_argument(
+        "--tnet-steps",
+        type=int,
+        default=None,
+        help="fine-tuning steps of the --init T-Net on the collection (default 600, fewer when "
+        "30 %% of the budget left after the data does not fit them; 0: keep it as it is)",
     )
     matching.set_defaults(handler=cmd_train_matching, one_of=("config", "meshes"))
     return train

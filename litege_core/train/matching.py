@@ -68,7 +68,9 @@ from litege_core.train.matching_data import (
     ValidationSet,
     build_matching_tables,
     concatenate_tables,
+    misalignment,
     sample_batch,
+    stored_frame_offset,
     validation_set,
 )
 from litege_core.train.trainer import seed_everything
@@ -80,6 +82,10 @@ LOG = logging.getLogger("litege.train")
 # --------------------------------------------------------------------------- configuration
 
 
+FRAME_REFERENCES = ("stored", "consensus")
+"""Values of ``data.frame`` (:class:`MatchingDataConfig`)."""
+
+
 @dataclass(frozen=True)
 class MatchingDataConfig:
     dataset: str = "data/quadruped-small"
@@ -89,6 +95,12 @@ class MatchingDataConfig:
     max_train_shapes: int = 0
     max_val_shapes: int = 0
     reject_angle: float = REJECT_ANGLE
+    frame: str = "stored"
+    """What the T-Net filter measures a view's misalignment from: ``"stored"``, the frame the
+    dataset's shapes are stored in (procedural and posed-template datasets are built in the
+    canonical frame); ``"consensus"``, the frame the T-Net agrees on for the training shapes
+    (:func:`~litege_core.train.matching_data.stored_frame_offset`: a user's collection, stored
+    in its own convention; the ``species`` datasets take the same offset)."""
     species: str = ""
     """A directory of per-species matching datasets (``litege data build --category rigged
     --preset matching``; ``""``: none). Their training views join ``dataset``'s, each pair drawn
@@ -172,6 +184,10 @@ class MatchingTrainConfig(ConfigRoot):
             raise InputError("train.first_pass_steps and train.steps must be ≥ 0")
         if not 0 < t.eta_min <= t.lr:
             raise InputError("need 0 < train.eta_min ≤ train.lr")
+        if self.data.frame not in FRAME_REFERENCES:
+            raise InputError(
+                f"data.frame must be one of {list(FRAME_REFERENCES)}, got {self.data.frame!r}"
+            )
 
 
 def load_matching_config(path: str | Path) -> MatchingTrainConfig:
@@ -446,6 +462,21 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
     seconds["basis"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    frame_offset = None
+    frame_record: dict[str, Any] = {"reference": config.data.frame}
+    if config.data.frame == "consensus":
+        frame_offset, share = stored_frame_offset(train_arrays, faces, tnet, pipeline, seed=t.seed)
+        LOG.info(
+            "frame: the T-Net's canonical frame lies %.2f rad from the stored one "
+            "(%.0f %% of the training shapes agree)",
+            misalignment(frame_offset, np.eye(3)),
+            100 * share,
+        )
+        frame_record.update(
+            offset=frame_offset.round(6).tolist(),
+            offset_angle=misalignment(frame_offset, np.eye(3)),
+            agreeing_share=share,
+        )
     common: dict[str, Any] = dict(
         basis=basis,
         tnet=tnet,
@@ -453,6 +484,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         augment=config.augment,
         reject_angle=config.data.reject_angle,
         device=device,
+        frame_offset=frame_offset,
     )
     tables = build_matching_tables(
         train_arrays, faces, n_shared, n_views=config.data.views_per_shape, seed=t.seed, **common
@@ -549,6 +581,7 @@ def train_matching(config: MatchingTrainConfig) -> dict[str, Any]:
         "judge": "matching networks" if init is None else f"{t.init} (init)'s frame judge",
         "train_views": tables.n_views,
         "rejected_views": rejected,
+        "frame": frame_record,
         "mean_tnet_angle_train": float(tables.angle.mean()),
         "first_passes": [p.metrics for p in passes],
         "chosen_first_pass": chosen,

@@ -4,7 +4,10 @@ Every view of a training shape is what a user would send, randomly rotated, then
 the *inference* frame (:func:`~litege_core.matching.frame.align_shapes`: unit-area or Poisson
 scaling, then the T-Net), so the T-Net's alignment noise is baked into the training inputs as
 it is at test time (spec §1.6 "Important"). Views the T-Net misaligns by more than
-``reject_angle`` are dropped (the training-time rejection filter, 0.66 rad).
+``reject_angle`` are dropped (the training-time rejection filter, 0.66 rad). Misaligned from
+what: a procedural or posed-template dataset is stored in the canonical frame, but a user's
+collection is stored in its own convention (a glTF: y up, facing +z), so its reference frame is
+the one the T-Net agrees on (:func:`stored_frame_offset`).
 
 A training pair is two views of *different* shapes ``(a, b)``, a shared source row ``r`` and a
 vertex ``t``: the source is vertex ``sources[r]`` on X = view ``a`` and the destination vertex
@@ -24,7 +27,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from litege_core.descriptor import UdfPcaBasis
 from litege_core.errors import InputError
@@ -74,10 +77,62 @@ class MatchingTables:
         return int(self.shape.shape[0])
 
 
-def misalignment(transform_rotation: NDArray, view_rotation: NDArray) -> float:
-    """Angle (rad) of the residual rotation ``R_frame · R_view`` (0 = perfectly undone)."""
+def misalignment(
+    transform_rotation: NDArray, view_rotation: NDArray, offset: NDArray | None = None
+) -> float:
+    """Angle (rad) of the residual rotation ``R_frame · R_view`` from ``offset`` (the identity
+    by default: the shapes are stored in the canonical frame; 0 = perfectly undone)."""
     residual = transform_rotation @ view_rotation
-    return float(np.arccos(np.clip((np.trace(residual) - 1.0) / 2.0, -1.0, 1.0)))
+    if offset is not None:
+        residual = np.asarray(offset).T @ residual
+    return float(_angle(np.trace(residual)))
+
+
+def _angle(trace: ArrayLike) -> NDArray:
+    """Angle (rad) of rotations from their traces."""
+    return np.arccos(np.clip((np.asarray(trace) - 1.0) / 2.0, -1.0, 1.0))
+
+
+def stored_frame_offset(
+    arrays: dict[str, NDArray],
+    faces: NDArray,
+    tnet: TNet,
+    pipeline: MatchingPipeline,
+    *,
+    seed: int,
+    n_shapes: int = 32,
+    agree_angle: float = REJECT_ANGLE,
+) -> tuple[NDArray, float]:
+    """Where the T-Net's canonical frame lies in the frame a dataset's shapes are stored in.
+
+    Up to ``n_shapes`` shapes of the split (evenly spread over it) are each turned by a seeded
+    random rotation ``R_view`` and aligned by the T-Net (``R_frame``, as in training); where the
+    T-Net holds, ``R_frame · R_view`` is one rotation ``C`` for all of them. ``C`` is the
+    residual with the most others within ``agree_angle`` of it, refined to the rotation nearest
+    the mean of those (chordal mean).
+
+    Returns:
+        ``(C (3, 3), share)``: the offset (pass it to :func:`build_matching_tables`) and the
+        share of the residuals within ``agree_angle`` of it.
+    """
+    raw = np.asarray(arrays["vertices"], dtype=np.float64)
+    picked = np.unique(np.linspace(0, raw.shape[0] - 1, min(n_shapes, raw.shape[0])).astype(int))
+    shapes, turns = [], []
+    for s in picked:
+        turn = random_rotation(np.random.default_rng([seed, int(arrays["seed"][s]), 0xF4A3]))
+        shapes.append(Shape.from_arrays(raw[s] @ turn.T, faces))
+        turns.append(turn)
+    frames = align_shapes(shapes, tnet, pipeline, seed=seed)
+    residuals = np.stack(
+        [transform.rotation @ turn for (transform, _, _), turn in zip(frames, turns, strict=True)]
+    )
+    between = np.einsum("aij,bij->ab", residuals, residuals)  # trace(R_aᵀ R_b)
+    near = _angle(between) <= agree_angle
+    members = near[int(np.argmax(near.sum(axis=1)))]
+    u, _, vt = np.linalg.svd(residuals[members].mean(axis=0))
+    offset = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    share = float(np.mean(_angle(np.einsum("ij,aij->a", offset, residuals)) <= agree_angle))
+    return offset, share
 
 
 def build_matching_tables(
@@ -94,6 +149,7 @@ def build_matching_tables(
     reject_angle: float = REJECT_ANGLE,
     device: torch.device | str = "cpu",
     chunk: int = 32,
+    frame_offset: NDArray | None = None,
 ) -> MatchingTables:
     """Views of every shape of a split (view 0 the clean mesh, the others augmented clouds).
 
@@ -105,6 +161,9 @@ def build_matching_tables(
         basis, tnet, pipeline: the matching frame and descriptor.
         n_views: views per shape; augment: settings of views 1..n-1 (``rotate`` should be
             on: view 0 is always rotated); seed: run seed; reject_angle: the filter (rad).
+        frame_offset: the T-Net's canonical frame in the shapes' stored frame
+            (:func:`stored_frame_offset`), that views are misaligned from; ``None``: the
+            shapes are stored in the canonical frame.
     """
     if n_views < 1:
         raise InputError("n_views must be at least 1")
@@ -127,7 +186,7 @@ def build_matching_tables(
         for (s, _, user_vertices, rotation), (transform, cloud, _) in zip(
             pending, frames, strict=True
         ):
-            angle = misalignment(transform.rotation, rotation)
+            angle = misalignment(transform.rotation, rotation, frame_offset)
             if angle > reject_angle:
                 continue
             kept.append(cloud.astype(np.float32))
@@ -327,6 +386,7 @@ __all__ = [
     "concatenate_tables",
     "misalignment",
     "sample_batch",
+    "stored_frame_offset",
     "validation_set",
     "view_pairs",
 ]

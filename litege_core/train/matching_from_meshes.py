@@ -19,11 +19,14 @@ shape (:func:`~litege_core.train.from_meshes.shared_topology`; a clear InputErro
    stretch; a file stands in its rest pose for the template and the first evaluation shape.
    With fewer than three files every split draws from every file: the splits hold different
    poses (seeds) of the same characters.
-2. **Training** with a generated :class:`~litege_core.train.matching.MatchingTrainConfig`
-   (:func:`folder_matching_config`): the T-Net of the ``init`` matching bundle (default
-   ``quadrupeds``), a basis fitted on the training shapes, small widths and a number of steps
-   sized to the time budget; a TOML config may override any key.
-3. **Bundle.** The exported matching bundle is copied to ``OUT`` with a short model card
+2. **T-Net.** The T-Net of the ``init`` matching bundle (default ``quadrupeds``), fine-tuned
+   on the training shapes in the frame it already agrees on
+   (:func:`~litege_core.train.tnet.collection.tune_tnet_on_collection`; ``tnet_steps=0``
+   keeps it as it is): a user's characters can lie outside the families it was trained on.
+3. **Training** with a generated :class:`~litege_core.train.matching.MatchingTrainConfig`
+   (:func:`folder_matching_config`): that T-Net, a basis fitted on the training shapes, small
+   widths and a number of steps sized to the time budget; a TOML config may override any key.
+4. **Bundle.** The exported matching bundle is copied to ``OUT`` with a short model card
    (``MODEL_CARD.md``) and ``summary.json``. Serve it with ``litege match X Y --bundle OUT``.
 """
 
@@ -52,13 +55,18 @@ TNET_FILE = "tnet.safetensors"
 CARD = "MODEL_CARD.md"
 SUMMARY = "summary.json"
 DEFAULT_INIT = "quadrupeds"
-STEPS_PER_SECOND = 2.0
-"""Rough CPU step rate of the generated network (width 128, 1536 pairs a step) on one loaded
-core, used to size the schedule to a time budget."""
+STEPS_PER_SECOND = 8.0
+"""Rough CPU step rate of the generated network (width 128, 1536 pairs a step) on one core,
+used to size the schedule to a time budget: about half the 17 steps/s of an AMD EPYC core
+(2026-12-02, ``scripts/bench_rig_matching.py``), for a core shared with other work."""
 TRAIN_SHARE = 0.6
 """Fraction of the time left after the data build that the planned schedule spans (basis
 fit, tables, validation and export take the rest)."""
 DEFAULT_STEPS = 2000
+TNET_SHARE = 0.3
+"""Share of the time left after the data build that the T-Net's fine-tune may take."""
+DEFAULT_TNET_STEPS = 600
+"""T-Net fine-tuning steps without a time budget (the most with one)."""
 
 
 @dataclass(frozen=True)
@@ -159,6 +167,9 @@ class MatchingFolderOptions:
         n_sources: shared ground-truth sources (farthest points of the template).
         config: a TOML config whose tables override the generated one.
         name: the bundle name (default: the folder's name).
+        tnet_steps: T-Net fine-tuning steps (``None``: :data:`DEFAULT_TNET_STEPS`, fewer when
+            :data:`TNET_SHARE` of the budget left after the data does not fit them; ``0``: the
+            ``init`` T-Net as it is).
         distance_fn: a custom ground-truth row function (tests), replacing the heat method.
         progress: progress bars of the data build.
     """
@@ -178,12 +189,15 @@ class MatchingFolderOptions:
     distance_fn: Any = None
     progress: bool = True
     poses: bool = False
+    tnet_steps: int | None = None
 
     def __post_init__(self) -> None:
         if self.time_budget_s is not None and not self.time_budget_s > 0:
             raise InputError("the time budget must be positive")
         if self.workers < 1:
             raise InputError("--workers must be at least 1")
+        if self.tnet_steps is not None and self.tnet_steps < 0:
+            raise InputError("--tnet-steps must be 0 (keep the T-Net) or more")
         if self.shapes_per_mesh < 1 or self.eval_shapes_per_mesh < 2:
             raise InputError(
                 "need at least one shape per training file and two per evaluation file "
@@ -260,7 +274,9 @@ def folder_matching_config(
     train_seconds: float | None = None,
     overrides: dict[str, Any] | None = None,
 ) -> Any:
-    """The matching config of a folder run: width 128, 64 PCA components (fewer with few
+    """The matching config of a folder run: the T-Net filter measured from the frame the
+    T-Net agrees on (``data.frame = "consensus"``: a user's files keep their own convention),
+    width 128, 64 PCA components (fewer with few
     training shapes), 8 view pairs × 12 rows × 16 targets a step, steps sized to
     ``train_seconds``; ``overrides`` (parsed TOML tables) replace any key except
     ``data.dataset``, ``data.tnet`` and ``output.dir``."""
@@ -268,7 +284,7 @@ def folder_matching_config(
 
     first, steps = planned_steps(train_seconds)
     tables: dict[str, dict[str, Any]] = {
-        "data": {"views_per_shape": 4, "val_view_pairs": 24},
+        "data": {"views_per_shape": 4, "val_view_pairs": 24, "frame": "consensus"},
         "basis": {"path": str(Path(run_dir) / "basis.safetensors"), "n_components": 64},
         "network": {"width": 128, "output": "abs"},
         "train": {
@@ -351,7 +367,10 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     )
     data_seconds = time.monotonic() - start
 
-    # 2. training
+    # 2. T-Net
+    tnet_summary = tune_folder_tnet(options, work / DATA_DIR, tnet_path, start)
+
+    # 3. training
     train_seconds = None
     if options.time_budget_s is not None:
         train_seconds = max(options.time_budget_s - (time.monotonic() - start), 10.0)
@@ -371,8 +390,9 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
         overrides=overrides,
     )
     LOG.info(
-        "training: T-Net of %s, width %d, %d × %d first-pass steps then %d steps",
+        "training: T-Net of %s%s, width %d, %d × %d first-pass steps then %d steps",
         init_dir,
+        "" if tnet_summary is None else " tuned on the collection",
         config.network.width,
         config.train.first_passes,
         config.train.first_pass_steps,
@@ -380,7 +400,7 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     )
     manifest = train_matching(config)
 
-    # 3. the bundle in OUT
+    # 4. the bundle in OUT
     bundle_dir = run_dir / "bundle"
     out.mkdir(parents=True, exist_ok=True)
     for filename in [*manifest["files"], "manifest.json"]:
@@ -395,6 +415,7 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
         "init": options.init,
         "seed": options.seed,
         "poses": options.poses,
+        "tnet": tnet_summary,
     }
     (out / CARD).write_text(_model_card(manifest, collection))
     summary = {
@@ -416,6 +437,36 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     (out / SUMMARY).write_text(json.dumps(summary, indent=2, default=str) + "\n")
     LOG.info("matching bundle %s written to %s", name, out)
     return summary
+
+
+def tune_folder_tnet(
+    options: MatchingFolderOptions, data_dir: Path, tnet_path: Path, start: float
+) -> dict[str, Any] | None:
+    """Fine-tune the T-Net at ``tnet_path`` (the ``init`` bundle's) on the training shapes of
+    the built dataset; ``None`` when ``options.tnet_steps`` is 0."""
+    from litege_core.datasets import GeodesicDataset
+    from litege_core.train.data import load_split_arrays
+    from litege_core.train.tnet.collection import tune_tnet_on_collection
+
+    steps = DEFAULT_TNET_STEPS if options.tnet_steps is None else options.tnet_steps
+    if steps == 0:
+        return None
+    minutes = 0.0
+    if options.time_budget_s is not None:
+        minutes = max(TNET_SHARE * (options.time_budget_s - (time.monotonic() - start)), 30.0)
+        minutes /= 60.0
+    dataset = GeodesicDataset(data_dir)
+    LOG.info("T-Net: fine-tuning the %s T-Net on the collection", options.init)
+    return tune_tnet_on_collection(
+        options.init,
+        load_split_arrays(dataset, "train", 0),
+        load_split_arrays(dataset, "val", 0),
+        np.asarray(dataset.faces),
+        tnet_path,
+        steps=steps,
+        minutes=minutes,
+        seed=options.seed,
+    )
 
 
 def _split_by_file(files: dict[str, list[str]]) -> bool:
@@ -450,7 +501,14 @@ def _model_card(manifest: dict[str, Any], collection: dict[str, Any]) -> str:
             else f"- shapes (smooth random stretches of the files): {collection['shapes']}"
         ),
         "- ground truth: heat method from the template's shared farthest-point sources",
-        f"- T-Net: reused from the `{collection['init']}` matching bundle",
+        (
+            f"- T-Net: the `{collection['init']}` matching bundle's, fine-tuned on the "
+            f"collection ({collection['tnet']['steps']} steps; randomly turned training shapes "
+            f"brought to one frame: {100 * collection['tnet']['agreement_before']:.0f} % → "
+            f"{100 * collection['tnet']['agreement_after']:.0f} %)"
+            if collection["tnet"]
+            else f"- T-Net: reused from the `{collection['init']}` matching bundle"
+        ),
         "",
         "## Validation",
         "",
@@ -477,4 +535,5 @@ __all__ = [
     "folder_template_spec",
     "planned_steps",
     "train_matching_from_meshes",
+    "tune_folder_tnet",
 ]

@@ -75,3 +75,8 @@ def update_benchmarks() -> ModuleType:
 @pytest.fixture(scope="module")
 def bench_rig_poses() -> ModuleType:
     return load_script("bench_rig_poses")
+
+
+@pytest.fixture(scope="module")
+def bench_rig_matching() -> ModuleType:
+    return load_script("bench_rig_matching")

@@ -5,12 +5,13 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from litege_core.cli import main
 from litege_core.datasets import GeodesicDataset
 from litege_core.errors import InputError
 from litege_core.io import save_shape
-from litege_core.matching.bundle import load_matching_bundle
+from litege_core.matching.bundle import load_matching_bundle, resolve_matching_bundle
 from litege_core.shape import Shape
 from litege_core.synth import families, generate_shape
 from litege_core.train.matching_from_meshes import (
@@ -82,7 +83,7 @@ def test_folder_to_served_matching_bundle(quadruped_folder, tmp_path, capsys):
     out = tmp_path / "bundle"
     argv = ["train", "matching", "--meshes", str(quadruped_folder), "--out", str(out)]
     argv += ["--init", "quadrupeds", "--config", str(config), "--time-budget", "20"]
-    argv += ["--shapes-per-mesh", "2", "--eval-shapes-per-mesh", "2"]
+    argv += ["--shapes-per-mesh", "2", "--eval-shapes-per-mesh", "2", "--tnet-steps", "4"]
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["bundle"] == str(out) and summary["kind"] == "matching"
@@ -96,7 +97,18 @@ def test_folder_to_served_matching_bundle(quadruped_folder, tmp_path, capsys):
     assert dataset.manifest["counts"] == {"train": 8, "val": 2, "test": 2}
     bundle = load_matching_bundle(out)
     assert bundle.name == quadruped_folder.name
-    assert (out / "MODEL_CARD.md").read_text().startswith(f"# {quadruped_folder.name}")
+    card = (out / "MODEL_CARD.md").read_text()
+    assert card.startswith(f"# {quadruped_folder.name}") and "fine-tuned on the" in card
+    tuned = summary["data"]["tnet"]
+    assert tuned["steps"] == 4 and 0.0 <= tuned["agreement_after"] <= 1.0
+    shipped = load_matching_bundle(resolve_matching_bundle("quadrupeds")).tnet
+    differs = [
+        not torch.equal(a, b)
+        for a, b in zip(
+            bundle.tnet.state_dict().values(), shipped.state_dict().values(), strict=True
+        )
+    ]
+    assert any(differs)  # the bundle serves the tuned T-Net
 
     x, y = sorted(quadruped_folder.iterdir())[:2]
     matches = tmp_path / "matches.npy"
@@ -170,7 +182,7 @@ def test_poses_of_one_rig_to_a_served_matching_bundle(tmp_path, capsys, rigged_g
     out = tmp_path / "bundle"
     argv = ["train", "matching", "--meshes", str(folder), "--out", str(out), "--poses"]
     argv += ["--init", "quadrupeds", "--config", str(config), "--time-budget", "20"]
-    argv += ["--shapes-per-mesh", "6", "--eval-shapes-per-mesh", "2"]
+    argv += ["--shapes-per-mesh", "6", "--eval-shapes-per-mesh", "2", "--tnet-steps", "4"]
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["data"]["poses"] and summary["data"]["files"] == {

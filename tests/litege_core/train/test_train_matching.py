@@ -323,3 +323,37 @@ def test_config_errors_are_input_errors(toy_dataset, tnet_path, tmp_path):
         MatchingTrainConfig.from_dict({"train": {"steps": -1}})
     with pytest.raises(InputError):
         MatchingTrainConfig.from_dict({"train": {"bogus": 1}})
+
+
+def test_misalignment_is_measured_from_the_frame_offset():
+    from litege_core.train.matching_data import misalignment
+    from litege_core.variants import random_rotation
+
+    view, offset = random_rotation(1), random_rotation(2)
+    undone = offset @ view.T  # a T-Net frame that lands every view on the offset frame
+    assert misalignment(undone, view) > 0.1
+    assert misalignment(undone, view, offset) < 1e-6
+    assert misalignment(view.T, view) < 1e-6  # no offset: the stored frame is canonical
+
+
+def test_the_frame_offset_of_a_collection_stored_in_another_convention():
+    """Procedural quadrupeds stored turned by Q (a user's convention): the shipped T-Net still
+    brings them to its canonical frame, which lies at Qᵀ in the stored frame."""
+    from litege_core.synth import families, generate_shape
+    from litege_core.train.matching_data import misalignment, stored_frame_offset
+    from litege_core.variants import random_rotation
+
+    names = families("quadruped")
+    shapes = [generate_shape("quadruped", names[k % len(names)], 2_000_000 + k) for k in range(8)]
+    stored_turn = random_rotation(7)
+    arrays = {
+        "vertices": np.stack([s.vertices @ stored_turn.T for s in shapes]),
+        "seed": np.arange(8),
+    }
+    model = MatchingModel.load("quadrupeds")
+    faces = np.asarray(shapes[0].faces)
+    offset, share = stored_frame_offset(arrays, faces, model.bundle.tnet, model.pipeline, seed=0)
+    assert misalignment(offset, stored_turn) < 0.3 and share >= 0.75  # offset ≈ Qᵀ
+    plain = {**arrays, "vertices": np.stack([s.vertices for s in shapes])}
+    offset, _ = stored_frame_offset(plain, faces, model.bundle.tnet, model.pipeline, seed=0)
+    assert misalignment(offset, np.eye(3)) < 0.3  # stored canonical: about the identity
