@@ -124,9 +124,10 @@ def load_shape(
             f"unsupported format {file_format!r}; supported: {sorted(SUPPORTED_FORMATS)}"
         )
     check_size(len(data), limits)
-    if file_format == "gltf" and folder is not None:
-        data = embed_gltf_buffers(data, folder, limits)
-    vertices, faces = read_arrays(data, file_format, limits)
+    if file_format == "gltf" and folder is not None:  # checked as it is embedded
+        vertices, faces = read_with_trimesh(embed_gltf_buffers(data, folder, limits), "gltf")
+    else:
+        vertices, faces = read_arrays(data, file_format, limits)
     if kind is None:
         kind = ShapeKind.MESH if faces is not None else ShapeKind.POINT_CLOUD
     return Shape.from_arrays(vertices, faces, kind, limits)

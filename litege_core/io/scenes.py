@@ -105,17 +105,20 @@ def self_contained_gltf(path: str | os.PathLike, limits: ShapeLimits = DEFAULT_L
 
 def embed_gltf_buffers(data: bytes, folder: Path, limits: ShapeLimits = DEFAULT_LIMITS) -> bytes:
     """A ``.gltf`` file's bytes with the buffers it keeps in files of ``folder`` embedded as
-    ``data:`` URIs (the bytes themselves where it keeps none there).
+    ``data:`` URIs (the bytes themselves where it keeps none there), its scene sizes checked
+    as :func:`check_gltf_json` checks them (the one parse of its JSON before trimesh's).
 
     A buffer's URI must be relative and name a file inside ``folder`` (no ``..`` out of it, no
     scheme); the file and its buffers together must fit ``limits.max_file_bytes``.
 
     Raises:
         ShapeFileError: unparsable JSON, a URI outside ``folder``, an unreadable buffer file.
-        ShapeTooLargeError: the file and its buffers exceed ``limits.max_file_bytes``.
+        ShapeTooLargeError: more nodes, vertices or faces than ``limits`` allow, or the file
+            and its buffers exceed ``limits.max_file_bytes``.
     """
     document = _gltf_document(data)
     external = _external_buffers(document)
+    _check_gltf(document, limits, "gltf")
     if not external:
         return data
     root = folder.resolve()

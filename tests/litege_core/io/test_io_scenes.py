@@ -55,6 +55,10 @@ def test_a_buffer_file_beside_the_gltf_is_read_from_its_path(tmp_path, embedded,
     loaded = load_shape(path)
     assert loaded.content_hash == mesh.content_hash
     assert json.loads(self_contained_gltf(path))["buffers"][0]["uri"].startswith("data:")
+    too_few = ShapeLimits(max_vertices=mesh.n_points - 1)
+    (tmp_path / "data" / "the buffer0.bin").unlink()  # sizes are checked before any buffer
+    with pytest.raises(ShapeTooLargeError, match="vertices"):
+        load_shape(path, limits=too_few)
 
 
 def test_bytes_cannot_name_a_buffer_file(tmp_path, embedded):
