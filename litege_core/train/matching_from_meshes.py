@@ -4,7 +4,8 @@ side of ``litege train matching --meshes DIR --out BUNDLE``.
 Every file must have the same vertex count and faces, vertex ``i`` the same point on every
 shape (:func:`~litege_core.train.from_meshes.shared_topology`; a clear InputError otherwise).
 
-1. **Data.** A *template*-kind dataset (:class:`FolderTemplateFactory`): the template is the
+1. **Data.** A *template*-kind dataset (:class:`FolderTemplateFactory`): each file turned
+   onto the first (files may be stored in different orientations); the template is the
    first file's faces with the mean vertices of all files; the files are split train/val/test
    by file (seeded, :func:`~litege_core.synth.folder.split_files`) and each split's families
    are its files; shape ``(file, seed)`` is the file's vertices (centred, unit area) under a
@@ -32,6 +33,7 @@ shape (:func:`~litege_core.train.from_meshes.shared_topology`; a clear InputErro
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -88,7 +90,7 @@ class FolderTemplateFactory:
 
     @property
     def version(self) -> str:
-        return f"folder-template-1-{self.digest}" + ("-poses" if self.poses else "")
+        return f"folder-template-2-{self.digest}" + ("-poses" if self.poses else "")
 
     def _rig(self, name: str) -> Any:
         from litege_core.synth.folder import rigged_model
@@ -99,19 +101,22 @@ class FolderTemplateFactory:
         return rig
 
     def load(self, name: str) -> tuple[NDArray, NDArray]:
-        """The file's vertices, centred at unit area (a rig: its rest pose), and faces."""
+        """The file's vertices, centred at unit area (a rig: its rest pose), and faces; a file
+        other than the first is turned onto the first (the proper rotation that best fits
+        its vertices to theirs, :func:`~litege_core.matching.intrinsic.robust_rotation`), so
+        files stored in different orientations make one collection."""
         if self.poses:
             rig = self._rig(name)
             faces = np.asarray(rig.mesh.faces, dtype=np.int64)
             return _unit_area(rig.rest_vertices(), faces), faces
-        from litege_core.io import load_shape
-        from litege_core.validate import ShapeLimits
+        from litege_core.matching.intrinsic import robust_rotation
 
-        limits = ShapeLimits(max_vertices=2_000_000, max_faces=4_000_000, max_file_bytes=1 << 30)
-        shape = load_shape(Path(self.meshes) / name, kind="mesh", limits=limits)
-        vertices = np.asarray(shape.vertices, dtype=np.float64)
-        faces = np.asarray(shape.faces, dtype=np.int64)
-        return _unit_area(vertices, faces), faces
+        vertices, faces = _unit_area_mesh(str(Path(self.meshes) / name))
+        if name == self.files[0]:
+            return vertices.copy(), faces
+        first = _unit_area_mesh(str(Path(self.meshes) / self.files[0]))[0]
+        rotation, _ = robust_rotation(vertices, first)
+        return vertices @ rotation.T, faces
 
     def template(self) -> tuple[NDArray, NDArray]:
         first, faces = self.load(self.files[0])
@@ -138,6 +143,19 @@ class FolderTemplateFactory:
             vertices, rng, axis_range=self.axis_range, amplitude=self.stretch_amplitude
         )
         return _unit_area(stretched, faces)
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_area_mesh(path: str) -> tuple[NDArray, NDArray]:
+    """A mesh file's vertices (read-only), centred at unit area, and faces (memoized)."""
+    from litege_core.arrays import frozen
+    from litege_core.io import load_shape
+    from litege_core.synth.folder import FOLDER_LIMITS
+
+    shape = load_shape(path, kind="mesh", limits=FOLDER_LIMITS)
+    assert shape.faces is not None  # kind="mesh"
+    faces = frozen(shape.faces, np.int64)
+    return frozen(_unit_area(np.asarray(shape.vertices, np.float64), faces)), faces
 
 
 def _unit_area(vertices: NDArray, faces: NDArray) -> NDArray:

@@ -200,3 +200,22 @@ def test_poses_of_one_rig_to_a_served_matching_bundle(tmp_path, capsys, rigged_g
     argv = ["match", rig, rig, "--bundle", str(out), "--queries", "0,1,2", "-o", str(matches)]
     assert main(argv) == 0
     assert np.load(matches).shape == (3,)
+
+
+def test_files_stored_in_other_orientations_are_turned_onto_the_first(quadruped_folder, tmp_path):
+    from litege_core.io import load_shape
+    from litege_core.synth.folder import list_meshes
+    from litege_core.variants import random_rotation
+
+    files = list_meshes(quadruped_folder)
+    for k, name in enumerate(files):  # the same shapes, each stored turned its own way
+        shape = load_shape(quadruped_folder / name)
+        turned = shape.vertices @ random_rotation(k).T
+        save_shape(Shape.from_arrays(turned, shape.faces), tmp_path / name)
+    upright = FolderTemplateFactory(str(quadruped_folder), files, "x")
+    turned = FolderTemplateFactory(str(tmp_path), files, "x")
+    first = random_rotation(0)  # the turned folder's frame: its first file's
+    for name in files:
+        expected = upright.load(name)[0] @ first.T
+        np.testing.assert_allclose(turned.load(name)[0], expected, atol=0.02)
+    np.testing.assert_allclose(turned.template()[0], upright.template()[0] @ first.T, atol=0.02)
