@@ -67,6 +67,16 @@ function corrStatus(text) {
   $('corr-status').textContent = text;
 }
 
+// A warning for the status line when a shape's frame is uncertain (its T-Net runs split),
+// '' otherwise: the matches may then be turned or mirrored.
+function uncertainFrames(answer, sourceName, targetName) {
+  const names = [];
+  if (answer.source_frame?.check === 'split') names.push(sourceName);
+  if (answer.target_frame?.check === 'split') names.push(targetName);
+  if (!names.length) return '';
+  return ` Warning: the frame of ${names.join(' and ')} is uncertain (turned copies disagreed), so matches may be turned or mirrored.`;
+}
+
 function logRequest({ method, path, status: code, ms, ok }) {
   const li = document.createElement('li');
   const what = document.createElement('span');
@@ -298,7 +308,13 @@ async function applyCorrespondence() {
         if (!Array.isArray(data.matches) || data.matches.length !== y.view.n) {
           throw new Error(`POST /correspondences answered ${data.matches?.length} matches for ${y.view.n} points`);
         }
-        state.transfer = { key, matches: Int32Array.from(data.matches), model: data.model, ms };
+        state.transfer = {
+          key,
+          matches: Int32Array.from(data.matches),
+          model: data.model,
+          ms,
+          uncertain: uncertainFrames(data, 'Y', 'X'),
+        };
       } finally {
         setBusy(-1);
       }
@@ -313,7 +329,7 @@ async function applyCorrespondence() {
       colors[j * 3 + 2] = x.colors[k * 3 + 2];
     }
     y.view.setColors(colors);
-    corrStatus(`Colours of X carried to Y through ${matches.length} predicted matches (model ${state.transfer.model}, ${fmt(state.transfer.ms)} ms). Click a point on either shape for its match.`);
+    corrStatus(`Colours of X carried to Y through ${matches.length} predicted matches (model ${state.transfer.model}, ${fmt(state.transfer.ms)} ms). Click a point on either shape for its match.${state.transfer.uncertain}`);
     flag('correspondence', 'ready');
   } catch (error) {
     showError(error);
