@@ -25,20 +25,23 @@ def folder_spec(
     n_extra_sources: int = 16,
     shard_size: int = 16,
     name: str | None = None,
+    poses: bool = False,
 ) -> DatasetSpec:
     """The collection spec of a folder: ``shapes_per_mesh`` training shapes per training file
     and ``eval_shapes_per_mesh`` per validation / test file (40 files → 32 train files → 320
-    training shapes by default).
+    training shapes by default). With ``poses`` (the shapes are poses of rigged files) fewer
+    than three files are shared by every split
+    (:func:`~litege_core.synth.folder.pose_splits`).
 
     Raises:
         InputError: no mesh files, or non-positive counts.
     """
-    from litege_core.synth.folder import list_meshes, split_files
+    from litege_core.synth.folder import list_meshes, pose_splits, split_files
 
     if shapes_per_mesh < 1 or eval_shapes_per_mesh < 0:
         raise InputError("need shapes_per_mesh ≥ 1 and eval_shapes_per_mesh ≥ 0")
     files = list_meshes(meshes_dir)
-    splits = split_files(files, seed)
+    splits = pose_splits(files, seed) if poses else split_files(files, seed)
     counts = {
         "train": len(splits["train"]) * shapes_per_mesh,
         "val": len(splits["val"]) * eval_shapes_per_mesh,

@@ -154,6 +154,15 @@ def split_files(
     }
 
 
+def pose_splits(files: tuple[str, ...], seed: int) -> dict[str, tuple[str, ...]]:
+    """Splits of a collection whose shapes are poses of its files: by file
+    (:func:`split_files`) with three files or more, else every split holds every file and the
+    splits differ by their seeds (held-out poses of the same characters)."""
+    if len(files) >= 3:
+        return split_files(files, seed)
+    return {"train": files, "val": files, "test": files}
+
+
 def folder_digest(directory: str | Path, files: tuple[str, ...]) -> str:
     """SHA-256 (hex, 16 characters) over the names and bytes of ``files`` (a ``.gltf``'s with
     the buffer files it names embedded, :func:`~litege_core.io.self_contained_gltf`)."""
@@ -326,6 +335,7 @@ __all__ = [
     "folder_digest",
     "folder_shape",
     "list_meshes",
+    "pose_splits",
     "prepare_mesh",
     "reference_shape",
     "rigged_model",

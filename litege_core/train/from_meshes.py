@@ -204,7 +204,7 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     from litege_core.datasets.collection import folder_factory
     from litege_core.synth.folder import FolderSettings, check_files
 
-    files = check_folder(options.meshes)
+    files = check_folder(options.meshes, poses=options.poses)
     settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     check_files(options.meshes, files, settings)
     spec = folder_spec(
@@ -216,6 +216,7 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
         n_extra_sources=options.n_extra_sources,
         shard_size=8,
         name=options.name or f"folder-{Path(options.meshes).resolve().name}",
+        poses=options.poses,
     )
     factory: Any = folder_factory(options.meshes, spec, settings)
     if options.time_budget_s is not None:
@@ -257,8 +258,10 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
             counts["train"],
             spec.n_shapes["train"],
         )
+    shared = set(splits.get("train", ())) & set(splits.get("test", ()))
     return {
         "dir": str(options.work_dir / DATA_DIR),
+        "held_out": "held-out test poses" if shared else "held-out test files",
         "files": {split: len(names) for split, names in splits.items()},
         "shapes": counts,
         "planned_shapes": dict(spec.n_shapes),
@@ -267,16 +270,18 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     }
 
 
-def check_folder(meshes: str | Path) -> tuple[str, ...]:
+def check_folder(meshes: str | Path, poses: bool = False) -> tuple[str, ...]:
     """The mesh files of a folder; InputError when there are fewer than three (one train,
-    one validation and one test file at least)."""
+    one validation and one test file at least), unless the shapes are ``poses`` of rigged
+    files (one file is enough: :func:`~litege_core.synth.folder.pose_splits`)."""
     from litege_core.synth.folder import list_meshes
 
     files = list_meshes(meshes)
-    if len(files) < 3:
+    if len(files) < 3 and not poses:
         raise InputError(
             f"{meshes} holds {len(files)} mesh file(s): training needs at least 3 (files are "
-            "split train/val/test by file); 20–50 are better"
+            "split train/val/test by file; 20–50 are better), or --poses for rigged, animated "
+            "glTF files (one is enough)"
         )
     return files
 
@@ -451,7 +456,7 @@ def train_from_meshes(options: FolderTrainOptions) -> dict[str, Any]:
 
         # 2. references on the held-out files
         start = time.monotonic()
-        shapes = collection_eval_shapes(data["dir"], "test", group="held-out test files")
+        shapes = collection_eval_shapes(data["dir"], "test", group=data["held_out"])
         labels = {_label(ref, options.init): ref for ref in references}
         LOG.info(
             "evaluating %s, heat and kNN on %d held-out shapes (%s)",
@@ -554,7 +559,7 @@ def train_from_meshes(options: FolderTrainOptions) -> dict[str, Any]:
     manifest = _write_out(run_dir / BUNDLE_DIR, out, held_out)
     evaluation_md = "\n".join(
         [
-            f"Held-out test files of `{options.meshes}` ({len(shapes)} shapes): "
+            f"{data['held_out'].capitalize()} of `{options.meshes}` ({len(shapes)} shapes): "
             "mean error (median), GT mean = 100.",
             "",
             table,

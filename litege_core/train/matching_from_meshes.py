@@ -239,10 +239,10 @@ def folder_template_spec(
     """The template-kind :class:`~litege_core.datasets.spec.DatasetSpec` of a folder: files
     split by file (fewer than three: every split holds every file, and differs by its seeds),
     shared sources only (``n_extra_sources = 0``, as the matching preset)."""
-    from litege_core.datasets.spec import SPLITS, DatasetSpec
-    from litege_core.synth.folder import split_files
+    from litege_core.datasets.spec import DatasetSpec
+    from litege_core.synth.folder import pose_splits
 
-    splits = split_files(files, seed) if len(files) >= 3 else dict.fromkeys(SPLITS, files)
+    splits = pose_splits(files, seed)
     counts = {
         "train": len(splits["train"]) * shapes_per_mesh,
         "val": len(splits["val"]) * eval_shapes_per_mesh,

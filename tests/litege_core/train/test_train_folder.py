@@ -225,3 +225,27 @@ def test_poses_is_opt_in(tmp_path, monkeypatch, flag, poses):
     argv = ["train", "geodesic", "--meshes", str(tmp_path), "--out", str(tmp_path / "b")]
     assert main([*argv, *flag]) == 0
     assert seen[0].poses is poses
+
+
+def test_one_rig_with_poses_trains_on_its_poses_and_holds_out_others(
+    tmp_path, monkeypatch, capsys, rigged_gltf
+):
+    monkeypatch.setitem(build_module.SOLVERS, "exact", (edge_dijkstra, "edge Dijkstra (test)"))
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    rigged_gltf(folder / "capsule.gltf")
+    with pytest.raises(InputError, match="or --poses"):
+        check_folder(folder)
+    assert check_folder(folder, poses=True) == ("capsule.gltf",)
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    out = tmp_path / "bundle"
+    argv = ["train", "geodesic", "--meshes", str(folder), "--out", str(out), "--poses"]
+    argv += ["--init", "quadrupeds", "--time-budget", "20", "--config", str(config)]
+    argv += ["--vertices", "150,250", "--shapes-per-mesh", "4", "--eval-shapes-per-mesh", "2"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["data"]["files"] == {"train": 1, "val": 1, "test": 1}
+    assert summary["data"]["held_out"] == "held-out test poses"
+    assert summary["data"]["shapes"] == {"train": 4, "val": 2, "test": 2}
+    assert (out / "evaluation.md").read_text().startswith("Held-out test poses of")
