@@ -154,6 +154,11 @@ def split_files(
     }
 
 
+def not_rigs(directory: str | Path, files: tuple[str, ...]) -> list[str]:
+    """The files of ``files`` that are not rigged, animated glTF files (:func:`rigged_model`)."""
+    return [name for name in files if rigged_model(str(Path(directory) / name)) is None]
+
+
 def pose_splits(files: tuple[str, ...], seed: int) -> dict[str, tuple[str, ...]]:
     """Splits of a collection whose shapes are poses of its files: by file
     (:func:`split_files`) with three files or more, else every split holds every file and the
@@ -335,6 +340,7 @@ __all__ = [
     "folder_digest",
     "folder_shape",
     "list_meshes",
+    "not_rigs",
     "pose_splits",
     "prepare_mesh",
     "reference_shape",

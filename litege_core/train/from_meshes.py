@@ -202,9 +202,14 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     the train split bounded by the data share of the budget; returns what was built."""
     from litege_core.datasets import build_dataset, folder_spec
     from litege_core.datasets.collection import folder_factory
-    from litege_core.synth.folder import FolderSettings, check_files
+    from litege_core.synth.folder import FolderSettings, check_files, not_rigs
 
     files = check_folder(options.meshes, poses=options.poses)
+    if len(files) < 3 and not_rigs(options.meshes, files):
+        raise InputError(
+            "with fewer than 3 files every file must be a rigged, animated glTF (--poses: its "
+            f"poses are the held-out shapes); not one: {', '.join(not_rigs(options.meshes, files))}"
+        )
     settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     check_files(options.meshes, files, settings)
     spec = folder_spec(
@@ -685,17 +690,17 @@ def rig_topology(meshes: str | Path) -> tuple[Sequence[str], int, NDArray]:
         InputError: no mesh file, a file that is not such a rig (the first ten named), or two
             bodies of different topology.
     """
-    from litege_core.synth.folder import list_meshes, rigged_model
+    from litege_core.synth.folder import list_meshes, not_rigs, rigged_model
 
     files = list_meshes(meshes)
-    rigs = [(name, rigged_model(str(Path(meshes) / name))) for name in files]
-    not_rigs = [name for name, rig in rigs if rig is None]
-    if not_rigs:
+    others = not_rigs(meshes, files)
+    if others:
         raise InputError(
             f"--poses needs rigged, animated glTF files (.glb or .gltf with a skinned mesh and "
-            f"at least one animation); {len(not_rigs)} of {len(files)} are not: "
-            f"{', '.join(not_rigs[:10])}"
+            f"at least one animation); {len(others)} of {len(files)} are not: "
+            f"{', '.join(others[:10])}"
         )
+    rigs = [(name, rigged_model(str(Path(meshes) / name))) for name in files]
     return files, *_one_topology(
         [(name, len(rig.mesh.vertices), rig.mesh.faces) for name, rig in rigs if rig is not None]
     )

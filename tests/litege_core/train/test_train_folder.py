@@ -237,6 +237,12 @@ def test_one_rig_with_poses_trains_on_its_poses_and_holds_out_others(
     with pytest.raises(InputError, match="or --poses"):
         check_folder(folder)
     assert check_folder(folder, poses=True) == ("capsule.gltf",)
+    static = tmp_path / "static"
+    static.mkdir()
+    _blob(0, 1).export(static / "a.obj")
+    argv = ["train", "geodesic", "--meshes", str(static), "--out", str(tmp_path / "x"), "--poses"]
+    assert main(argv) == 2
+    assert "every file must be a rigged, animated glTF" in capsys.readouterr().err
     config = tmp_path / "tiny.toml"
     config.write_text(TINY)
     out = tmp_path / "bundle"
