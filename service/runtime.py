@@ -61,7 +61,7 @@ from service.jobs import (
 from service.matching import MatchingRepository
 from service.metrics import ServiceMetrics
 from service.repository import Registered, ShapeRepository
-from service.settings import Settings
+from service.settings import AUTO_MODEL, Settings
 from service.store import ArtifactStore, make_store
 
 log = logging.getLogger("litege.runtime")
@@ -511,8 +511,9 @@ class Runtime:
     ) -> Correspondence:
         """Match ``queries`` of the source shape (indices, xyz points in its units, or
         ``"all"``) on the target shape; both must be registered. ``model`` ``None``: the
-        matching model of the source shape's category where the category router is confident
-        (:meth:`_matching_model_of`), else the first loaded.
+        matching model of the source shape's category (:meth:`_matching_model_of`: the
+        category router's where it is confident, else its ``auto`` geodesic model's), else the
+        first loaded.
 
         The queries run in chunks of ``correspond_chunk``, one compute job each, so other
         requests interleave with a large one; a request that times out or is cancelled stops
@@ -527,7 +528,7 @@ class Runtime:
             MethodNotApplicableError: a refinement with a point cloud (from the job).
             MissingDependencyError: a refinement without pyFM (from the job).
         """
-        if model is None and self.repository.router is not None and len(self.matching.models) > 1:
+        if model is None and len(self.matching.models) > 1:
             name = await asyncio.to_thread(self._matching_model_of, source_shape_id)
         else:
             name = self.matching.model_name(model)  # unknown model: fail before queueing
@@ -562,20 +563,30 @@ class Runtime:
         )
 
     def _matching_model_of(self, source_shape_id: str) -> str:
-        """The matching model of a request naming none, with a category router loaded: the
-        (first) matching model of the source shape's category where the router is confident,
-        else the default one. Thread-safe (the shape's geometry, the router's forward pass).
+        """The matching model of a request naming none: the (first) matching model of the
+        source shape's category, that category being the router's where it is loaded and
+        confident, else that of the geodesic model ``auto`` registers the shape with (the
+        lowest OOD score weighed with agreement, as a registration chooses: a shape registered
+        as a human is matched as one) where several are loaded; else the default one.
+        Thread-safe (the shape's geometry, the router's forward pass, the repository).
 
         Raises:
             ShapeNotFoundError: the source shape is not registered.
         """
-        assert self.repository.router is not None
         by_category = first_of_each_category(
             {name: matching.category for name, matching in self.matching.models.items()}
         )
-        shape = self.repository.shape(source_shape_id)
-        routed = self.repository.router.route([shape], by_category)[0]
-        return routed or self.matching.model_name(None)
+        if self.repository.router is not None:
+            shape = self.repository.shape(source_shape_id)
+            routed = self.repository.router.route([shape], by_category)[0]
+            if routed:
+                return routed
+        if len(self.repository.predictors) > 1:
+            chosen = self.repository.get(source_shape_id, AUTO_MODEL).model
+            category = self.repository.predictors[chosen].bundle.category
+            if category in by_category:
+                return by_category[category]
+        return self.matching.model_name(None)
 
     async def _submit(self, kind: str, job: Any, deadline: Deadline, token: CancelToken) -> Any:
         return await self.batcher.submit(kind, job, timeout_s=deadline.remaining(), token=token)

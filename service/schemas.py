@@ -158,8 +158,9 @@ class CorrespondenceRequest(_Request):
     return_distance: bool = Field(False, description="also return the distance at each match")
     model: str | None = Field(
         None,
-        description="matching model (default: the model of the source shape's category where "
-        "the service's category router is confident, else the service's first)",
+        description="matching model (default: the model of the source shape's category: the "
+        "service's category router's where it is confident, else that of the model 'auto' "
+        "registers the shape with; else the service's first)",
     )
     refine: RefineName = Field(
         "none",

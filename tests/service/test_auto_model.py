@@ -220,7 +220,8 @@ def test_correspondences_naming_no_model_follow_the_router(
     live_service_factory, tmp_path_factory, dog, human
 ):
     # both shipped matching models; the fixed router calls every shape a biped (p 0.9997),
-    # then nothing with confidence (p 0.62): the humans model, then the first (quadrupeds)
+    # then nothing with confidence (p 0.62): the humans model, then (one geodesic model, so
+    # no other category to take) the first (quadrupeds)
     for logit, expected in ((8.0, "humans"), (0.5, "quadrupeds")):
         router = _fixed_router(tmp_path_factory.mktemp("router"), logit)
         service = live_service_factory(models=("quadrupeds",), router=router)
@@ -231,6 +232,22 @@ def test_correspondences_naming_no_model_follow_the_router(
             assert answer["model"] == expected and answer["matches"].shape == (2,)
             named = client.correspondences(source, target, [0, 5], model="quadrupeds")
             assert named["model"] == "quadrupeds"
+
+
+def test_correspondences_naming_no_model_follow_the_auto_category_where_the_router_is_unsure(
+    live_service_factory, tmp_path_factory, dog, human
+):
+    # an unsure router (p 0.62): the category of the shape's auto geodesic model decides (the
+    # OOD rule: a human is registered as one, so it is matched by the humans model)
+    router = _fixed_router(tmp_path_factory.mktemp("router"), 0.5)
+    service = live_service_factory(models=MODELS, default_model="auto", router=router)
+    with LiteGEClient(service.base_url) as client:
+        person = client.register_arrays(human.vertices, human.faces)
+        animal = client.register_arrays(dog.vertices, dog.faces)
+        assert (person["model"], animal["model"]) == ("humans", "quadrupeds")
+        ids = (person["shape_id"], animal["shape_id"])
+        assert client.correspondences(*ids, [0, 5])["model"] == "humans"
+        assert client.correspondences(*ids[::-1], [0, 5])["model"] == "quadrupeds"
 
 
 def test_router_setting():
