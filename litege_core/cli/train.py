@@ -256,10 +256,18 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     folder.add_argument("--seed", type=int, default=0, help="seed of the file split and run")
     folder.add_argument("--name", default=None, help="bundle name (default: the folder name)")
     folder.add_argument(
-        "--shapes-per-mesh", type=int, default=10, help="augmented shapes per training file"
+        "--shapes-per-mesh",
+        type=int,
+        default=None,
+        help="augmented shapes per training file (default 10; with --poses and fewer than 3 "
+        "files, 120 in all)",
     )
     folder.add_argument(
-        "--eval-shapes-per-mesh", type=int, default=2, help="shapes per val / test file"
+        "--eval-shapes-per-mesh",
+        type=int,
+        default=None,
+        help="shapes per val / test file (default 2; with --poses and fewer than 3 files, 8 "
+        "in all)",
     )
     folder.add_argument(
         "--vertices", default="2000,4000", help="vertex counts of the remeshed shapes: MIN,MAX"
@@ -362,10 +370,18 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     mfolder.add_argument("--seed", type=int, default=0, help="seed of the file split and run")
     mfolder.add_argument("--name", default=None, help="bundle name (default: the folder name)")
     mfolder.add_argument(
-        "--shapes-per-mesh", type=int, default=20, help="stretched shapes per training file"
+        "--shapes-per-mesh",
+        type=int,
+        default=None,
+        help="stretched shapes per training file (default 20; with --poses and fewer than 3 "
+        "files, 120 in all)",
     )
     mfolder.add_argument(
-        "--eval-shapes-per-mesh", type=int, default=2, help="shapes per val / test file"
+        "--eval-shapes-per-mesh",
+        type=int,
+        default=None,
+        help="shapes per val / test file (default 2; with --poses and fewer than 3 files, 8 "
+        "in all)",
     )
     mfolder.add_argument(
         "--poses",

@@ -168,6 +168,24 @@ def pose_splits(files: tuple[str, ...], seed: int) -> dict[str, tuple[str, ...]]
     return {"train": files, "val": files, "test": files}
 
 
+POSE_SPLIT_SHAPES = (120, 8)
+"""Training and evaluation (val, test) shapes a collection of poses of fewer than three files
+holds by default (:func:`shapes_per_file`): its files are shared by every split
+(:func:`pose_splits`), so per-file defaults made for dozens of files would leave it a handful."""
+
+
+def shapes_per_file(n_files: int, poses: bool, defaults: tuple[int, int]) -> tuple[int, int]:
+    """Default ``(training, evaluation)`` shapes per file: ``defaults``, or for ``poses`` of
+    fewer than three files enough to make :data:`POSE_SPLIT_SHAPES` in all (at least
+    ``defaults``)."""
+    if not poses or n_files >= 3:
+        return defaults
+    return (
+        max(defaults[0], math.ceil(POSE_SPLIT_SHAPES[0] / n_files)),
+        max(defaults[1], math.ceil(POSE_SPLIT_SHAPES[1] / n_files)),
+    )
+
+
 def folder_digest(directory: str | Path, files: tuple[str, ...]) -> str:
     """SHA-256 (hex, 16 characters) over the names and bytes of ``files`` (a ``.gltf``'s with
     the buffer files it names embedded, :func:`~litege_core.io.self_contained_gltf`)."""
@@ -332,6 +350,7 @@ __all__ = [
     "FOLDER_LIMITS",
     "FOLDER_VERSION",
     "MESH_SUFFIXES",
+    "POSE_SPLIT_SHAPES",
     "RIG_POSES",
     "FolderSettings",
     "PreparedMesh",
@@ -345,5 +364,6 @@ __all__ = [
     "prepare_mesh",
     "reference_shape",
     "rigged_model",
+    "shapes_per_file",
     "split_files",
 ]

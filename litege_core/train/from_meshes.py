@@ -76,6 +76,8 @@ SCHEDULE_SAFETY = 0.85
 """Fraction of the measured step rate × time left that the planned schedule spans (other
 processes, validation and checkpoints take the rest; the deadline cuts any overrun)."""
 DEFAULT_VERTEX_RANGE = (2000, 4000)
+DEFAULT_SHAPES_PER_MESH = (10, 2)
+"""Training and evaluation shapes per file of a folder run that names none."""
 FINE_TUNE_TRAIN = {"lr": 1e-3, "eta_min": 1e-5, "epochs": 8, "steps_per_epoch": 500}
 SCRATCH_TRAIN = {"lr": 1e-2, "eta_min": 1e-4, "epochs": 12, "steps_per_epoch": 1000}
 MAX_COMPONENTS = 240
@@ -126,7 +128,9 @@ class FolderTrainOptions:
         time_budget_s: wall-clock budget of the whole call (``None``: none).
         workers: processes computing the ground truth.
         seed: seed of the file split and of training.
-        shapes_per_mesh / eval_shapes_per_mesh: augmented shapes per train / val-test file.
+        shapes_per_mesh / eval_shapes_per_mesh: augmented shapes per train / val-test file
+            (``None``: :data:`DEFAULT_SHAPES_PER_MESH`, or for ``poses`` of fewer than three
+            files :func:`~litege_core.synth.folder.shapes_per_file`'s).
         vertex_range: vertex counts of the remeshed shapes (log-uniform).
         poses: pose each rigged, animated glTF by its own clips (``FolderSettings.poses``);
             ``False`` (default): every file in its stored pose.
@@ -150,8 +154,8 @@ class FolderTrainOptions:
     time_budget_s: float | None = None
     workers: int = 1
     seed: int = 0
-    shapes_per_mesh: int = 10
-    eval_shapes_per_mesh: int = 2
+    shapes_per_mesh: int | None = None
+    eval_shapes_per_mesh: int | None = None
     vertex_range: tuple[int, int] = DEFAULT_VERTEX_RANGE
     poses: bool = False
     n_sources: int = 48
@@ -168,7 +172,7 @@ class FolderTrainOptions:
         check_time_budget(self.time_budget_s)
         if self.workers < 1:
             raise InputError("--workers must be at least 1")
-        if self.shapes_per_mesh < 1 or self.eval_shapes_per_mesh < 1:
+        if (self.shapes_per_mesh or 1) < 1 or (self.eval_shapes_per_mesh or 1) < 1:
             raise InputError("need at least one shape per training and per evaluation file")
 
     @property
@@ -202,7 +206,7 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     the train split bounded by the data share of the budget; returns what was built."""
     from litege_core.datasets import build_dataset, folder_spec
     from litege_core.datasets.collection import folder_factory
-    from litege_core.synth.folder import FolderSettings, check_files, not_rigs
+    from litege_core.synth.folder import FolderSettings, check_files, not_rigs, shapes_per_file
 
     files = check_folder(options.meshes, poses=options.poses)
     if len(files) < 3 and not_rigs(options.meshes, files):
@@ -212,10 +216,11 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
         )
     settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     check_files(options.meshes, files, settings)
+    shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
     spec = folder_spec(
         options.meshes,
-        shapes_per_mesh=options.shapes_per_mesh,
-        eval_shapes_per_mesh=options.eval_shapes_per_mesh,
+        shapes_per_mesh=options.shapes_per_mesh or shapes,
+        eval_shapes_per_mesh=options.eval_shapes_per_mesh or eval_shapes,
         seed=options.seed,
         n_sources=options.n_sources,
         n_extra_sources=options.n_extra_sources,

@@ -65,6 +65,8 @@ TRAIN_SHARE = 0.6
 """Fraction of the time left after the data build that the planned schedule spans (basis
 fit, tables, validation and export take the rest)."""
 DEFAULT_STEPS = 2000
+DEFAULT_SHAPES_PER_MESH = (20, 2)
+"""Training and evaluation shapes per file of a folder run that names none."""
 TNET_SHARE = 0.3
 """Share of the time left after the data build that the T-Net's fine-tune may take."""
 DEFAULT_TNET_STEPS = 600
@@ -181,7 +183,9 @@ class MatchingFolderOptions:
         time_budget_s: wall-clock budget (``None``: :data:`DEFAULT_STEPS` steps).
         workers: ground-truth processes.
         seed: seed of the file split, the stretches and training.
-        shapes_per_mesh / eval_shapes_per_mesh: shapes per train / val-test file.
+        shapes_per_mesh / eval_shapes_per_mesh: shapes per train / val-test file (``None``:
+            :data:`DEFAULT_SHAPES_PER_MESH`, or for ``poses`` of fewer than three files
+            :func:`~litege_core.synth.folder.shapes_per_file`'s).
         n_sources: shared ground-truth sources (farthest points of the template).
         config: a TOML config whose tables override the generated one.
         name: the bundle name (default: the folder's name).
@@ -199,8 +203,8 @@ class MatchingFolderOptions:
     time_budget_s: float | None = None
     workers: int = 1
     seed: int = 0
-    shapes_per_mesh: int = 20
-    eval_shapes_per_mesh: int = 2
+    shapes_per_mesh: int | None = None
+    eval_shapes_per_mesh: int | None = None
     n_sources: int = 48
     config: str | Path | None = None
     name: str | None = None
@@ -216,7 +220,7 @@ class MatchingFolderOptions:
             raise InputError("--workers must be at least 1")
         if self.tnet_steps is not None and self.tnet_steps < 0:
             raise InputError("--tnet-steps must be 0 (keep the T-Net) or more")
-        if self.shapes_per_mesh < 1 or self.eval_shapes_per_mesh < 2:
+        if (self.shapes_per_mesh or 1) < 1 or (self.eval_shapes_per_mesh or 2) < 2:
             raise InputError(
                 "need at least one shape per training file and two per evaluation file "
                 "(validation matches pairs of different shapes)"
@@ -332,7 +336,7 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
     module docstring); returns the JSON-safe summary (also ``OUT/summary.json``)."""
     from litege_core.datasets import build_dataset
     from litege_core.matching.bundle import load_matching_bundle
-    from litege_core.synth.folder import folder_digest
+    from litege_core.synth.folder import folder_digest, shapes_per_file
     from litege_core.train.config import read_toml
     from litege_core.train.from_meshes import rig_topology, shared_topology
     from litege_core.train.matching import train_matching
@@ -349,12 +353,13 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
 
     # 1. data
     files = tuple(files)
+    shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
     spec = folder_template_spec(
         files,
         name=f"folder-matching-{Path(options.meshes).resolve().name}",
         seed=options.seed,
-        shapes_per_mesh=options.shapes_per_mesh,
-        eval_shapes_per_mesh=options.eval_shapes_per_mesh,
+        shapes_per_mesh=options.shapes_per_mesh or shapes,
+        eval_shapes_per_mesh=options.eval_shapes_per_mesh or eval_shapes,
         n_sources=min(options.n_sources, n_vertices),
     )
     factory: Any = FolderTemplateFactory(  # a ShapeFactory (read-only category / version)

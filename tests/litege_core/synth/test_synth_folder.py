@@ -160,3 +160,12 @@ def test_a_file_whose_reference_shape_cannot_be_remeshed_is_named_up_front(tmp_p
     with pytest.raises(InputError, match="1 of 2 mesh files cannot be used") as error:
         check_files(tmp_path, ("good.obj", "torn.obj"), settings)
     assert "torn.obj: the remeshed surface is not a clean manifold" in error.value.message
+
+
+def test_poses_of_few_files_get_enough_shapes_by_default():
+    assert folder.shapes_per_file(1, True, (10, 2)) == (120, 8)  # folder.POSE_SPLIT_SHAPES
+    assert folder.shapes_per_file(2, True, (10, 2)) == (60, 4)
+    assert folder.shapes_per_file(2, True, (200, 9)) == (200, 9)  # never fewer than asked
+    assert folder.shapes_per_file(3, True, (10, 2)) == (10, 2)  # split by file: per file
+    assert folder.shapes_per_file(1, False, (10, 2)) == (10, 2)
+    assert folder.pose_splits(("a.glb",), 0) == {s: ("a.glb",) for s in ("train", "val", "test")}
