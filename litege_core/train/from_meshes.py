@@ -172,7 +172,8 @@ class FolderTrainOptions:
         check_time_budget(self.time_budget_s)
         if self.workers < 1:
             raise InputError("--workers must be at least 1")
-        if (self.shapes_per_mesh or 1) < 1 or (self.eval_shapes_per_mesh or 1) < 1:
+        counts = (self.shapes_per_mesh, self.eval_shapes_per_mesh)
+        if any(count is not None and count < 1 for count in counts):
             raise InputError("need at least one shape per training and per evaluation file")
 
     @property
@@ -219,8 +220,10 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
     spec = folder_spec(
         options.meshes,
-        shapes_per_mesh=options.shapes_per_mesh or shapes,
-        eval_shapes_per_mesh=options.eval_shapes_per_mesh or eval_shapes,
+        shapes_per_mesh=shapes if options.shapes_per_mesh is None else options.shapes_per_mesh,
+        eval_shapes_per_mesh=(
+            eval_shapes if options.eval_shapes_per_mesh is None else options.eval_shapes_per_mesh
+        ),
         seed=options.seed,
         n_sources=options.n_sources,
         n_extra_sources=options.n_extra_sources,

@@ -220,7 +220,9 @@ class MatchingFolderOptions:
             raise InputError("--workers must be at least 1")
         if self.tnet_steps is not None and self.tnet_steps < 0:
             raise InputError("--tnet-steps must be 0 (keep the T-Net) or more")
-        if (self.shapes_per_mesh or 1) < 1 or (self.eval_shapes_per_mesh or 2) < 2:
+        if (self.shapes_per_mesh is not None and self.shapes_per_mesh < 1) or (
+            self.eval_shapes_per_mesh is not None and self.eval_shapes_per_mesh < 2
+        ):
             raise InputError(
                 "need at least one shape per training file and two per evaluation file "
                 "(validation matches pairs of different shapes)"
@@ -358,8 +360,10 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
         files,
         name=f"folder-matching-{Path(options.meshes).resolve().name}",
         seed=options.seed,
-        shapes_per_mesh=options.shapes_per_mesh or shapes,
-        eval_shapes_per_mesh=options.eval_shapes_per_mesh or eval_shapes,
+        shapes_per_mesh=shapes if options.shapes_per_mesh is None else options.shapes_per_mesh,
+        eval_shapes_per_mesh=(
+            eval_shapes if options.eval_shapes_per_mesh is None else options.eval_shapes_per_mesh
+        ),
         n_sources=min(options.n_sources, n_vertices),
     )
     factory: Any = FolderTemplateFactory(  # a ShapeFactory (read-only category / version)

@@ -255,3 +255,21 @@ def test_one_rig_with_poses_trains_on_its_poses_and_holds_out_others(
     assert summary["data"]["held_out"] == "held-out test poses"
     assert summary["data"]["shapes"] == {"train": 4, "val": 2, "test": 2}
     assert (out / "evaluation.md").read_text().startswith("Held-out test poses of")
+
+
+@pytest.mark.parametrize(
+    ("given", "message"),
+    [
+        ({"shapes_per_mesh": 0}, "at least one shape"),
+        ({"eval_shapes_per_mesh": 0}, "at least one shape"),
+    ],
+)
+def test_zero_shapes_per_file_are_refused_not_defaulted(given, message, tmp_path):
+    from litege_core.train.from_meshes import FolderTrainOptions
+    from litege_core.train.matching_from_meshes import MatchingFolderOptions
+
+    with pytest.raises(InputError, match=message):
+        FolderTrainOptions(meshes=tmp_path, out=tmp_path / "b", **given)
+    with pytest.raises(InputError):
+        MatchingFolderOptions(meshes=tmp_path, out=tmp_path / "b", **given)
+    assert FolderTrainOptions(meshes=tmp_path, out=tmp_path / "b").shapes_per_mesh is None
