@@ -207,14 +207,9 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     the train split bounded by the data share of the budget; returns what was built."""
     from litege_core.datasets import build_dataset, folder_spec
     from litege_core.datasets.collection import folder_factory
-    from litege_core.synth.folder import FolderSettings, check_files, not_rigs, shapes_per_file
+    from litege_core.synth.folder import FolderSettings, check_files, shapes_per_file
 
     files = check_folder(options.meshes, poses=options.poses)
-    if len(files) < 3 and not_rigs(options.meshes, files):
-        raise InputError(
-            "with fewer than 3 files every file must be a rigged, animated glTF (--poses: its "
-            f"poses are the held-out shapes); not one: {', '.join(not_rigs(options.meshes, files))}"
-        )
     settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     check_files(options.meshes, files, settings)
     shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
@@ -286,8 +281,9 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
 def check_folder(meshes: str | Path, poses: bool = False) -> tuple[str, ...]:
     """The mesh files of a folder; InputError when there are fewer than three (one train,
     one validation and one test file at least), unless the shapes are ``poses`` of rigged
-    files (one file is enough: :func:`~litege_core.synth.folder.pose_splits`)."""
-    from litege_core.synth.folder import list_meshes
+    files and every file is one (one file is enough:
+    :func:`~litege_core.synth.folder.pose_splits`)."""
+    from litege_core.synth.folder import list_meshes, not_rigs
 
     files = list_meshes(meshes)
     if len(files) < 3 and not poses:
@@ -295,6 +291,12 @@ def check_folder(meshes: str | Path, poses: bool = False) -> tuple[str, ...]:
             f"{meshes} holds {len(files)} mesh file(s): training needs at least 3 (files are "
             "split train/val/test by file; 20–50 are better), or --poses for rigged, animated "
             "glTF files (one is enough)"
+        )
+    others = not_rigs(meshes, files) if len(files) < 3 else []
+    if others:
+        raise InputError(
+            "with fewer than 3 files every file must be a rigged, animated glTF (--poses: its "
+            f"poses are the held-out shapes); not one: {', '.join(others)}"
         )
     return files
 
@@ -698,17 +700,17 @@ def rig_topology(meshes: str | Path) -> tuple[Sequence[str], int, NDArray]:
         InputError: no mesh file, a file that is not such a rig (the first ten named), or two
             bodies of different topology.
     """
-    from litege_core.synth.folder import list_meshes, not_rigs, rigged_model
+    from litege_core.synth.folder import list_meshes, rigged_model
 
     files = list_meshes(meshes)
-    others = not_rigs(meshes, files)
+    rigs = [(name, rigged_model(str(Path(meshes) / name))) for name in files]
+    others = [name for name, rig in rigs if rig is None]
     if others:
         raise InputError(
             f"--poses needs rigged, animated glTF files (.glb or .gltf with a skinned mesh and "
             f"at least one animation); {len(others)} of {len(files)} are not: "
             f"{', '.join(others[:10])}"
         )
-    rigs = [(name, rigged_model(str(Path(meshes) / name))) for name in files]
     return files, *_one_topology(
         [(name, len(rig.mesh.vertices), rig.mesh.faces) for name, rig in rigs if rig is not None]
     )
