@@ -35,6 +35,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -174,16 +175,31 @@ holds by default (:func:`shapes_per_file`): its files are shared by every split
 (:func:`pose_splits`), so per-file defaults made for dozens of files would leave it a handful."""
 
 
-def shapes_per_file(n_files: int, poses: bool, defaults: tuple[int, int]) -> tuple[int, int]:
-    """Default ``(training, evaluation)`` shapes per file: ``defaults``, or for ``poses`` of
-    fewer than three files enough to make :data:`POSE_SPLIT_SHAPES` in all (at least
-    ``defaults``)."""
-    if not poses or n_files >= 3:
-        return defaults
+def shapes_per_file(
+    n_files: int,
+    poses: bool,
+    defaults: tuple[int, int],
+    given: tuple[int | None, int | None] = (None, None),
+) -> tuple[int, int]:
+    """``(training, evaluation)`` shapes per file: each ``given`` count, or where it is
+    ``None`` its default: ``defaults``, or for ``poses`` of fewer than three files enough to
+    make :data:`POSE_SPLIT_SHAPES` in all (at least ``defaults``)."""
+    if poses and n_files < 3:
+        defaults = (
+            max(defaults[0], math.ceil(POSE_SPLIT_SHAPES[0] / n_files)),
+            max(defaults[1], math.ceil(POSE_SPLIT_SHAPES[1] / n_files)),
+        )
     return (
-        max(defaults[0], math.ceil(POSE_SPLIT_SHAPES[0] / n_files)),
-        max(defaults[1], math.ceil(POSE_SPLIT_SHAPES[1] / n_files)),
+        defaults[0] if given[0] is None else given[0],
+        defaults[1] if given[1] is None else given[1],
     )
+
+
+def splits_share_files(splits: Mapping[str, Sequence[str]]) -> bool:
+    """Whether a file lies in more than one split (:func:`pose_splits` of fewer than three
+    files: the held-out shapes are other poses of the training files)."""
+    names = [name for split in splits.values() for name in split]
+    return len(set(names)) < len(names)
 
 
 def folder_digest(directory: str | Path, files: tuple[str, ...]) -> str:
@@ -366,4 +382,5 @@ __all__ = [
     "rigged_model",
     "shapes_per_file",
     "split_files",
+    "splits_share_files",
 ]

@@ -207,18 +207,26 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
     the train split bounded by the data share of the budget; returns what was built."""
     from litege_core.datasets import build_dataset, folder_spec
     from litege_core.datasets.collection import folder_factory
-    from litege_core.synth.folder import FolderSettings, check_files, shapes_per_file
+    from litege_core.synth.folder import (
+        FolderSettings,
+        check_files,
+        shapes_per_file,
+        splits_share_files,
+    )
 
     files = check_folder(options.meshes, poses=options.poses)
     settings = FolderSettings(vertex_range=options.vertex_range, poses=options.poses)
     check_files(options.meshes, files, settings)
-    shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
+    shapes, eval_shapes = shapes_per_file(
+        len(files),
+        options.poses,
+        DEFAULT_SHAPES_PER_MESH,
+        (options.shapes_per_mesh, options.eval_shapes_per_mesh),
+    )
     spec = folder_spec(
         options.meshes,
-        shapes_per_mesh=shapes if options.shapes_per_mesh is None else options.shapes_per_mesh,
-        eval_shapes_per_mesh=(
-            eval_shapes if options.eval_shapes_per_mesh is None else options.eval_shapes_per_mesh
-        ),
+        shapes_per_mesh=shapes,
+        eval_shapes_per_mesh=eval_shapes,
         seed=options.seed,
         n_sources=options.n_sources,
         n_extra_sources=options.n_extra_sources,
@@ -266,10 +274,9 @@ def build_folder_data(options: FolderTrainOptions, clock: _Clock) -> dict[str, A
             counts["train"],
             spec.n_shapes["train"],
         )
-    shared = set(splits.get("train", ())) & set(splits.get("test", ()))
     return {
         "dir": str(options.work_dir / DATA_DIR),
-        "held_out": "held-out test poses" if shared else "held-out test files",
+        "held_out": "held-out test poses" if splits_share_files(splits) else "held-out test files",
         "files": {split: len(names) for split, names in splits.items()},
         "shapes": counts,
         "planned_shapes": dict(spec.n_shapes),

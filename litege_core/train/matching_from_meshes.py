@@ -355,15 +355,18 @@ def train_matching_from_meshes(options: MatchingFolderOptions) -> dict[str, Any]
 
     # 1. data
     files = tuple(files)
-    shapes, eval_shapes = shapes_per_file(len(files), options.poses, DEFAULT_SHAPES_PER_MESH)
+    shapes, eval_shapes = shapes_per_file(
+        len(files),
+        options.poses,
+        DEFAULT_SHAPES_PER_MESH,
+        (options.shapes_per_mesh, options.eval_shapes_per_mesh),
+    )
     spec = folder_template_spec(
         files,
         name=f"folder-matching-{Path(options.meshes).resolve().name}",
         seed=options.seed,
-        shapes_per_mesh=shapes if options.shapes_per_mesh is None else options.shapes_per_mesh,
-        eval_shapes_per_mesh=(
-            eval_shapes if options.eval_shapes_per_mesh is None else options.eval_shapes_per_mesh
-        ),
+        shapes_per_mesh=shapes,
+        eval_shapes_per_mesh=eval_shapes,
         n_sources=min(options.n_sources, n_vertices),
     )
     factory: Any = FolderTemplateFactory(  # a ShapeFactory (read-only category / version)
@@ -496,14 +499,9 @@ def tune_folder_tnet(
     )
 
 
-def _split_by_file(files: dict[str, list[str]]) -> bool:
-    """Whether each file of a split map is in one split only."""
-    return len({name for names in files.values() for name in names}) == sum(
-        len(names) for names in files.values()
-    )
-
-
 def _model_card(manifest: dict[str, Any], collection: dict[str, Any]) -> str:
+    from litege_core.synth.folder import splits_share_files
+
     metrics = manifest.get("metrics", {})
     lines = [
         f"# {manifest['name']} (matching)",
@@ -516,7 +514,7 @@ def _model_card(manifest: dict[str, Any], collection: dict[str, Any]) -> str:
         "- files ("
         + (
             f"split by file, seed {collection['seed']}"
-            if _split_by_file(collection["files"])
+            if not splits_share_files(collection["files"])
             else "every file in every split: the splits hold different poses"
         )
         + "): "

@@ -168,4 +168,10 @@ def test_poses_of_few_files_get_enough_shapes_by_default():
     assert folder.shapes_per_file(2, True, (200, 9)) == (200, 9)  # never fewer than asked
     assert folder.shapes_per_file(3, True, (10, 2)) == (10, 2)  # split by file: per file
     assert folder.shapes_per_file(1, False, (10, 2)) == (10, 2)
-    assert folder.pose_splits(("a.glb",), 0) == {s: ("a.glb",) for s in ("train", "val", "test")}
+    assert folder.shapes_per_file(1, True, (10, 2), (5, None)) == (5, 8)  # given counts win
+    assert folder.shapes_per_file(3, False, (10, 2), (None, 0)) == (10, 0)
+    shared = folder.pose_splits(("a.glb",), 0)
+    assert shared == {s: ("a.glb",) for s in ("train", "val", "test")}
+    assert folder.splits_share_files(shared)
+    by_file = folder.pose_splits(("a.glb", "b.glb", "c.glb"), 0)
+    assert not folder.splits_share_files(by_file)
